@@ -1,0 +1,3 @@
+from minirt.cli import main
+
+main()

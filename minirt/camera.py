@@ -1,0 +1,69 @@
+"""Primary rays, exactly as the exercise builds them, shared by the tracer and every oracle.
+
+Pixel (x, y), y = 0 the top row, sub-pixel position (u, v) in [0, 1)^2 measured from the pixel's
+top-left corner: image-plane point ``((x + u)/W - 0.5, -(y + v)/H + 0.5, 0)``. The exercise's own
+ray is (u, v) = (0, 0), the corner (rule ``pixel_sample = "corner"``); ``"center"`` is (0.5, 0.5).
+Direction: normalise(point - camera); origin: the image-plane point (rule ``ray_origin =
+"image-plane"``) or the camera (``"camera"``). Rays are returned row-major, (H*W, 3) float64.
+
+Several samples per pixel (``samples = n > 1``) use a stratified, jittered pattern: a grid of
+gx = ceil(sqrt(n)) columns and gy = ceil(n / gx) rows over the pixel, sample s in cell
+(s mod gx, s div gx), jittered uniformly inside its cell by NumPy's PCG64 seeded with (seed, s).
+Each sample index draws its own stream, so the pattern does not depend on batching.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from minirt.rules import Rules
+from minirt.scene import Scene
+
+SAMPLE_SEED = 13_1  # fixed: renders are bit-reproducible
+
+
+def pixel_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row-major pixel coordinates (x, y) as float64 arrays of length W*H."""
+    y, x = np.divmod(np.arange(width * height, dtype=np.int64), width)
+    return x.astype(np.float64), y.astype(np.float64)
+
+
+def rays_through(scene: Scene, rules: Rules, u: np.ndarray | float, v: np.ndarray | float):
+    """Origins and unit directions of the rays through sub-pixel positions (u, v) of every pixel."""
+    w, h = scene.camera.width, scene.camera.height
+    x, y = pixel_grid(w, h)
+    px = (x + u) / w - 0.5
+    py = -(y + v) / h + 0.5
+    pz = np.zeros_like(px)
+    cz = -scene.camera.distance
+    # direction = point - camera, camera at (0, 0, -d); written out so the rounding is the exercise's
+    dx, dy, dz = px - 0.0, py - 0.0, pz - cz
+    norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+    d = np.stack([dx / norm, dy / norm, dz / norm], axis=1)
+    if rules.ray_origin == "camera":
+        o = np.tile(np.array([0.0, 0.0, cz]), (w * h, 1))
+    else:
+        o = np.stack([px, py, pz], axis=1)
+    return o, d
+
+
+def primary_rays(scene: Scene, rules: Rules) -> tuple[np.ndarray, np.ndarray]:
+    """The one-ray-per-pixel rays (the rule ``pixel_sample`` says corner or centre)."""
+    uv = 0.0 if rules.pixel_sample == "corner" else 0.5
+    return rays_through(scene, rules, uv, uv)
+
+
+def stratified_grid(n: int) -> tuple[int, int]:
+    gx = math.ceil(math.sqrt(n))
+    return gx, math.ceil(n / gx)
+
+
+def sample_offsets(n: int, s: int, count: int, seed: int = SAMPLE_SEED) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel positions (u, v) of sample s (of n) for `count` pixels: stratified and jittered."""
+    gx, gy = stratified_grid(n)
+    cx, cy = s % gx, s // gx
+    rng = np.random.Generator(np.random.PCG64([seed, s]))
+    j = rng.random((count, 2))
+    return (cx + j[:, 0]) / gx, (cy + j[:, 1]) / gy

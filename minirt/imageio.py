@@ -1,0 +1,163 @@
+"""Image and sidecar I/O. All images go through OpenImageIO; every write is atomic.
+
+A file is written to a temporary name beside its destination and renamed into place, so an
+interrupted or failing render never leaves a half-written output file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import OpenImageIO as oiio
+
+from minirt.errors import MinirtError
+from minirt.result import TERMS, RenderResult
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path):
+    """Yield a temporary path beside `path` (same extension); rename it into place on success."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_image(path: str | Path, pixels: np.ndarray, channels: list[str] | None = None) -> None:
+    """Write an (H, W, C) or (H, W) array. uint8/uint16 stay integer; floats are stored as float32."""
+    path = Path(path)
+    a = np.ascontiguousarray(pixels if pixels.ndim == 3 else pixels[..., None])
+    h, w, c = a.shape
+    if a.dtype == np.uint8:
+        fmt = oiio.UINT8
+    elif a.dtype == np.uint16:
+        fmt = oiio.UINT16
+    else:
+        a, fmt = a.astype(np.float32), oiio.FLOAT
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    if channels:
+        spec.channelnames = tuple(channels)
+    if path.suffix.lower() == ".exr":
+        spec.attribute("compression", "zip")
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise MinirtError(f"{path}: cannot write image: {oiio.geterror()}")
+        ok = out.open(str(tmp), spec) and out.write_image(a) and out.close()
+        if not ok:
+            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+
+
+def read_image(path: str | Path) -> tuple[np.ndarray, list[str]]:
+    """Read any image as float32 (H, W, C) with its channel names."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise MinirtError(f"{path}: cannot read image: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        if data is None:
+            raise MinirtError(f"{path}: cannot read image: {inp.geterror()}")
+        return np.asarray(data).reshape(spec.height, spec.width, spec.nchannels), list(spec.channelnames)
+    finally:
+        inp.close()
+
+
+def read_image_u8(path: str | Path) -> np.ndarray:
+    """Read an 8-bit image's integer values (H, W, C) exactly."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise MinirtError(f"{path}: cannot read image: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UINT8)
+        return np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
+    finally:
+        inp.close()
+
+
+def exr_channels(result: RenderResult) -> tuple[np.ndarray, list[str]]:
+    """All of a result's buffers as one multi-channel image (the EXR layout)."""
+    planes: list[np.ndarray] = []
+    names: list[str] = []
+
+    def add(prefix: str, a: np.ndarray | None, comps: str = "RGB") -> None:
+        if a is None:
+            return
+        a = np.asarray(a, dtype=np.float64)
+        if a.ndim == 2:
+            planes.append(a)
+            names.append(prefix)
+        else:
+            for i, comp in enumerate(comps):
+                planes.append(a[..., i])
+                names.append(f"{prefix}.{comp}" if prefix else comp)
+
+    add("", result.color)
+    if result.hit is not None:
+        add("hit", result.hit.astype(np.float64))
+        add("id", result.shape_id.astype(np.float64))
+        add("t", np.where(result.hit, result.t, 0.0))  # 0 on a miss: EXR readers choke on inf
+        add("P", result.position, "XYZ")
+        add("N", result.normal, "XYZ")
+    for term in TERMS:
+        add(term, result.terms.get(term))
+    for key in sorted(result.aux):
+        add(f"aux.{key}", result.aux[key], "XYZ")
+    return np.stack(planes, axis=-1), names
+
+
+def write_result(result: RenderResult, out_dir: str | Path, stem: str) -> dict[str, Path]:
+    """Write `stem.png` (the 8-bit bitmap), `stem.exr` (every buffer) and `stem.json` (metadata)."""
+    out_dir = Path(out_dir)
+    paths: dict[str, Path] = {}
+    if result.color is not None:
+        paths["png"] = out_dir / f"{stem}.png"
+        write_image(paths["png"], result.color8())
+    if result.hit is not None or result.color is not None:
+        data, names = exr_channels(result)
+        paths["exr"] = out_dir / f"{stem}.exr"
+        write_image(paths["exr"], data, names)
+    paths["json"] = out_dir / f"{stem}.json"
+    write_json(paths["json"], sidecar(result))
+    return paths
+
+
+def sidecar(result: RenderResult) -> dict[str, Any]:
+    return {
+        "backend": result.backend,
+        "status": result.status,
+        "reason": result.reason,
+        "width": result.width,
+        "height": result.height,
+        **result.meta,
+    }
+
+
+def write_json(path: str | Path, data: Any) -> None:
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, sort_keys=True, default=_jsonable) + "\n")
+
+
+def _jsonable(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    if hasattr(o, "as_dict"):
+        return o.as_dict()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

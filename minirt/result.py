@@ -1,0 +1,74 @@
+"""RenderResult: the one type every backend returns (the reference tracer and every oracle).
+
+All arrays are NumPy, row-major images of shape (H, W) or (H, W, 3), y = 0 the top row:
+- ``hit`` (bool), ``shape_id`` (int32, -1 on a miss), ``t`` (float64, distance along the primary
+  ray from its origin, +inf on a miss), ``position`` and ``normal`` (float64, 0 on a miss);
+- ``color`` (float64, linear, before clamping) where the backend shades, else None;
+- ``terms``: the shading terms that add up to ``color`` (ambient, diffuse, specular, reflection,
+  background) where the backend has them;
+- ``aux``: backend-specific per-pixel buffers the harness needs (e.g. Mitsuba's light distance);
+- ``meta``: backend, version, settings, rules, effects simulated/skipped, timings, commands run.
+A backend that could not run returns status "skip" or "error" with a reason and no buffers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+TERMS = ("ambient", "diffuse", "specular", "reflection", "background")
+
+
+@dataclass
+class RenderResult:
+    backend: str
+    width: int
+    height: int
+    status: str = "ok"  # "ok" | "skip" | "error"
+    reason: str = ""
+    hit: np.ndarray | None = None
+    shape_id: np.ndarray | None = None
+    t: np.ndarray | None = None
+    position: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    color: np.ndarray | None = None
+    terms: dict[str, np.ndarray] = field(default_factory=dict)
+    aux: dict[str, np.ndarray] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @classmethod
+    def failed(cls, backend: str, width: int, height: int, status: str, reason: str, **meta: Any) -> RenderResult:
+        assert status in ("skip", "error")
+        return cls(backend=backend, width=width, height=height, status=status, reason=reason, meta=dict(meta))
+
+    def color8(self) -> np.ndarray | None:
+        """The exercise's bitmap: clamp to [0, 1], then floor(c * 255 + 0.5), no gamma."""
+        if self.color is None:
+            return None
+        return to8(self.color)
+
+    def has_geometry(self) -> bool:
+        return self.hit is not None
+
+
+def to8(color: np.ndarray) -> np.ndarray:
+    c = np.clip(np.nan_to_num(color, nan=0.0), 0.0, 1.0)
+    return np.floor(c * 255.0 + 0.5).astype(np.uint8)
+
+
+def geometry_from_flat(
+    width: int, height: int, shape_id: np.ndarray, t: np.ndarray, position: np.ndarray, normal: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Reshape flat per-ray buffers (N,), (N, 3) into image buffers, with misses normalised."""
+    sid = np.asarray(shape_id, dtype=np.int32).reshape(height, width)
+    hit = sid >= 0
+    t = np.where(hit, np.asarray(t, dtype=np.float64).reshape(height, width), np.inf)
+    pos = np.where(hit[..., None], np.asarray(position, dtype=np.float64).reshape(height, width, 3), 0.0)
+    nrm = np.where(hit[..., None], np.asarray(normal, dtype=np.float64).reshape(height, width, 3), 0.0)
+    return {"hit": hit, "shape_id": sid, "t": t, "position": pos, "normal": nrm}

@@ -1,0 +1,311 @@
+"""The scene format (TOML) and the scene model: Ball, Plane, Material, Camera, Light, Scene.
+
+Validation is done by pydantic (strict types, unknown keys forbidden, finite numbers only), and
+its errors are rewritten into one line per problem: ``scenes/x.toml: shapes[2].radius: must be > 0,
+got -1``. Everything after loading works on the frozen dataclasses at the bottom of this file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from minirt.errors import SceneError
+
+Vec3 = tuple[float, float, float]
+
+_Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
+_NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False, strict=True)]
+# TOML arrays arrive as lists: the triple itself is lax (list -> tuple), its components stay strict.
+_Vec = Annotated[tuple[_Finite, _Finite, _Finite], Field(strict=False)]
+_Color = Annotated[tuple[_NonNeg, _NonNeg, _NonNeg], Field(strict=False)]
+
+
+class _Strict(BaseModel):
+    # strict: "1.0" is not a number and true is not 1; ints are still accepted where floats are asked.
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+
+class _SceneInfo(_Strict):
+    name: str | None = None
+    description: str = ""
+
+
+class _Camera(_Strict):
+    distance: Annotated[float, Field(gt=0, allow_inf_nan=False)]
+    width: Annotated[int, Field(ge=1, le=16384)] = 256
+    height: Annotated[int, Field(ge=1, le=16384)] = 256
+
+
+class _Light(_Strict):
+    position: _Vec
+    color: _Color = (1.0, 1.0, 1.0)
+
+
+class _Render(_Strict):
+    background: _Color = (0.0, 0.0, 0.0)
+    max_depth: Annotated[int, Field(ge=0, le=64)] = 3
+    samples: Annotated[int, Field(ge=1, le=65536)] = 1
+    profile: str = "exercise"
+
+
+class _Material(_Strict):
+    ambient: _Color = (0.0, 0.0, 0.0)
+    diffuse: _Color = (0.0, 0.0, 0.0)
+    specular: _Color = (0.0, 0.0, 0.0)
+    reflection: _Color = (0.0, 0.0, 0.0)
+
+
+class _Ball(_Strict):
+    type: Literal["ball"]
+    center: _Vec
+    radius: Annotated[float, Field(gt=0, allow_inf_nan=False)]
+    material: str
+
+
+class _Plane(_Strict):
+    type: Literal["plane"]
+    normal: _Vec
+    distance: _Finite
+    material: str
+
+    @field_validator("normal")
+    @classmethod
+    def _nonzero(cls, v: Vec3) -> Vec3:
+        n = math.sqrt(sum(c * c for c in v))
+        if not n > 0 or not math.isfinite(n):
+            raise ValueError(f"must be a non-zero vector, got {list(v)}")
+        return v
+
+
+class _SceneFile(_Strict):
+    scene: _SceneInfo = _SceneInfo()
+    camera: _Camera
+    light: _Light
+    render: _Render = _Render()
+    model: dict[str, Any] = {}
+    materials: dict[str, _Material] = {}
+    shapes: list[Annotated[_Ball | _Plane, Field(discriminator="type")]] = []
+
+    @model_validator(mode="after")
+    def _materials_exist(self) -> _SceneFile:
+        missing = [(i, s.material) for i, s in enumerate(self.shapes) if s.material not in self.materials]
+        if missing:
+            i, name = missing[0]
+            known = ", ".join(sorted(self.materials)) or "none defined"
+            raise ValueError(f"shapes[{i}].material: unknown material {name!r} (known: {known})")
+        return self
+
+
+# ---------------------------------------------------------------------------------------------
+# The scene model used by everything downstream.
+
+
+@dataclass(frozen=True)
+class Material:
+    ambient: Vec3 = (0.0, 0.0, 0.0)
+    diffuse: Vec3 = (0.0, 0.0, 0.0)
+    specular: Vec3 = (0.0, 0.0, 0.0)
+    reflection: Vec3 = (0.0, 0.0, 0.0)
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Ball:
+    center: Vec3
+    radius: float
+    material: Material
+
+
+@dataclass(frozen=True)
+class Plane:
+    """All x with dot(x, normal) = distance; stored normalised (normal and distance divided by |normal|)."""
+
+    normal: Vec3
+    distance: float
+    material: Material
+
+    @property
+    def point(self) -> Vec3:
+        """The plane's point nearest the origin, Q = distance * normal (the point-normal form)."""
+        return (
+            self.normal[0] * self.distance,
+            self.normal[1] * self.distance,
+            self.normal[2] * self.distance,
+        )
+
+
+Shape = Ball | Plane
+
+
+@dataclass(frozen=True)
+class Camera:
+    distance: float
+    width: int = 256
+    height: int = 256
+
+    @property
+    def position(self) -> Vec3:
+        return (0.0, 0.0, -self.distance)
+
+
+@dataclass(frozen=True)
+class Light:
+    position: Vec3
+    color: Vec3 = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Scene:
+    name: str
+    description: str
+    camera: Camera
+    light: Light
+    background: Vec3
+    max_depth: int
+    samples: int
+    profile: str
+    model: dict[str, Any]
+    shapes: tuple[Shape, ...]
+    source: str = ""  # file it came from, for messages
+    digest: str = ""  # sha256 of the file's bytes
+    materials: dict[str, Material] = field(default_factory=dict)
+
+    def with_overrides(self, **kw: Any) -> Scene:
+        """A copy with camera size, samples, profile or max_depth replaced (CLI flags)."""
+        from dataclasses import replace
+
+        cam = self.camera
+        if kw.get("width") is not None or kw.get("height") is not None:
+            cam = replace(cam, width=kw.get("width") or cam.width, height=kw.get("height") or cam.height)
+        out = replace(self, camera=cam)
+        for key in ("samples", "profile", "max_depth"):
+            if kw.get(key) is not None:
+                out = replace(out, **{key: kw[key]})
+        return out
+
+
+def _loc(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part in ("ball", "plane", "tagged-union[_Ball,_Plane]"):
+            continue  # pydantic's discriminator step, not a key in the file
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def _message(err: dict[str, Any]) -> str:
+    kind, ctx, value = err["type"], err.get("ctx", {}), err.get("input")
+    shown = repr(value) if isinstance(value, str) else value
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"must be a finite number, got {value}"
+    if kind == "finite_number":
+        return f"must be a finite number, got {shown}"
+    if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
+        op = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}[kind]
+        bound = next(iter(ctx.values()))
+        return f"must be {op} {bound}, got {shown}"
+    if kind == "missing":
+        return "missing (required)"
+    if kind == "extra_forbidden":
+        return "unknown key"
+    if kind in ("float_type", "int_type", "string_type", "bool_type", "dict_type", "list_type", "tuple_type"):
+        want = kind.split("_")[0].replace("float", "number").replace("int", "integer")
+        return f"must be a {want}, got {type(value).__name__} {shown}"
+    if kind in ("too_short", "too_long"):
+        return f"must have 3 components, got {shown}"
+    if kind == "union_tag_invalid":
+        return f"unknown shape type {ctx.get('tag')!r} (expected 'ball' or 'plane')"
+    if kind == "union_tag_not_found":
+        return "missing key 'type' ('ball' or 'plane')"
+    if kind == "value_error":
+        return str(ctx.get("error", err["msg"]))
+    return err["msg"]
+
+
+def parse_scene(text: str, source: str = "<scene>") -> Scene:
+    """Parse and validate TOML text; raise SceneError with one line per problem."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{source}: TOML syntax error: {e}") from None
+    try:
+        f = _SceneFile.model_validate(raw)
+    except ValidationError as e:
+        lines = []
+        for err in e.errors(include_url=False):
+            where = _loc(err["loc"])
+            msg = _message(err)
+            if err["type"] == "value_error" and msg.startswith("shapes["):
+                lines.append(f"{source}: {msg}")
+            else:
+                lines.append(f"{source}: {where}: {msg}" if where else f"{source}: {msg}")
+        raise SceneError(*lines) from None
+
+    from minirt.rules import validate_model_table  # late: rules imports scene types
+
+    problems = validate_model_table(f.render.profile, f.model)
+    if problems:
+        raise SceneError(*(f"{source}: {p}" for p in problems))
+
+    materials = {name: Material(**m.model_dump(), name=name) for name, m in f.materials.items()}
+    shapes: list[Shape] = []
+    for s in f.shapes:
+        if isinstance(s, _Ball):
+            shapes.append(Ball(center=s.center, radius=float(s.radius), material=materials[s.material]))
+        else:
+            n = math.sqrt(sum(c * c for c in s.normal))
+            shapes.append(
+                Plane(
+                    normal=(s.normal[0] / n, s.normal[1] / n, s.normal[2] / n),
+                    distance=s.distance / n,
+                    material=materials[s.material],
+                )
+            )
+    name = f.scene.name or Path(source).stem
+    return Scene(
+        name=name,
+        description=f.scene.description,
+        camera=Camera(distance=float(f.camera.distance), width=f.camera.width, height=f.camera.height),
+        light=Light(position=_floats(f.light.position), color=_floats(f.light.color)),
+        background=_floats(f.render.background),
+        max_depth=f.render.max_depth,
+        samples=f.render.samples,
+        profile=f.render.profile,
+        model=dict(f.model),
+        shapes=tuple(shapes),
+        source=source,
+        digest=hashlib.sha256(text.encode()).hexdigest(),
+        materials=materials,
+    )
+
+
+def _floats(v: tuple[float, ...]) -> Vec3:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read a scene file. Errors (missing file, syntax, validation) raise SceneError."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except FileNotFoundError:
+        raise SceneError(f"{p}: no such scene file") from None
+    except IsADirectoryError:
+        raise SceneError(f"{p}: is a directory, not a scene file") from None
+    except OSError as e:
+        raise SceneError(f"{p}: cannot read: {e.strerror}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{p}: not UTF-8 text (byte {e.start})") from None
+    return parse_scene(text, str(p))

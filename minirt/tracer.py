@@ -1,0 +1,424 @@
+"""The reference tracer: the exercise's model (problem 13.1), vectorised with Dr.Jit's LLVM backend.
+
+Structure follows the problem set: ``Ball`` and ``Plane`` each ``intersect`` a ray and give a
+``normal``; ``Scene.Intersect`` (here :meth:`Tracer.closest`) keeps the closest hit; ``TraceRay``
+(here :meth:`Tracer.trace`) adds ambient, the shadow-tested diffuse and specular terms, the
+reflection and the background, in the pseudo-code's order.
+
+The recursion is traced as a wavefront: one fused kernel per reflection level over all rays of that
+level, then only the rays that hit something reflective are compacted (``dr.compress``) into the
+next level. Colours are combined back to front, ``c = local + kr * c_child``, which is exactly the
+recursive form's arithmetic. Dr.Jit's FastMath is switched off while tracing: the NaN/inf guards
+below and the stable intersection forms rely on IEEE semantics.
+
+Numerics (see ``docs/numerics`` in the README and the notes in the code):
+- Ball: f = o - C, b = f·d (d unit), discriminant r^2 - |f - b d|^2 computed as (r - |g|)(r + |g|)
+  with g = f - b d, then q = -(b + sign(b) sqrt(disc)), roots c/q and q with c = (|f| - r)(|f| + r).
+  This avoids both cancellations of the textbook form (small/far balls, near root of big balls).
+- Plane: point-normal form t = n·(Q - o) / (n·d) with Q = a n; a parallel ray (n·d = 0) misses.
+- Only t > 0 counts (the exercise's "positive side"); ties go to the lower shape id.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+from minirt import camera
+from minirt.engine import require_llvm
+from minirt.result import TERMS, RenderResult, geometry_from_flat
+from minirt.rules import Effects, Rules, effects
+from minirt.scene import Ball, Plane, Scene
+
+
+def gamma(n: int, u: float) -> float:
+    """pbrt's gamma(n) = n u / (1 - n u): bound on the relative error of n chained roundings."""
+    return n * u / (1 - n * u)
+
+
+@dataclass
+class _Types:
+    Float: Any
+    UInt: Any
+    Int: Any
+    Bool: Any
+    Array3: Any
+    Bits: Any
+    np_dtype: Any
+    u: float  # unit round-off
+
+    @classmethod
+    def of(cls, precision: str) -> _Types:
+        from drjit import llvm
+
+        if precision == "f64":
+            return cls(
+                llvm.Float64,
+                llvm.UInt32,
+                llvm.Int32,
+                llvm.Bool,
+                llvm.Array3f64,
+                llvm.UInt64,
+                np.float64,
+                2.0**-53,
+            )
+        if precision == "f32":
+            return cls(
+                llvm.Float,
+                llvm.UInt32,
+                llvm.Int32,
+                llvm.Bool,
+                llvm.Array3f,
+                llvm.UInt32,
+                np.float32,
+                2.0**-24,
+            )
+        raise ValueError(f"unknown precision {precision!r} (f64 or f32)")
+
+
+@dataclass
+class Level:
+    """One reflection level of the wavefront: its rays, hits and local shading (all Dr.Jit arrays)."""
+
+    parent: Any  # index into the previous level (None for primary rays)
+    o: Any
+    d: Any
+    shape_id: Any
+    t: Any
+    p: Any
+    n: Any  # the shape's own normal (unflipped)
+    local: Any  # ambient + diffuse + specular (in that order)
+    kr: Any  # reflection colour of the hit material
+    bg: Any  # the background contribution at this level
+    terms: dict[str, Any] = field(default_factory=dict)
+    record: dict[str, Any] = field(default_factory=dict)
+
+
+class Tracer:
+    """Traces batches of rays through one scene under one set of rules.
+
+    ``prune=False`` switches off every optimisation that skips work (effects and per-ray pruning):
+    it exists so a test can show that pruning leaves every output bit-identical.
+    """
+
+    def __init__(self, scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True):
+        require_llvm()
+        self.scene, self.rules, self.precision, self.prune = scene, rules, precision, prune
+        self.T = _Types.of(precision)
+        if prune:
+            self.effects = effects(scene, rules)
+        else:
+            self.effects = Effects(True, True, True, True, scene.max_depth > 0, scene.max_depth, True)
+
+    # ---- small helpers -------------------------------------------------------------------
+    def _vec(self, v) -> Any:
+        return self.T.Array3(*(float(c) for c in v))
+
+    def _by_id(self, shape_id, values: list, zero) -> Any:
+        """Per-lane lookup of a per-shape constant: a select chain (shapes are few)."""
+        out = zero
+        for k, v in enumerate(values):
+            out = dr.select(shape_id == k, v, out)
+        return out
+
+    def _material_term(self, shape_id, name: str) -> Any:
+        vals = [self._vec(getattr(s.material, name)) for s in self.scene.shapes]
+        return self._by_id(shape_id, vals, self._vec((0.0, 0.0, 0.0)))
+
+    # ---- Ball, Plane: intersect -------------------------------------------------------------
+    def intersect_ball(self, ball: Ball, o, d) -> Any:
+        F = self.T.Float
+        r = F(ball.radius)
+        f = o - self._vec(ball.center)
+        b = dr.dot(f, d)
+        g = f - b * d
+        lg = dr.norm(g)
+        disc = (r - lg) * (r + lg)  # r^2 - |f - (f·d) d|^2 without cancellation
+        hit = disc >= 0
+        sq = dr.sqrt(dr.maximum(disc, 0))
+        q = -(b + dr.copysign(sq, b))  # Vieta: never subtracts nearly equal numbers
+        lf = dr.norm(f)
+        c = (lf - r) * (lf + r)  # |f|^2 - r^2, accurate when the origin is near the surface
+        q_ok = q != 0  # q = 0 only for a ray starting on the surface, tangent: both roots 0
+        t0 = dr.select(q_ok, c / q, 0)
+        t1 = dr.select(q_ok, q, 0)
+        tn, tf = dr.minimum(t0, t1), dr.maximum(t0, t1)
+        inf = F(math.inf)
+        if self.rules.near_root_only:
+            # "we are only interested in the smaller of the two intersection points, provided it is
+            # not negative": from inside a ball the near root is behind the ray, so no hit at all.
+            return dr.select(hit & (tn > 0), tn, inf)
+        return dr.select(hit & (tn > 0), tn, dr.select(hit & (tf > 0), tf, inf))
+
+    def intersect_plane(self, plane: Plane, o, d) -> Any:
+        F = self.T.Float
+        n = self._vec(plane.normal)
+        denom = dr.dot(n, d)
+        t = dr.dot(n, self._vec(plane.point) - o) / denom
+        ok = (denom != 0) & (t > 0) & (t < math.inf)  # parallel rays miss; never NaN
+        return dr.select(ok, t, F(math.inf))
+
+    def intersect(self, shape, o, d) -> Any:
+        return self.intersect_ball(shape, o, d) if isinstance(shape, Ball) else self.intersect_plane(shape, o, d)
+
+    def closest(self, o, d) -> tuple[Any, Any]:
+        """Appendix 1: the closest hit over all shapes; ties keep the lower shape id."""
+        t_best = self.T.Float(math.inf)
+        id_best = self.T.Int(-1)
+        for k, s in enumerate(self.scene.shapes):
+            tk = self.intersect(s, o, d)
+            closer = tk < t_best
+            t_best = dr.select(closer, tk, t_best)
+            id_best = dr.select(closer, k, id_best)
+        return id_best, t_best
+
+    # ---- normal, hit point ------------------------------------------------------------------
+    def hit_point_and_normal(self, shape_id, o, d, t) -> tuple[Any, Any]:
+        p = o + t * d
+        zero = self._vec((0.0, 0.0, 0.0))
+        n = zero
+        reproject = self.rules.offset == "error-bound"
+        for k, s in enumerate(self.scene.shapes):
+            if isinstance(s, Ball):
+                c = self._vec(s.center)
+                nk = (p - c) / self.T.Float(s.radius)
+                if reproject:  # pbrt-style: put the point back on the sphere, normal from it
+                    nk = dr.normalize(p - c)
+                    p = dr.select(shape_id == k, c + s.radius * nk, p)
+            else:
+                nk = self._vec(s.normal)
+            n = dr.select(shape_id == k, nk, n)
+        return p, n
+
+    def error_bound(self, shape_id, p) -> Any:
+        """Absolute error bound of a hit point, per shape (numerics notes: measured to give 0 self-hits).
+
+        Ball: gamma(6) (r + |p|) -- re-projection costs about 5 roundings of magnitude r + |p|, one more
+        for the normalisation. Plane: gamma(4) (|p| + |a|) -- the point-normal form's dot products.
+        """
+        u = self.T.u
+        lp = dr.norm(p)
+        vals = []
+        for s in self.scene.shapes:
+            if isinstance(s, Ball):
+                vals.append(gamma(6, u) * (s.radius + lp))
+            else:
+                vals.append(gamma(4, u) * (lp + abs(s.distance)))
+        return self._by_id(shape_id, vals, self.T.Float(0))
+
+    def offset_origin(self, p, n, err, direction) -> Any:
+        """Start of a secondary ray leaving p in `direction`."""
+        off = self.rules.offset
+        if off != "error-bound":
+            return p + self.T.Float(off) * n  # the exercise's hint: "add a small fraction of normal"
+        # Offset along n by the error bound, on the side the new ray leaves to, then one more ulp
+        # away from p in each component (pbrt-v4's OffsetRayOrigin).
+        side = dr.select(dr.dot(n, direction) < 0, self.T.Float(-1.0), self.T.Float(1.0))
+        delta = side * err * n
+        q = p + delta
+        return self.T.Array3(*(self._ulp_away(q[i], delta[i]) for i in range(3)))
+
+    def _ulp_away(self, x, delta) -> Any:
+        T = self.T
+        bits = dr.reinterpret_array(T.Bits, x)
+        grow = ((delta > 0) & (x > 0)) | ((delta < 0) & (x < 0))
+        shrink = ((delta > 0) & (x < 0)) | ((delta < 0) & (x > 0))
+        bits = dr.select(grow, bits + 1, dr.select(shrink, bits - 1, bits))
+        y = dr.reinterpret_array(T.Float, bits)
+        tiny = float(np.finfo(T.np_dtype).smallest_subnormal)
+        return dr.select((x == 0) & (delta != 0), dr.copysign(T.Float(tiny), delta), y)
+
+    # ---- shading ----------------------------------------------------------------------------
+    def shadow_blocked(self, o, s, light_dist) -> tuple[Any, list[Any]]:
+        """Is the shadow ray blocked? Rule shadow_range: 'any' (anything with t > 0) or 'to-light'."""
+        blocked = self.T.Bool(False)
+        ts = []
+        for shape in self.scene.shapes:
+            tk = self.intersect(shape, o, s)
+            ts.append(tk)
+            if self.rules.shadow_range == "any":
+                blocked |= tk < math.inf
+            else:
+                blocked |= tk < light_dist
+        return blocked, ts
+
+    def shade_level(self, o, d, parent, depth_left: int, record: bool) -> tuple[Level, Any]:
+        """Intersect one level's rays and shade them locally; return the level and the next rays' mask."""
+        sc, fx = self.scene, self.effects
+        zero = self._vec((0.0, 0.0, 0.0))
+        shape_id, t = self.closest(o, d)
+        hit = shape_id >= 0
+        t = dr.select(hit, t, math.inf)
+        p, n = self.hit_point_and_normal(shape_id, o, d, dr.select(hit, t, 0))
+        ns = n
+        if self.rules.two_sided:
+            ns = dr.select(dr.dot(d, n) > 0, -n, n)  # shading normal faces the incoming ray
+        rec: dict[str, Any] = {}
+        terms: dict[str, Any] = {}
+        local = zero
+        if fx.ambient:
+            terms["ambient"] = dr.select(hit, self._material_term(shape_id, "ambient"), zero)
+            local = local + terms["ambient"]
+        r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction
+        err = self.error_bound(shape_id, p) if self.rules.offset == "error-bound" else None
+        if fx.diffuse or fx.specular:
+            lpos = self._vec(sc.light.position)
+            lc = self._vec(sc.light.color)
+            to_light = lpos - p
+            light_dist = dr.norm(to_light)
+            s = to_light / light_dist
+            sn = dr.dot(s, ns)
+            lit = hit
+            if fx.shadows:
+                so = self.offset_origin(p, ns, err, s)
+                blocked, shadow_ts = self.shadow_blocked(so, s, light_dist)
+                lit = hit & ~blocked
+                if record:
+                    rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
+            if fx.diffuse:
+                fac = dr.maximum(sn, 0) if self.rules.clamp else sn
+                terms["diffuse"] = dr.select(lit, lc * self._material_term(shape_id, "diffuse") * fac, zero)
+                local = local + terms["diffuse"]
+            if fx.specular:
+                rs = dr.dot(r, s)
+                rs2 = rs * rs
+                rs4 = rs2 * rs2
+                pw = rs4 * rs4  # (r·s)^8 by repeated squaring: exact same roundings everywhere
+                on = lit
+                if self.rules.clamp:
+                    on = lit & (sn > 0) & (rs > 0)
+                terms["specular"] = dr.select(on, lc * self._material_term(shape_id, "specular") * pw, zero)
+                local = local + terms["specular"]
+        bgc = self._vec(sc.background)
+        if self.rules.background == "on-hit":
+            bg = dr.select(hit, bgc, zero) if fx.background else zero
+        else:
+            bg = dr.select(hit, zero, bgc) if fx.background else zero
+        kr = self._material_term(shape_id, "reflection") if fx.reflection else zero
+        spawn = None
+        if fx.reflection and depth_left > 0:
+            spawn = hit
+            if self.prune:
+                spawn = hit & dr.any(kr != 0)
+        lvl = Level(parent, o, d, shape_id, t, p, n, local, kr, bg, terms, rec)
+        if record:
+            rec.update(shading_normal=ns, reflected=r, error_bound=err)
+        if spawn is not None:
+            ro = self.offset_origin(p, ns, err, r)
+            lvl.record["next"] = (ro, r)
+        return lvl, spawn
+
+    def trace(self, o, d, record: bool = False) -> tuple[Any, list[Level]]:
+        """TraceRay for a batch: returns the colour of each ray and the wavefront levels."""
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            levels: list[Level] = []
+            parent = None
+            depth = self.effects.reflection_depth if self.effects.reflection else 0
+            for level in range(depth + 1):
+                lvl, spawn = self.shade_level(o, d, parent, depth - level, record)
+                levels.append(lvl)
+                if spawn is None:
+                    break
+                ro, rd = lvl.record["next"]
+                dr.eval(spawn, ro, rd)  # one kernel for this level's intersection + shading inputs
+                idx = dr.compress(spawn)
+                if dr.width(idx) == 0:
+                    break
+                o, d, parent = dr.gather(self.T.Array3, ro, idx), dr.gather(self.T.Array3, rd, idx), idx
+            # Back to front: c = ambient + diffuse + specular + kr * trace(reflected) + background.
+            child, child_parent = None, None
+            for lvl in reversed(levels):
+                c = lvl.local
+                if self.effects.reflection:
+                    refl = self._vec((0.0, 0.0, 0.0))
+                    if child is not None:
+                        refl = dr.zeros(self.T.Array3, dr.width(lvl.shape_id))
+                        dr.scatter(refl, child, child_parent)
+                    lvl.terms["reflection"] = lvl.kr * refl
+                    c = c + lvl.terms["reflection"]
+                if self.effects.background:
+                    lvl.terms["background"] = lvl.bg
+                    c = c + lvl.bg
+                c = c + 0.0  # canonical zeros: -0.0 becomes +0.0, so pruning cannot flip a sign bit
+                dr.eval(c)
+                child, child_parent = c, lvl.parent
+            return child, levels
+
+    # ---- whole images -----------------------------------------------------------------------
+    def _to_numpy3(self, a) -> np.ndarray:
+        return np.stack([np.asarray(a[i], dtype=np.float64) for i in range(3)], axis=-1)
+
+    def render(self, progress=None) -> RenderResult:
+        sc = self.scene
+        w, h = sc.camera.width, sc.camera.height
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        o_np, d_np = camera.primary_rays(sc, self.rules)
+        o, d = self._load(o_np), self._load(d_np)
+        color, levels = self.trace(o, d)
+        lvl0 = levels[0]
+        dr.eval(lvl0.shape_id, lvl0.t, lvl0.p, lvl0.n)
+        geom = geometry_from_flat(
+            w, h, np.asarray(lvl0.shape_id), np.asarray(lvl0.t, dtype=np.float64),
+            self._to_numpy3(lvl0.p), self._to_numpy3(lvl0.n),
+        )  # fmt: skip
+        terms = {k: self._to_numpy3(v).reshape(h, w, 3) for k, v in lvl0.terms.items()}
+        col = self._to_numpy3(color).reshape(h, w, 3)
+        timings["primary"] = time.perf_counter() - t0
+        if progress:
+            progress(1, max(1, sc.samples))
+        if sc.samples > 1:
+            col, terms = self._render_samples(progress)
+        timings["total"] = time.perf_counter() - t0
+        for k in TERMS:
+            terms.setdefault(k, np.zeros((h, w, 3)))
+        meta = {
+            "backend": "reference",
+            "version": _versions(),
+            "scene": sc.name,
+            "scene_sha256": sc.digest,
+            "settings": {"precision": self.precision, "samples": sc.samples, "width": w, "height": h,
+                         "max_depth": sc.max_depth, "prune": self.prune, "sample_seed": camera.SAMPLE_SEED},
+            "rules": self.rules.as_dict(),
+            "effects": {"simulated": self.effects.simulated(), "skipped": self.effects.skipped(),
+                        **self.effects.as_dict()},
+            "timings": timings,
+        }  # fmt: skip
+        return RenderResult(backend="reference", width=w, height=h, color=col, terms=terms, meta=meta, **geom)
+
+    def _render_samples(self, progress=None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Average `samples` stratified, jittered rays per pixel (see camera.sample_offsets)."""
+        sc = self.scene
+        w, h, n = sc.camera.width, sc.camera.height, sc.samples
+        acc = np.zeros((h * w, 3))
+        acc_terms: dict[str, np.ndarray] = {}
+        for s in range(n):
+            u, v = camera.sample_offsets(n, s, w * h)
+            o_np, d_np = camera.rays_through(sc, self.rules, u, v)
+            c, levels = self.trace(self._load(o_np), self._load(d_np))
+            acc += self._to_numpy3(c)
+            for k, val in levels[0].terms.items():
+                acc_terms[k] = acc_terms.get(k, 0.0) + self._to_numpy3(val)
+            if progress:
+                progress(s + 1, n)
+        return (acc / n).reshape(h, w, 3), {k: (v / n).reshape(h, w, 3) for k, v in acc_terms.items()}
+
+    def _load(self, a: np.ndarray) -> Any:
+        a = np.ascontiguousarray(a.astype(self.T.np_dtype))
+        return self.T.Array3(self.T.Float(a[:, 0]), self.T.Float(a[:, 1]), self.T.Float(a[:, 2]))
+
+
+def _versions() -> dict[str, str]:
+    from minirt import __version__
+
+    return {"minirt": __version__, "drjit": dr.__version__}
+
+
+def render(scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True, progress=None) -> RenderResult:
+    """Render a scene with the reference tracer."""
+    return Tracer(scene, rules, precision=precision, prune=prune).render(progress=progress)

@@ -1,0 +1,27 @@
+"""Oracles: established renderers behind one interface (see oracles/base.py).
+
+Adding a renderer means one new module and one line in REGISTRY. Modules are imported lazily, so a
+missing renderer costs nothing until it is asked for.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from oracles.base import Oracle
+
+REGISTRY: dict[str, str] = {
+    "mitsuba": "oracles.mitsuba:MitsubaOracle",
+    "povray": "oracles.povray:PovrayOracle",
+    "embree": "oracles.embree:EmbreeOracle",
+}
+
+
+def names() -> list[str]:
+    return list(REGISTRY)
+
+
+def get(name: str) -> Oracle:
+    """The oracle called `name` (KeyError for an unknown one)."""
+    module, cls = REGISTRY[name].split(":")
+    return getattr(importlib.import_module(module), cls)()
