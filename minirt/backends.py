@@ -1,0 +1,111 @@
+"""Run any backend by name: "reference" (the tracer) or an oracle. Sits above the core and oracles.
+
+Whatever a backend does -- missing, crashing, unable to reproduce the scene -- this returns a
+RenderResult; a failure is a result with status "skip" or "error" and a one-line reason.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from minirt.errors import MinirtError
+from minirt.result import RenderResult
+from minirt.rules import Rules
+from minirt.scene import Scene
+
+REFERENCE = "reference"
+
+
+def oracle_names() -> list[str]:
+    import oracles
+
+    return oracles.names()
+
+
+def all_names() -> list[str]:
+    return [REFERENCE, *oracle_names()]
+
+
+def parse_backends(spec: str) -> list[str]:
+    """'all', 'reference', or a comma-separated list; unknown names are bad input."""
+    if spec.strip() == "all":
+        return all_names()
+    names = [s.strip() for s in spec.split(",") if s.strip()]
+    known = all_names()
+    unknown = [n for n in names if n not in known]
+    if unknown or not names:
+        raise MinirtError(
+            f"--backend: unknown backend {', '.join(unknown) or repr(spec)} (known: all, {', '.join(known)})"
+        )
+    return names
+
+
+@dataclass
+class BackendInfo:
+    name: str
+    available: bool
+    detail: str  # version line, or why it is unavailable
+    shades: bool
+
+
+def info(name: str) -> BackendInfo:
+    if name == REFERENCE:
+        from minirt.engine import llvm_status
+
+        ok, why = llvm_status()
+        if ok:
+            import drjit
+
+            why = f"minirt tracer on Dr.Jit {drjit.__version__} ({why})"
+        return BackendInfo(name, ok, why, True)
+    import oracles
+
+    try:
+        o = oracles.get(name)
+        ok, why = o.available()
+        return BackendInfo(name, ok, o.version() if ok else why, o.shades)
+    except Exception as e:  # a broken install must not take the others down
+        return BackendInfo(name, False, f"cannot load: {type(e).__name__}: {e}", False)
+
+
+def rules_for(name: str, rules: Rules) -> Rules:
+    """The rules a backend actually follows when asked for `rules`."""
+    if name == REFERENCE:
+        return rules
+    import oracles
+
+    return oracles.get(name).adapt(rules)
+
+
+def render(name: str, scene: Scene, rules: Rules, options: dict[str, Any] | None = None, progress=None) -> RenderResult:
+    """Render with one backend under the rules it can follow; never raises for the backend's failure."""
+    w, h = scene.camera.width, scene.camera.height
+    options = dict(options or {})
+    t0 = time.perf_counter()
+    try:
+        if name == REFERENCE:
+            from minirt import tracer
+
+            result = tracer.render(
+                scene,
+                rules,
+                precision=options.get("precision", "f64"),
+                prune=options.get("prune", True),
+                progress=progress,
+            )
+        else:
+            import oracles
+
+            o = oracles.get(name)
+            ok, why = o.available()
+            if not ok:
+                return RenderResult.failed(name, w, h, "skip", why)
+            result = o.render(scene, o.adapt(rules), options)
+    except MinirtError as e:
+        result = RenderResult.failed(name, w, h, "error", str(e).splitlines()[0])
+    except Exception as e:  # a crashing backend is an ERROR verdict, not a crash of minirt
+        result = RenderResult.failed(name, w, h, "error", f"{type(e).__name__}: {e}".splitlines()[0])
+    result.meta.setdefault("timings", {})["wall"] = time.perf_counter() - t0
+    return result

@@ -1,0 +1,339 @@
+"""The `minirt` command line: the only place that parses arguments and prints.
+
+Typer (on Click) gives typed options, generated --help and usage errors with exit status 2; rich
+draws progress bars and tables on stderr. Bad input is one line per problem and exit status 2,
+never a traceback (set MINIRT_DEBUG=1 to see one for an unexpected internal error).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from contextlib import contextmanager
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from minirt.errors import MinirtError
+
+app = typer.Typer(
+    name="minirt",
+    help="A reference ray tracer for ETH Informatik I problem 13.1, checked against Mitsuba 3, POV-Ray and Embree.",
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+err = Console(stderr=True, highlight=False, soft_wrap=True)
+out = Console(highlight=False, soft_wrap=True)
+
+
+class Precision(StrEnum):
+    f64 = "f64"
+    f32 = "f32"
+
+
+SceneArg = Annotated[
+    Path, typer.Argument(metavar="SCENE", help="A scene file (TOML), e.g. scenes/exercise.toml.", show_default=False)
+]
+ProfileOpt = Annotated[
+    str | None, typer.Option("--profile", help="Model profile: exercise (the pseudo-code, literally) or conventional.")
+]
+RuleOpt = Annotated[
+    list[str] | None,
+    typer.Option("--rule", help="Override one model rule, e.g. --rule shadow_range=to-light (repeatable)."),
+]
+WidthOpt = Annotated[int | None, typer.Option("--width", min=1, help="Image width in pixels (overrides the scene).")]
+HeightOpt = Annotated[int | None, typer.Option("--height", min=1, help="Image height in pixels (overrides the scene).")]
+
+
+def _parse_rules(items: list[str] | None) -> dict[str, Any]:
+    out_: dict[str, Any] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise MinirtError(f"--rule {item}: expected NAME=VALUE, e.g. --rule clamp=true")
+        k, v = (s.strip() for s in item.split("=", 1))
+        low = v.lower()
+        if low in ("true", "false"):
+            out_[k] = low == "true"
+        else:
+            try:
+                out_[k] = float(v)
+            except ValueError:
+                out_[k] = v
+    return out_
+
+
+def _load(path: Path, width=None, height=None, samples=None, profile=None, rules=None):
+    from minirt import rules as rules_mod
+    from minirt.scene import load_scene
+
+    scene = load_scene(path).with_overrides(width=width, height=height, samples=samples, profile=profile)
+    return scene, rules_mod.resolve(scene, profile, _parse_rules(rules))
+
+
+@contextmanager
+def _progress(enabled: bool = True):
+    """A progress bar on stderr, only on a terminal (pipes and CI logs get none)."""
+    if not enabled or not err.is_terminal:
+        yield None
+        return
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+    ) as p:
+        yield p
+
+
+# ---------------------------------------------------------------------------------------------
+@app.command()
+def render(
+    scene_path: SceneArg,
+    backend: Annotated[
+        str, typer.Option("--backend", "-b", help="reference, mitsuba, povray, embree, a comma list, or all.")
+    ] = "reference",
+    out_dir: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Output folder (default renders/<scene name>).")
+    ] = None,
+    width: WidthOpt = None,
+    height: HeightOpt = None,
+    samples: Annotated[int | None, typer.Option("--samples", min=1, help="Rays per pixel (stratified).")] = None,
+    precision: Annotated[Precision, typer.Option("--precision", help="Reference tracer precision.")] = Precision.f64,
+    profile: ProfileOpt = None,
+    rule: RuleOpt = None,
+) -> None:
+    """Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend."""
+    from minirt import backends
+    from minirt.imageio import write_result
+
+    scene, rules = _load(scene_path, width, height, samples, profile, rule)
+    names = backends.parse_backends(backend)
+    dest = out_dir or Path("renders") / scene.name
+    w, h = scene.camera.width, scene.camera.height
+    err.print(f"[bold]{scene.name}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}")
+    results = []
+    with _progress() as bar:
+        for name in names:
+            task = bar.add_task(f"{name:<9}", total=1) if bar else None
+
+            def tick(done: int, total: int, task=task) -> None:
+                if bar:
+                    bar.update(task, completed=done, total=total)
+
+            opts = {"precision": precision.value}
+            if samples and name == "mitsuba":
+                opts.update(mode="sensor", spp=samples)
+            res = backends.render(name, scene, rules, opts, progress=tick)
+            if bar:
+                bar.update(task, completed=1, total=1)
+            results.append(res)
+            if res.ok:
+                paths = write_result(res, dest, f"{scene.name}.{name}")
+                _report_render(res, paths)
+            else:
+                err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {res.reason}")
+    if len(results) > 1:
+        from minirt.sheet import contact_sheet
+
+        sheet = contact_sheet(results, dest / f"{scene.name}.contact.png")
+        _render_table(results)
+        out.print(f"wrote {dest}/ ({sheet.name} and {sum(r.ok for r in results)} backend(s))")
+    else:
+        out.print(f"wrote {dest}/")
+    if not any(r.ok for r in results):
+        raise typer.Exit(2)
+
+
+def _report_render(res, paths) -> None:
+    fx = res.meta.get("effects")
+    took = res.meta.get("timings", {}).get("wall", 0.0)
+    files = ", ".join(p.name for p in paths.values())
+    err.print(f"  {res.backend:<9} [green]ok[/] {took:.2f}s -> {files}")
+    if fx:
+        err.print(f"            simulated: {', '.join(fx['simulated']) or 'nothing'}")
+        err.print(f"            skipped:   {', '.join(fx['skipped']) or 'nothing'}")
+
+
+def _render_table(results) -> None:
+    t = Table(title="backends", title_justify="left")
+    for col in ("backend", "status", "seconds", "passes / reason"):
+        t.add_column(col)
+    for r in results:
+        passes = r.meta.get("passes")
+        if isinstance(passes, list):
+            passes = ", ".join(p if isinstance(p, str) else p.get("name", "?") for p in passes)
+        t.add_row(
+            r.backend,
+            r.status,
+            f"{r.meta.get('timings', {}).get('wall', 0.0):.2f}",
+            r.reason if not r.ok else str(passes or ", ".join(r.meta.get("effects", {}).get("simulated", []))),
+        )
+    err.print(t)
+
+
+# ---------------------------------------------------------------------------------------------
+@app.command()
+def probe(
+    scene_path: SceneArg,
+    x: Annotated[int, typer.Argument(help="Pixel column (0 = left).", show_default=False)],
+    y: Annotated[int, typer.Argument(help="Pixel row (0 = top).", show_default=False)],
+    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
+    width: WidthOpt = None,
+    height: HeightOpt = None,
+    precision: Annotated[Precision, typer.Option("--precision")] = Precision.f64,
+    profile: ProfileOpt = None,
+    rule: RuleOpt = None,
+) -> None:
+    """Trace one pixel step by step: ray, every shape's intersection, shadow ray, terms, reflections."""
+    from minirt.probe import probe as run_probe
+
+    scene, rules = _load(scene_path, width, height, None, profile, rule)
+    p = run_probe(scene, rules, x, y, precision.value)
+    if as_json:
+        out.print_json(json.dumps(p))
+        return
+    _print_probe(p)
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, list):
+        return "(" + ", ".join(f"{c:.9g}" for c in v) + ")"
+    return f"{v:.12g}" if isinstance(v, float) else str(v)
+
+
+def _print_probe(p: dict[str, Any]) -> None:
+    x, y = p["pixel"]
+    out.print(f"pixel ({x}, {y}) of {p['scene']}")
+    for lvl in p["levels"]:
+        ind = "  " * lvl["depth"]
+        head = "primary ray" if lvl["depth"] == 0 else f"reflection {lvl['depth']}"
+        out.print(f"{ind}{head}: origin {_fmt(lvl['ray']['origin'])} direction {_fmt(lvl['ray']['direction'])}")
+        for s in lvl["shapes"]:
+            out.print(f"{ind}  shape {s['id']} ({s['type']}): " + ("miss" if s["t"] is None else f"t = {_fmt(s['t'])}"))
+        hit = lvl["hit"]
+        if hit is None:
+            out.print(f"{ind}  -> no hit")
+        else:
+            out.print(
+                f"{ind}  -> hit shape {hit['id']} ({hit['material']}) at t = {_fmt(hit['t'])}, "
+                f"point {_fmt(hit['point'])}, normal {_fmt(hit['normal'])}"
+            )
+            sh = lvl.get("shadow")
+            if sh:
+                blk = ", ".join(f"shape {b['id']} at t = {_fmt(b['t'])}" for b in sh["blockers"]) or "nothing"
+                out.print(
+                    f"{ind}  shadow ray from {_fmt(sh['origin'])} towards the light "
+                    f"({_fmt(sh['light_distance'])} away): blocked by {blk}"
+                )
+        for k, v in lvl["terms"].items():
+            out.print(f"{ind}  {k:<10} {_fmt(v)}")
+    out.print(f"colour {_fmt(p['color'])} -> clamped {_fmt(p['color_clamped'])} -> 8-bit {tuple(p['color8'])}")
+
+
+# ---------------------------------------------------------------------------------------------
+@app.command()
+def scenes(
+    folder: Annotated[Path, typer.Argument(help="Folder of scene files.")] = Path("scenes"),
+) -> None:
+    """List the bundled scenes, one line each."""
+    from minirt.errors import SceneError
+    from minirt.scene import load_scene
+
+    files = sorted(folder.glob("*.toml"))
+    if not files:
+        raise MinirtError(f"{folder}: no scene files (*.toml)")
+    for f in files:
+        try:
+            s = load_scene(f)
+            out.print(f"{f!s:<32} {s.camera.width}x{s.camera.height} {len(s.shapes)} shapes  {s.description}")
+        except SceneError as e:
+            out.print(f"{f!s:<32} INVALID: {e.lines[0]}")
+
+
+@app.command()
+def doctor() -> None:
+    """Which backends and libraries are present, their versions, and what to install for the missing ones."""
+    import importlib.metadata as md
+
+    from minirt import backends
+
+    t = Table(title="libraries", title_justify="left")
+    t.add_column("package")
+    t.add_column("version")
+    for pkg in ("drjit", "mitsuba", "OpenImageIO", "trimesh", "embreex", "numpy", "colour-science", "flip-evaluator"):
+        try:
+            v = md.version(pkg)
+        except md.PackageNotFoundError:
+            v = "[red]missing[/] (run: make setup)"
+        t.add_row(pkg, v)
+    out.print(t)
+    t = Table(title="backends", title_justify="left")
+    t.add_column("backend")
+    t.add_column("status")
+    t.add_column("detail")
+    all_ok = True
+    for name in backends.all_names():
+        i = backends.info(name)
+        all_ok &= i.available
+        t.add_row(name, "[green]ok[/]" if i.available else "[red]unavailable[/]", i.detail)
+    out.print(t)
+    if not all_ok:
+        raise typer.Exit(1)
+
+
+@app.command()
+def export(
+    scene_path: SceneArg,
+    to: Annotated[str, typer.Option("--to", help="mitsuba (XML scene), povray (.pov + command), mesh (glTF).")],
+    out_dir: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out"),
+    profile: ProfileOpt = None,
+    rule: RuleOpt = None,
+) -> None:
+    """Write the scene converted for another renderer, as a user would open it there."""
+    import oracles
+
+    target = {"mitsuba": "mitsuba", "povray": "povray", "mesh": "embree"}.get(to)
+    if target is None:
+        raise MinirtError(f"--to: unknown target {to!r} (known: mitsuba, povray, mesh)")
+    scene, rules = _load(scene_path, profile=profile, rules=rule)
+    o = oracles.get(target)
+    files = o.export(scene, o.adapt(rules), out_dir)
+    for f in files:
+        out.print(f"wrote {f}")
+
+
+# ---------------------------------------------------------------------------------------------
+def main() -> None:
+    try:
+        rv = app(standalone_mode=False)
+        sys.exit(rv if isinstance(rv, int) else 0)
+    except MinirtError as e:
+        for line in e.lines or [str(e)]:
+            err.print(f"minirt: error: {line}", markup=False)
+        sys.exit(2)
+    except typer.Exit as e:
+        sys.exit(e.exit_code)
+    except typer.Abort:
+        err.print("minirt: aborted")
+        sys.exit(130)
+    except typer.TyperException as e:  # usage errors: exit status 2, Click's message
+        e.show()
+        sys.exit(e.exit_code)
+    except Exception as e:
+        if os.environ.get("MINIRT_DEBUG"):
+            raise
+        err.print(f"minirt: internal error: {type(e).__name__}: {e} (set MINIRT_DEBUG=1 for details)", markup=False)
+        sys.exit(1)

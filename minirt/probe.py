@@ -1,0 +1,99 @@
+"""One pixel, traced step by step by the reference tracer itself (not a re-implementation).
+
+The tracer runs on a batch of one ray with recording on; every level of the recursion reports its
+ray, each shape's intersection, the closest hit, the shadow ray and what blocked it, the terms.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from minirt import camera
+from minirt.errors import MinirtError
+from minirt.result import to8
+from minirt.rules import Rules
+from minirt.scene import Ball, Scene
+from minirt.tracer import Tracer
+
+
+def _v(a: Any) -> list[float]:
+    return [float(np.asarray(a[i])[0]) for i in range(3)]
+
+
+def _s(a: Any) -> float:
+    return float(np.asarray(a)[0])
+
+
+def _t(x: float) -> float | None:
+    return None if math.isinf(x) else x
+
+
+def probe(scene: Scene, rules: Rules, x: int, y: int, precision: str = "f64") -> dict[str, Any]:
+    w, h = scene.camera.width, scene.camera.height
+    if not (0 <= x < w and 0 <= y < h):
+        raise MinirtError(f"pixel ({x}, {y}) is outside the {w}x{h} image (0 <= X < {w}, 0 <= Y < {h})")
+    o_all, d_all = camera.primary_rays(scene, rules)
+    i = y * w + x
+    tr = Tracer(scene, rules, precision=precision)
+    o, d = tr._load(o_all[i : i + 1]), tr._load(d_all[i : i + 1])
+    color, levels = tr.trace(o, d, record=True)
+    out_levels = []
+    for depth, lvl in enumerate(levels):
+        shapes = []
+        for k, s in enumerate(scene.shapes):
+            tk = _s(tr.intersect(s, lvl.o, lvl.d))
+            shapes.append({"id": k, "type": "ball" if isinstance(s, Ball) else "plane", "t": _t(tk)})
+        sid = int(np.asarray(lvl.shape_id)[0])
+        entry: dict[str, Any] = {
+            "depth": depth,
+            "ray": {"origin": _v(lvl.o), "direction": _v(lvl.d)},
+            "shapes": shapes,
+            "hit": None,
+            "terms": {k: _v(v) for k, v in lvl.terms.items()},
+        }
+        if sid >= 0:
+            rec = lvl.record
+            entry["hit"] = {
+                "id": sid,
+                "material": scene.shapes[sid].material.name,
+                "t": _s(lvl.t),
+                "point": _v(lvl.p),
+                "normal": _v(lvl.n),
+                "shading_normal": _v(rec["shading_normal"]),
+                "reflection_color": _v(lvl.kr),
+            }
+            if "shadow_origin" in rec:
+                ts = [_s(t) for t in rec["shadow_ts"]]
+                dist = _s(rec["light_dist"])
+                limit = math.inf if rules.shadow_range == "any" else dist
+                entry["shadow"] = {
+                    "origin": _v(rec["shadow_origin"]),
+                    "direction": _v(rec["shadow_dir"]),
+                    "light_distance": dist,
+                    "blockers": [{"id": k, "t": t} for k, t in enumerate(ts) if t < limit],
+                }
+                entry["shadow"]["lit"] = not entry["shadow"]["blockers"]
+            if rec.get("error_bound") is not None:
+                entry["hit"]["offset_bound"] = _s(rec["error_bound"])
+        out_levels.append(entry)
+    c = _v(color)
+    lvl0 = out_levels[0]
+    return {
+        "scene": scene.name,
+        "pixel": [x, y],
+        "rules": rules.as_dict(),
+        "ray": lvl0["ray"],
+        "shapes": lvl0["shapes"],
+        "hit": None
+        if lvl0["hit"] is None
+        else {k: lvl0["hit"][k] for k in ("id", "t", "point", "normal", "shading_normal", "material")},
+        "shadow": lvl0.get("shadow"),
+        "terms": lvl0["terms"],
+        "levels": out_levels,
+        "color": c,
+        "color_clamped": [min(max(v, 0.0), 1.0) for v in c],
+        "color8": [int(v) for v in to8(np.array(c))],
+    }

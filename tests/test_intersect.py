@@ -1,0 +1,101 @@
+"""Intersections: the problem set's own test (b), misses, rays from inside, planes from both sides."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from minirt.rules import PROFILES
+from minirt.scene import parse_scene
+from minirt.tracer import Tracer
+
+SCENE = """
+[camera]
+distance = 3.0
+[light]
+position = [10.0, 10.0, -1.0]
+[materials.m]
+diffuse = [1.0, 1.0, 1.0]
+{shapes}
+"""
+BALL = '[[shapes]]\ntype = "ball"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n'
+PLANE = '[[shapes]]\ntype = "plane"\nnormal = [0.0, 0.0, -1.0]\ndistance = -2.0\nmaterial = "m"\n'
+
+
+def _trace(shapes: str, o, d, profile="exercise", precision="f64"):
+    scene = parse_scene(SCENE.format(shapes=shapes))
+    tr = Tracer(scene, PROFILES[profile], precision=precision)
+    o = np.atleast_2d(np.array(o, dtype=float))
+    d = np.atleast_2d(np.array(d, dtype=float))
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    _, levels = tr.trace(tr._load(o), tr._load(d))
+    lvl = levels[0]
+    ids = np.asarray(lvl.shape_id)
+    t = np.asarray(lvl.t, dtype=float)
+    n = np.stack([np.asarray(lvl.n[i], dtype=float) for i in range(3)], axis=1)
+    return ids, t, n
+
+
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+def test_problem_set_b(precision):
+    """Ball at (0,0,0) radius 1, ray from (0,0,-3) along +z: t = 2, normal (0,0,-1)."""
+    ids, t, n = _trace(BALL, [0, 0, -3], [0, 0, 1], precision=precision)
+    assert ids[0] == 0
+    assert t[0] == 2.0
+    assert n[0].tolist() == [0.0, 0.0, -1.0]
+
+
+@pytest.mark.parametrize("profile", list(PROFILES))
+def test_misses(profile):
+    ids, t, _ = _trace(
+        BALL,
+        [[0, 0, -3], [0, 2, -3], [0, 0, 3], [0, 1.0000001, -3]],
+        [[0, 1, 0], [0, 0, 1], [0, 0, 1], [0, 0, 1]],
+        profile,
+    )
+    assert ids.tolist() == [-1, -1, -1, -1]  # sideways, above, behind (pointing away), just past the top
+    assert np.all(np.isinf(t))
+
+
+def test_tangent_is_decided_without_nan():
+    ids, t, _ = _trace(BALL, [0, 1, -3], [0, 0, 1])
+    assert ids[0] in (0, -1) and not np.isnan(t[0])
+
+
+def test_inside_ball_exercise_sees_nothing():
+    """Exercise: only the near root counts, and from inside it lies behind the ray."""
+    ids, t, _ = _trace(BALL, [0, 0, 0], [0, 0, 1], "exercise")
+    assert ids[0] == -1 and math.isinf(t[0])
+
+
+def test_inside_ball_conventional_sees_far_side():
+    ids, t, n = _trace(BALL, [0, 0, 0.5], [0, 0, 1], "conventional")
+    assert ids[0] == 0 and t[0] == pytest.approx(0.5, abs=1e-15)
+    assert n[0].tolist() == [0.0, 0.0, 1.0]  # the buffer holds the shape's own (outward) normal
+
+
+@pytest.mark.parametrize("profile", list(PROFILES))
+def test_plane_from_both_sides(profile):
+    ids, t, n = _trace(PLANE, [[0, 0, -3], [0, 0, 5]], [[0, 0, 1], [0, 0, -1]], profile)
+    assert ids.tolist() == [0, 0]
+    assert t.tolist() == [5.0, 3.0]  # the plane is z = 2
+    assert n[0].tolist() == n[1].tolist() == [0.0, 0.0, -1.0]
+
+
+@pytest.mark.parametrize("d", [[1, 0, 0], [0, 1, 0], [1, 1, 0], [1, 5e-324, 0]])
+def test_plane_parallel_rays_miss(d):
+    ids, t, _ = _trace(PLANE, [0, 0, -3], d)
+    assert ids[0] == -1 and math.isinf(t[0])
+
+
+def test_plane_through_origin_of_ray_is_not_hit():
+    ids, _, _ = _trace(PLANE, [0, 0, 2], [0, 0, 1])  # the ray starts on the plane: t = 0 is not > 0
+    assert ids[0] == -1
+
+
+def test_ties_go_to_lower_id():
+    two = BALL + BALL.replace("radius = 1.0", "radius = 1.0")
+    ids, _, _ = _trace(two, [0, 0, -3], [0, 0, 1])
+    assert ids[0] == 0
