@@ -8,7 +8,9 @@ exact description) this module gives the relative margin of every such decision:
   margin is |h - r| / r (h from the stable form |f - (f·d) d|);
 - grazing planes: the hit point runs off to infinity as n·d -> 0; margin |n·d|;
 - two surfaces at nearly the same depth (intersection curves, occlusion edges in depth, ties):
-  margin |t1 - t2| / max(t1, t2) over the two nearest candidate hits.
+  margin |t1 - t2| / max(t1, t2) over the two nearest candidate hits;
+- a ray starting near a ball's surface (an image-plane origin just inside or outside a ball that
+  crosses z = 0): whether it starts inside flips at |o - C| = r; margin | |o - C| - r | / r.
 
 ``margin`` is the minimum over these. A disagreement on a ray with margin < k·e (k from the
 oracle's error analysis, chosen by the harness) is inside the band; elsewhere it is a real defect.
@@ -27,6 +29,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
     d = np.asarray(directions, dtype=np.float64)
     n = o.shape[0]
     sil = np.full(n, np.inf)
+    origin = np.full(n, np.inf)
     graze = np.full(n, np.inf)
     ts = []
     for s in scene.shapes:
@@ -36,6 +39,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
             g = f - b[:, None] * d
             h = np.linalg.norm(g, axis=1)
             sil = np.minimum(sil, np.abs(h - s.radius) / s.radius)
+            origin = np.minimum(origin, np.abs(np.linalg.norm(f, axis=1) - s.radius) / s.radius)
             disc = (s.radius - h) * (s.radius + h)
             sq = np.sqrt(np.maximum(disc, 0.0))
             lf = np.linalg.norm(f, axis=1)
@@ -58,5 +62,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
         tt = np.sort(np.stack(ts, axis=1), axis=1)
         t1, t2 = tt[:, 0], tt[:, 1]
         both = np.isfinite(t1) & np.isfinite(t2)
-        tie = np.where(both, (t2 - t1) / np.where(both, t2, 1.0), np.inf)
-    return {"silhouette": sil, "grazing": graze, "tie": tie, "margin": np.minimum(np.minimum(sil, graze), tie)}
+        with np.errstate(invalid="ignore"):  # inf - inf where fewer than two shapes are hit
+            tie = np.where(both, (t2 - t1) / np.where(both, t2, 1.0), np.inf)
+    margin = np.minimum.reduce([sil, graze, tie, origin])
+    return {"silhouette": sil, "grazing": graze, "tie": tie, "origin": origin, "margin": margin}

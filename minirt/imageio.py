@@ -48,6 +48,9 @@ def write_image(path: str | Path, pixels: np.ndarray, channels: list[str] | None
     spec = oiio.ImageSpec(w, h, c, fmt)
     if channels:
         spec.channelnames = tuple(channels)
+    # A fixed timestamp: OpenImageIO otherwise stamps the write time, and the same render must give
+    # bit-identical files.
+    spec.attribute("DateTime", "2000:01:01 00:00:00")
     if path.suffix.lower() == ".exr":
         spec.attribute("compression", "zip")
     with atomic_path(path) as tmp:

@@ -213,14 +213,26 @@ def _message(err: dict[str, Any]) -> str:
     if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
         op = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}[kind]
         bound = next(iter(ctx.values()))
+        if isinstance(bound, float) and bound.is_integer():
+            bound = int(bound)
         return f"must be {op} {bound}, got {shown}"
     if kind == "missing":
+        if isinstance(err["loc"][-1], int):
+            return "must have 3 components"
         return "missing (required)"
     if kind == "extra_forbidden":
         return "unknown key"
     if kind in ("float_type", "int_type", "string_type", "bool_type", "dict_type", "list_type", "tuple_type"):
-        want = kind.split("_")[0].replace("float", "number").replace("int", "integer")
-        return f"must be a {want}, got {type(value).__name__} {shown}"
+        want = {
+            "float": "a number",
+            "int": "an integer",
+            "string": "a string",
+            "bool": "true or false",
+            "dict": "a table",
+            "list": "an array",
+            "tuple": "an array of 3 numbers",
+        }[kind.split("_")[0]]
+        return f"must be {want}, got {type(value).__name__} {shown}"
     if kind in ("too_short", "too_long"):
         return f"must have 3 components, got {shown}"
     if kind == "union_tag_invalid":

@@ -344,14 +344,16 @@ class Tracer:
                 if self.effects.background:
                     lvl.terms["background"] = lvl.bg
                     c = c + lvl.bg
-                c = c + 0.0  # canonical zeros: -0.0 becomes +0.0, so pruning cannot flip a sign bit
-                dr.eval(c)
+                dr.eval(c, lvl.terms)
                 child, child_parent = c, lvl.parent
             return child, levels
 
     # ---- whole images -----------------------------------------------------------------------
     def _to_numpy3(self, a) -> np.ndarray:
-        return np.stack([np.asarray(a[i], dtype=np.float64) for i in range(3)], axis=-1)
+        # "+ 0.0" makes zeros canonical (-0.0 + 0.0 = +0.0), so a skipped term (exactly +0.0) and a
+        # computed zero (0 * negative = -0.0) give the same bits. Done in NumPy: Dr.Jit's constant
+        # propagation folds x + 0.0 into x.
+        return np.stack([np.asarray(a[i], dtype=np.float64) for i in range(3)], axis=-1) + 0.0
 
     def render(self, progress=None) -> RenderResult:
         sc = self.scene

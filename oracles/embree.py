@@ -19,6 +19,9 @@ Conventions bridged:
     |t - t_ref| <= b0 - a0 (inner minus outer near root; far roots from inside a ball), at most
     r·(1 - (1 - g)^2) / cos θ with cos θ = |n·d| the reference's incidence, and at most
     r·sqrt(1 - (1 - g)^2) for any ray that crosses the inner ball (off the silhouette band);
+  * a ray *starting* in the shell (| |o - C| - r | / r < g, e.g. image-plane origins inside a ball
+    that crosses the image plane) may start outside P and miss it: an "origin band" that
+    ``minirt.band`` does not model yet;
   * normal: Embree returns the *face* normal, not the analytic one. It differs from the analytic
     normal at the radial projection of the hit point by at most the mesh's largest angle between a
     face normal and its vertices' normals (α, computed from the mesh), and the analytic normals at
@@ -34,7 +37,10 @@ Conventions bridged:
   triangle, balls included (about EMBREE_ULPS · 2^-24 · E); with E ≈ 64 S that stays below the
   level-4 gap for balls down to S/40 in radius. What is lost: plane hits farther than T_far, i.e.
   rays with |n·d| < h_max / T_far (h_max: the largest distance of an origin from the plane), the
-  grazing band recorded as ``grazing_abs`` -- at 256 rows about one row at a floor's horizon.
+  grazing band recorded as ``grazing_abs`` -- measured: 2 rows at a floor's horizon at 256x256
+  (exercise.toml, 517 pixels), a fraction of a row at 64x64.
+  When a ball's inner ball holds every ray origin (a dome around the camera), no ray gets farther
+  than max |x - C| + r over the origins x, and T_far is capped there (nothing is lost then).
 - float32 inside Embree decides only *which* triangle is hit first. t, position and normal are
   recomputed in float64 from that triangle: the face's plane (float64 vertices) for a ball, the
   scene's own plane (point-normal form, as the reference) for a plane. So float32 widens only the
@@ -78,6 +84,9 @@ U64 = 2.0**-53
 # perpendicular displacement of an edge; it is only ever used to widen the silhouette/tie band.
 EMBREE_ULPS = 8.0
 OPTIONS = ("subdivisions", "far_factor")
+# Options the CLI/harness passes to every backend that mean nothing here (Embree is float32, whatever
+# the reference's precision): accepted, recorded under meta["options"]["ignored"], otherwise unused.
+SHARED_OPTIONS = ("precision", "prune")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -142,8 +151,25 @@ def scene_size(scene: Scene) -> float:
     return s
 
 
-def far_distance(scene: Scene, far_factor: float = FAR_FACTOR) -> float:
-    return far_factor * scene_size(scene)
+def enclosing_far(scene: Scene, gap: float) -> float:
+    """Largest t any primary ray can reach inside a ball whose inner ball holds every ray origin (else inf).
+
+    Such a ball (a dome around the camera) stops every ray, analytic or faceted, before
+    max |x - C| + r over the origins x, so no plane has to reach farther.
+    """
+    far = math.inf
+    pts = _ray_origin_region(scene)
+    for s in scene.shapes:
+        if isinstance(s, Ball):
+            dist = [float(np.linalg.norm(x - np.asarray(s.center))) for x in pts]
+            if max(dist) < s.radius * (1.0 - gap):
+                far = min(far, max(dist) + s.radius)
+    return far
+
+
+def far_distance(scene: Scene, far_factor: float = FAR_FACTOR, subdivisions: int = DEFAULT_SUBDIVISIONS) -> float:
+    """Planes are modelled out to this distance from every ray origin (module docstring)."""
+    return min(far_factor * scene_size(scene), enclosing_far(scene, tessellation(subdivisions).radial_gap_rel))
 
 
 def _plane_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -161,7 +187,7 @@ def shape_meshes(scene: Scene, subdivisions: int = DEFAULT_SUBDIVISIONS, far_fac
 
     tess = tessellation(subdivisions)
     rho0 = max(float(np.linalg.norm(p)) for p in _ray_origin_region(scene))
-    half = far_distance(scene, far_factor) + rho0
+    half = far_distance(scene, far_factor, subdivisions) + rho0
     out = []
     for shape in scene.shapes:
         if isinstance(shape, Ball):
@@ -217,11 +243,13 @@ def _ball_roots(ball: Ball, radius: float, o: np.ndarray, d: np.ndarray) -> tupl
     return np.fmin(r0, q), np.fmax(r0, q)
 
 
-def ball_t_bound(ball: Ball, gap: float, o: np.ndarray, d: np.ndarray, t_ref: np.ndarray) -> np.ndarray:
-    """Per ray: the largest |t_P - t_ref| for P inscribed in `ball` with radial gap `gap` (inf if unknown).
+def ball_t_bound(ball: Ball, gap: float, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Per ray: the largest |t_P - t_ball| for any P inscribed in `ball` with radial gap `gap` (inf if unknown).
 
     P lies between the inner ball (radius r(1 - g)) and the ball, so its first hit lies in
-    [a0, b0] from outside, [b1, a1] from inside the inner ball, and in (0, a1] from inside the shell.
+    [a0, b0] from outside, [b1, a1] from inside the inner ball, and in (0, a1] from inside the shell
+    (a: the ball's roots, b: the inner ball's); the analytic hit is one end of that interval, so its
+    width bounds the error. It depends only on the ray, never on what Embree returned.
     """
     a0, a1 = _ball_roots(ball, ball.radius, o, d)
     b0, b1 = _ball_roots(ball, ball.radius * (1.0 - gap), o, d)
@@ -237,8 +265,7 @@ def ball_t_bound(ball: Ball, gap: float, o: np.ndarray, d: np.ndarray, t_ref: np
     lo[m], hi[m] = b1[m], a1[m]
     m = ~outside & np.isnan(lo) & (a1 > 0)
     lo[m], hi[m] = 0.0, a1[m]
-    with np.errstate(invalid="ignore"):
-        out = np.fmax(np.abs(hi - t_ref), np.abs(t_ref - lo))
+    out = hi - lo
     return np.where(np.isfinite(out), out, np.inf)
 
 
@@ -295,7 +322,9 @@ class EmbreeOracle(Oracle):
 
     @staticmethod
     def _options(options: dict[str, Any] | None) -> dict[str, Any]:
-        opts = {"subdivisions": DEFAULT_SUBDIVISIONS, "far_factor": FAR_FACTOR, **(options or {})}
+        given = dict(options or {})
+        ignored = {k: given.pop(k) for k in SHARED_OPTIONS if k in given}
+        opts = {"subdivisions": DEFAULT_SUBDIVISIONS, "far_factor": FAR_FACTOR, **given}
         unknown = sorted(set(opts) - set(OPTIONS))
         if unknown:
             raise ValueError(f"unknown option(s) {', '.join(unknown)} (known: {', '.join(OPTIONS)})")
@@ -306,6 +335,8 @@ class EmbreeOracle(Oracle):
         if isinstance(ff, bool) or not isinstance(ff, int | float) or not (math.isfinite(ff) and ff >= 1):
             raise ValueError(f"far_factor must be a finite number >= 1, got {ff!r}")
         opts["far_factor"] = float(ff)
+        if ignored:
+            opts["ignored"] = ignored
         return opts
 
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
@@ -313,20 +344,20 @@ class EmbreeOracle(Oracle):
         try:
             opts = self._options(options)
         except ValueError as e:
-            return RenderResult.failed(self.name, w, h, "error", str(e), backend=self.name)
+            return RenderResult.failed(self.name, w, h, "error", str(e))
         ok, why = self.available()
         if not ok:
-            return RenderResult.failed(self.name, w, h, "skip", why, backend=self.name)
+            return RenderResult.failed(self.name, w, h, "skip", why)
         if self.cannot_follow(rules):
             names = ", ".join(self.cannot_follow(rules))
             return RenderResult.failed(
-                self.name, w, h, "skip", f"cannot follow rule(s) {names}: render under adapt(rules)", backend=self.name
+                self.name, w, h, "skip", f"cannot follow rule(s) {names}: render under adapt(rules)"
             )
         try:
             return self._render(scene, rules, opts)
         except Exception as e:  # a renderer failure is a result, never an exception
             msg = str(e).splitlines()[0] if str(e) else ""
-            return RenderResult.failed(self.name, w, h, "error", f"{type(e).__name__}: {msg}", backend=self.name)
+            return RenderResult.failed(self.name, w, h, "error", f"{type(e).__name__}: {msg}")
 
     def _render(self, scene: Scene, rules: Rules, opts: dict[str, Any]) -> RenderResult:
         _, ray_pyembree = _import_embree()
@@ -355,7 +386,7 @@ class EmbreeOracle(Oracle):
             index_tri, index_ray = intersector.intersects_id(o, d, multiple_hits=False, return_locations=False)
             tri[index_ray] = index_tri
             timings["cast"] = time.perf_counter() - t0
-            passes.append({"name": "primary", "rays": int(n_rays), "hits": int(len(index_ray)), "query": "INTERSECT"})
+            passes.append({"name": "primary", "rays": int(n_rays), "hits": len(index_ray), "query": "INTERSECT"})
             # Coordinates Embree sees: translated to the bounding-box corner (trimesh), then float32.
             corner = mesh.vertices.min(axis=0)
             extent = float(max(np.abs(mesh.vertices - corner).max(), np.abs(o - corner).max()))
@@ -402,7 +433,7 @@ class EmbreeOracle(Oracle):
             if not m.any():
                 continue
             if isinstance(shape, Ball):
-                tb = ball_t_bound(shape, gap, o[m], d[m], t[m])
+                tb = ball_t_bound(shape, gap, o[m], d[m])
                 t_bound[m] = tb
                 ratio = tb / (shape.radius * (1.0 - gap))
                 with np.errstate(invalid="ignore"):
@@ -427,11 +458,16 @@ class EmbreeOracle(Oracle):
             "scene": scene.name,
             "scene_sha256": scene.digest,
             "options": opts,
-            "settings": {"width": w, "height": h, "samples_cast": 1, "far_distance": far_distance(scene, far_factor)},
+            "settings": {
+                "width": w,
+                "height": h,
+                "samples_cast": 1,
+                "far_distance": far_distance(scene, far_factor, level),
+            },
             "rules": rules.as_dict(),
             "tessellation": {
                 "subdivisions": level,
-                "faces": int(len(mesh.faces)),
+                "faces": len(mesh.faces),
                 "faces_per_ball": tess.n_faces,
                 "radial_gap_rel": gap,
                 "face_normal_deg": tess.normal_deg,
@@ -471,7 +507,7 @@ class EmbreeOracle(Oracle):
                         for k, s in enumerate(scene.shapes)
                     ],
                     "options": opts,
-                    "far_distance": far_distance(scene, opts["far_factor"]),
+                    "far_distance": far_distance(scene, opts["far_factor"], opts["subdivisions"]),
                     "tessellation": {"subdivisions": tess.subdivisions, "radial_gap_rel": tess.radial_gap_rel},
                     "rays": "minirt.camera.primary_rays (one per pixel); rules " + json.dumps(rules.as_dict()),
                 },
@@ -492,15 +528,18 @@ def precision_summary(scene: Scene, tess: Tessellation, far_factor: float, exten
     shell = math.sqrt(1.0 - (1.0 - g) ** 2)  # largest Δt / r for a ray crossing the inner ball
     t_abs = max((b.radius * shell for b in balls), default=0.0)
     normal_deg = tess.normal_deg + math.degrees(math.asin(min(1.0, shell / (1.0 - g)))) if balls else 0.0
-    far = far_distance(scene, far_factor)
+    far = far_distance(scene, far_factor, tess.subdivisions)
     origins = _ray_origin_region(scene)
     h_max = max((abs(float(np.dot(p.normal, x)) - p.distance) for p in planes for x in origins), default=0.0)
+    if far == enclosing_far(scene, g):
+        h_max = 0.0  # a dome stops every ray before the far distance: no plane hit is lost
     return {
         "t_abs": t_abs,
         "t_rel_over_cos": 1.0 - (1.0 - g) ** 2,
         "normal_deg": normal_deg,
         "normal_face_deg": tess.normal_deg,
         "band_abs": g + eps32_rel,
+        "origin_band_abs": g + eps32_rel,
         "grazing_abs": h_max / far if planes else 0.0,
         "eps32_abs": eps32_abs,
         "eps32_rel": eps32_rel,
@@ -509,7 +548,8 @@ def precision_summary(scene: Scene, tess: Tessellation, far_factor: float, exten
             "t_abs = max r*sqrt(1-(1-g)^2): largest |Δt| for a ray crossing the inner ball (per pixel: aux t_bound, "
             "<= r*t_rel_over_cos/cos θ). normal_deg = α (face vs vertex normals, normal_face_deg) + asin(t_abs/r(1-g)) "
             "(per pixel: aux normal_bound_deg). band_abs = g + eps32_rel: silhouette margin |h-r|/r below which "
-            "hit/miss may differ (g from the tessellation, eps32_rel = 8 float32 ulps of the mesh's extent / r). "
+            "hit/miss may differ (g from the tessellation, eps32_rel = 8 float32 ulps of the mesh's extent / r); "
+            "origin_band_abs: the same for | |o-C| - r |/r, a ray starting in the shell. "
             "grazing_abs: |n·d| below which a plane hit lies beyond the far distance and is lost. t, position, "
             "normal are recomputed in float64 from the triangle Embree chose; depth ties within t_bound + eps32_abs."
         ),

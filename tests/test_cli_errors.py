@@ -1,0 +1,154 @@
+"""Every kind of bad input gives one clear line naming file and key, exit status 2, no traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+GOOD = """
+[camera]
+distance = 2.0
+width = 8
+height = 8
+[light]
+position = [10.0, 10.0, -1.0]
+[render]
+max_depth = 1
+[materials.m]
+diffuse = [0.5, 0.5, 0.5]
+[[shapes]]
+type = "ball"
+center = [0.0, 0.0, 4.0]
+radius = 0.5
+material = "m"
+[[shapes]]
+type = "plane"
+normal = [0.0, 1.0, 0.0]
+distance = -1.0
+material = "m"
+"""
+
+CASES = [
+    ("unknown key", ("[camera]\n", "[camera]\nzoom = 2\n"), "camera.zoom: unknown key"),
+    ("unknown table", ("[light]\n", "[lights]\nx = 1\n[light]\n"), "lights: unknown key"),
+    ("missing key", ("distance = 2.0\n", ""), "camera.distance: missing"),
+    ("missing table", ("[light]\nposition = [10.0, 10.0, -1.0]\n", ""), "light: missing"),
+    ("wrong type", ("width = 8", 'width = "8"'), "camera.width: must be an integer, got str '8'"),
+    ("bool is not a number", ("radius = 0.5", "radius = true"), "shapes[0].radius: must be a number"),
+    ("nan", ("radius = 0.5", "radius = nan"), "shapes[0].radius: must be a finite number, got nan"),
+    ("infinite", ("center = [0.0, 0.0, 4.0]", "center = [0.0, inf, 4.0]"), "shapes[0].center[1]: must be a finite"),
+    (
+        "negative colour",
+        ("diffuse = [0.5, 0.5, 0.5]", "diffuse = [0.5, -0.5, 0.5]"),
+        "materials.m.diffuse[1]: must be >= 0",
+    ),
+    ("radius zero", ("radius = 0.5", "radius = 0"), "shapes[0].radius: must be > 0, got 0"),
+    ("radius negative", ("radius = 0.5", "radius = -1"), "shapes[0].radius: must be > 0, got -1"),
+    ("zero normal", ("normal = [0.0, 1.0, 0.0]", "normal = [0.0, 0.0, 0.0]"), "shapes[1].normal: must be a non-zero"),
+    ("width 0", ("width = 8", "width = 0"), "camera.width: must be >= 1, got 0"),
+    ("height 0", ("height = 8", "height = 0"), "camera.height: must be >= 1, got 0"),
+    ("samples 0", ("max_depth = 1", "max_depth = 1\nsamples = 0"), "render.samples: must be >= 1, got 0"),
+    ("max_depth negative", ("max_depth = 1", "max_depth = -1"), "render.max_depth: must be >= 0, got -1"),
+    (
+        "unknown material",
+        ('material = "m"\n[[shapes]]', 'material = "gold"\n[[shapes]]'),
+        "shapes[0].material: unknown material 'gold'",
+    ),
+    (
+        "unknown profile",
+        ("max_depth = 1", 'max_depth = 1\nprofile = "fancy"'),
+        "render.profile: unknown profile 'fancy'",
+    ),
+    ("unknown rule", ("[materials.m]", "[model]\nfog = true\n[materials.m]"), "model.fog: unknown rule"),
+    (
+        "bad rule value",
+        ("[materials.m]", '[model]\nshadow_range = "some"\n[materials.m]'),
+        "model.shadow_range: must be one of",
+    ),
+    (
+        "bad offset",
+        ("[materials.m]", "[model]\noffset = -1.0\n[materials.m]"),
+        "model.offset: must be a finite number >= 0",
+    ),
+    ("unknown shape type", ('type = "ball"', 'type = "cube"'), "unknown shape type 'cube'"),
+    (
+        "vector too short",
+        ("center = [0.0, 0.0, 4.0]", "center = [0.0, 4.0]"),
+        "shapes[0].center[2]: must have 3 components",
+    ),
+    ("toml syntax", ("width = 8", "width = = 8"), "TOML syntax error"),
+]
+
+
+def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=cwd, timeout=120)
+
+
+@pytest.mark.parametrize(("what", "edit", "message"), CASES, ids=[c[0] for c in CASES])
+def test_bad_scene(tmp_path, what, edit, message):
+    old, new = edit
+    assert old in GOOD
+    path = tmp_path / "x.toml"
+    path.write_text(GOOD.replace(old, new, 1))
+    out = tmp_path / "out"
+    p = run("render", str(path), "--out", str(out))
+    assert p.returncode == 2, p.stderr
+    assert "Traceback" not in p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.startswith("minirt: error:")]
+    assert lines, p.stderr
+    assert any(f"{path}: " in ln and message in ln for ln in lines), p.stderr
+    assert not out.exists(), "no output for bad input"
+
+
+def test_toml_syntax_error_names_line(tmp_path):
+    path = tmp_path / "x.toml"
+    path.write_text(GOOD.replace("width = 8", "width = = 8"))
+    p = run("render", str(path))
+    assert "line 4" in p.stderr
+
+
+def test_good_scene_renders(tmp_path):
+    path = tmp_path / "x.toml"
+    path.write_text(GOOD)
+    p = run("render", str(path), "--out", str(tmp_path / "out"))
+    assert p.returncode == 0, p.stderr
+    assert sorted(f.name for f in (tmp_path / "out").iterdir()) == [
+        "x.reference.exr",
+        "x.reference.json",
+        "x.reference.png",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["render", "no/such.toml"], "no/such.toml: no such scene file"),
+        (["render", "scenes/exercise.toml", "--backend", "blender"], "unknown backend blender"),
+        (["render", "scenes/exercise.toml", "--rule", "clamp"], "expected NAME=VALUE"),
+        (["render", "scenes/exercise.toml", "--rule", "fog=1"], "model.fog: unknown rule"),
+        (["render", "scenes/exercise.toml", "--profile", "fancy"], "unknown profile 'fancy'"),
+        (["probe", "scenes/exercise.toml", "999", "0"], "outside the 256x256 image"),
+        (["render", "scenes/exercise.toml", "--width", "0"], "Invalid value"),
+        (["render", "scenes/exercise.toml", "--precision", "f16"], "Invalid value"),
+        (["export", "scenes/exercise.toml", "--to", "blender"], "unknown target 'blender'"),
+        (["frobnicate"], "No such command"),
+    ],
+)
+def test_bad_arguments(args, message):
+    root = Path(__file__).resolve().parent.parent
+    p = run(*args, cwd=root)
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert message in p.stderr
+    assert "Traceback" not in p.stderr
+
+
+def test_missing_llvm_is_explained(monkeypatch):
+    from minirt import engine
+    from minirt.errors import MinirtError
+
+    monkeypatch.setattr(engine, "llvm_status", lambda: (False, "Dr.Jit found no libLLVM; " + engine.INSTALL_HINT))
+    with pytest.raises(MinirtError, match="apt-get install -y libllvm19"):
+        engine.require_llvm()
