@@ -186,7 +186,7 @@ class Tracer:
         for k, s in enumerate(self.scene.shapes):
             if isinstance(s, Ball):
                 c = self._vec(s.center)
-                nk = (p - c) / self.T.Float(s.radius)
+                nk = (p - c) / dr.opaque(self.T.Float, s.radius)  # opaque: a true division (see _primary_rays)
                 if reproject:  # pbrt-style: put the point back on the sphere, normal from it
                     nk = dr.normalize(p - c)
                     p = dr.select(shape_id == k, c + s.radius * nk, p)
@@ -322,10 +322,16 @@ class Tracer:
             for level in range(depth + 1):
                 lvl, spawn = self.shade_level(o, d, parent, depth - level, record)
                 levels.append(lvl)
+                # One fused kernel per level: everything later steps read is evaluated together, so
+                # nothing (intersection, shadow rays) is recomputed when it is read back.
+                outputs = [lvl.shape_id, lvl.t, lvl.local, lvl.kr, lvl.bg, lvl.terms]
+                if level == 0 or record:
+                    outputs += [lvl.p, lvl.n]
                 if spawn is None:
+                    dr.eval(*outputs)
                     break
                 ro, rd = lvl.record["next"]
-                dr.eval(spawn, ro, rd)  # one kernel for this level's intersection + shading inputs
+                dr.eval(*outputs, spawn, ro, rd)
                 idx = dr.compress(spawn)
                 if dr.width(idx) == 0:
                     break
@@ -350,23 +356,56 @@ class Tracer:
 
     # ---- whole images -----------------------------------------------------------------------
     def _to_numpy3(self, a) -> np.ndarray:
-        # "+ 0.0" makes zeros canonical (-0.0 + 0.0 = +0.0), so a skipped term (exactly +0.0) and a
-        # computed zero (0 * negative = -0.0) give the same bits. Done in NumPy: Dr.Jit's constant
-        # propagation folds x + 0.0 into x.
-        return np.stack([np.asarray(a[i], dtype=np.float64) for i in range(3)], axis=-1) + 0.0
+        """(N, 3) float64 from a Dr.Jit 3-vector; dr.ravel interleaves in a kernel, not in NumPy.
+
+        "+ 0.0" makes zeros canonical (-0.0 + 0.0 = +0.0), so a skipped term (exactly +0.0) and a
+        computed zero (0 * negative = -0.0) give the same bits. Done in NumPy: Dr.Jit's constant
+        propagation folds x + 0.0 into x.
+        """
+        flat = np.asarray(dr.ravel(a)).reshape(-1, 3)
+        out = flat.astype(np.float64) if flat.dtype != np.float64 else flat
+        out += 0.0
+        return out
+
+    def primary_rays(self) -> tuple[Any, Any]:
+        """camera.primary_rays computed in Dr.Jit: the same IEEE operations in the same order, so
+        the same bits (tested), without a round trip through NumPy."""
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):  # FastMath turns / w into * (1 / w)
+            return self._primary_rays()
+
+    def _primary_rays(self) -> tuple[Any, Any]:
+        T, sc = self.T, self.scene
+        w, h = sc.camera.width, sc.camera.height
+        idx = dr.arange(T.UInt, w * h)
+        yi = idx // w
+        xi = idx - yi * w
+        uv = 0.0 if self.rules.pixel_sample == "corner" else 0.5
+        # dr.opaque: Dr.Jit turns division by a literal into a multiplication by its reciprocal
+        # (one more rounding), even with FastMath off.
+        px = (T.Float(xi) + uv) / dr.opaque(T.Float, w) - 0.5
+        py = -(T.Float(yi) + uv) / dr.opaque(T.Float, h) + 0.5
+        pz = dr.zeros(T.Float, w * h)
+        cz = -sc.camera.distance
+        dx, dy, dz = px - 0.0, py - 0.0, pz - cz
+        nrm = dr.sqrt(dx * dx + dy * dy + dz * dz)
+        d = T.Array3(dx / nrm, dy / nrm, dz / nrm)
+        o = (
+            T.Array3(0.0, 0.0, cz) + dr.zeros(T.Array3, w * h)
+            if self.rules.ray_origin == "camera"
+            else T.Array3(px, py, pz)
+        )
+        return o, d
 
     def render(self, progress=None) -> RenderResult:
         sc = self.scene
         w, h = sc.camera.width, sc.camera.height
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        o_np, d_np = camera.primary_rays(sc, self.rules)
-        o, d = self._load(o_np), self._load(d_np)
+        o, d = self.primary_rays()
         color, levels = self.trace(o, d)
         lvl0 = levels[0]
-        dr.eval(lvl0.shape_id, lvl0.t, lvl0.p, lvl0.n)
         geom = geometry_from_flat(
-            w, h, np.asarray(lvl0.shape_id), np.asarray(lvl0.t, dtype=np.float64),
+            w, h, np.asarray(lvl0.shape_id), np.asarray(lvl0.t).astype(np.float64),
             self._to_numpy3(lvl0.p), self._to_numpy3(lvl0.n),
         )  # fmt: skip
         terms = {k: self._to_numpy3(v).reshape(h, w, 3) for k, v in lvl0.terms.items()}

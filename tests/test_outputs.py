@@ -126,3 +126,22 @@ def test_probe_json_cli():
     d = json.loads(p.stdout)
     assert d["hit"]["id"] == 0 and d["hit"]["normal"][2] < 0
     assert d["shadow"]["lit"] is True and len(d["levels"]) >= 2
+
+
+@pytest.mark.parametrize("rule", [{}, {"pixel_sample": "center"}, {"ray_origin": "camera"}])
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+def test_tracer_rays_are_the_oracles_rays(rule, precision):
+    """The tracer builds primary rays in Dr.Jit; oracles get camera.primary_rays: same bits."""
+    from minirt import camera
+
+    scene = load_scene("scenes/exercise.toml").with_overrides(width=37, height=23)
+    rules = resolve(scene, overrides=rule)
+    tr = Tracer(scene, rules, precision=precision)
+    o, d = tr.primary_rays()
+    o_np, d_np = camera.primary_rays(scene, rules)
+    dt = np.float64 if precision == "f64" else np.float32
+    if precision == "f64":
+        assert tr._to_numpy3(o).tobytes() == o_np.tobytes()
+        assert tr._to_numpy3(d).tobytes() == d_np.tobytes()
+    else:  # float32 rays: the same rays rounded once (the tracer computes them in float32)
+        assert np.allclose(tr._to_numpy3(d), d_np.astype(dt), rtol=0, atol=4e-7)
