@@ -6,6 +6,8 @@ All arrays are NumPy, row-major images of shape (H, W) or (H, W, 3), y = 0 the t
 - ``color`` (float64, linear, before clamping) where the backend shades, else None;
 - ``terms``: the shading terms that add up to ``color`` (ambient, diffuse, specular, reflection,
   background) where the backend has them;
+- ``image8``: the backend's own 8-bit bitmap where it writes one (POV-Ray rounds exactly as the
+  exercise does, from more precision than its half-float EXR keeps); else derived from ``color``;
 - ``aux``: backend-specific per-pixel buffers the harness needs (e.g. Mitsuba's light distance);
 - ``meta``: backend, version, settings, rules, effects simulated/skipped, timings, commands run.
 A backend that could not run returns status "skip" or "error" with a reason and no buffers.
@@ -34,6 +36,7 @@ class RenderResult:
     position: np.ndarray | None = None
     normal: np.ndarray | None = None
     color: np.ndarray | None = None
+    image8: np.ndarray | None = None
     terms: dict[str, np.ndarray] = field(default_factory=dict)
     aux: dict[str, np.ndarray] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
@@ -45,10 +48,13 @@ class RenderResult:
     @classmethod
     def failed(cls, backend: str, width: int, height: int, status: str, reason: str, **meta: Any) -> RenderResult:
         assert status in ("skip", "error")
-        return cls(backend=backend, width=width, height=height, status=status, reason=reason, meta=dict(meta))
+        meta = {**meta, "backend": backend}
+        return cls(backend=backend, width=width, height=height, status=status, reason=reason, meta=meta)
 
     def color8(self) -> np.ndarray | None:
         """The exercise's bitmap: clamp to [0, 1], then floor(c * 255 + 0.5), no gamma."""
+        if self.image8 is not None:
+            return self.image8
         if self.color is None:
             return None
         return to8(self.color)

@@ -1,0 +1,763 @@
+"""POV-Ray 3.7 as an oracle: the exercise's scene exported to POV-Ray's scene language, rendered, read back.
+
+Conventions bridged (measured with Debian's povray 3.7.0.10; see /work/shared/notes/povray.md):
+
+- Frame: POV-Ray is left-handed, x right, y up, camera looking along +z -- the exercise's own frame, so
+  coordinates are written as they are (nothing mirrored).
+- Pixel corner: with antialiasing off POV-Ray shoots pixel (i, j) through its CENTRE,
+  normalise(D + x0 R + y0 U) with x0 = (i+0.5)/W - 0.5, y0 = 0.5 - (j+0.5)/H. A skewed
+  ``direction <-0.5/W, 0.5/H, d>`` with ``right <1,0,0>``, ``up <0,1,0>``, ``location <0,0,-d>`` shifts
+  that by half a pixel onto the exercise's CORNER rays (rule pixel_sample "corner"); for "center" the
+  plain ``direction <0,0,d>``. No look_at/angle (they make the parser rewrite the vectors).
+- Ray start: POV-Ray's primary rays start at the camera, the exercise's on the image plane z = 0 (rule
+  ray_origin "image-plane"). The two agree unless a shape reaches into the pyramid between the camera
+  and the image plane; such scenes are returned as status "skip" ("object between camera and image
+  plane"; a mesh_camera could bridge it, not implemented). t is re-based on the image-plane origin:
+  t = |P - cam| * z / (z + d) (the part of the camera ray before z = 0 removed).
+- Normals: POV-Ray flips them to face the viewer (two_sided True) and skips a light entirely when
+  n·l < 1e-10 (no diffuse, no phong; phong only when r·l > 0): clamp True. Balls are seen from inside
+  (near_root_only False).
+- Shadows: only objects with 1e-3 < t < distance_to_light - 1e-3 block; objects beyond the light never
+  shadow (shadow_range "to-light"). Secondary rays use POV-Ray's own epsilons (1e-3 for shadow rays);
+  the closest exercise rule is offset "error-bound".
+- Depth: ``max_trace_level`` N = primary ray plus N-1 bounces, so N = max_depth + 1; ``adc_bailout 0``
+  (the default 1/255 prunes faint reflections).
+- Shading: POV-Ray multiplies ambient by the pigment, so a material (ambient AC, diffuse DC, specular
+  SC, reflection RC) becomes ``pigment { rgb DC } finish { ambient rgb (AC+BG)/DC diffuse 1 phong SC
+  phong_size 8 reflection { rgb RC } }`` -- or, exactly and without a division, ``pigment { rgb 1 }``
+  with ``diffuse DC`` when DC is grey. BG is folded into ambient for rule background "on-hit"; for
+  "on-miss" it is a ``background``. ``phong`` is a scalar: when a specular colour is not grey, or a
+  non-grey diffuse colour has a zero channel under a non-zero ambient, the scene is rendered once per
+  colour channel with grey values and the channels combined.
+- Output: ``assumed_gamma 1.0`` and File_Gamma 1.0 (linear values). The 8-bit PNG (+FN8) rounds
+  floor(c*255 + 0.5) exactly as the exercise does; the float colour is POV-Ray's EXR, which is HALF
+  float only (relative precision 2^-11; its own rounding flips 8-bit levels at .5 ties, hence both).
+- Buffers (one EXR animation, frame_number selects the pass, to pay POV-Ray's ~0.65 s start-up once):
+  hit mask from the alpha channel (+UA, no background); shape id from a constant pigment per shape
+  (``finish { ambient 1 diffuse 0 }``); position and t from pigment functions, each quantity q mapped to
+  v = (q - lo)/(hi - lo) with a per-shape range and split into a coarse channel floor(1024 v)/1024 and a
+  fine channel frac(1024 v) (decode v = coarse + fine/1024); normals analytically per shape from the
+  decoded position ((P - C)/r, or the plane's normal, unflipped like the reference's).
+- Numeric limits: hits beyond 1e7 are dropped; an exactly tangent ray misses a sphere; |n·d| < 1e-10
+  misses a plane; with 3 or more finite objects POV-Ray builds float bounding boxes; coincident surfaces:
+  the first declared object wins.
+- Untrusted input: POV-Ray's language can open, read and write files. The exporter writes only numbers
+  (Python floats, checked finite) and fixed keywords: no scene, material or file name ever reaches a
+  .pov file.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import shlex
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from minirt import camera
+from minirt.imageio import read_image, read_image_u8
+from minirt.result import RenderResult
+from minirt.rules import Effects, Rules, effects
+from minirt.scene import Ball, Material, Scene
+from oracles.base import Oracle
+
+NAME = "povray"
+INSTALL_HINT = "povray not found on PATH; install: sudo apt-get install povray"
+MAX_DISTANCE = 1e7  # POV-Ray drops hits beyond this (configbackend.h MAX_DISTANCE)
+SPLIT = 1024  # coarse/fine split of an encoded value
+ID_SCALE = 2048  # shape id k is the constant (k + 1)/2048: exact in half float for k < 2047
+# Error of one decoded value v in [0, 1) in units of 1/SPLIT: the fine channel lies in [0, 1), where a
+# half float's spacing is at most 2^-11, so rounding errs by at most 2^-12; POV-Ray's single-precision
+# colour arithmetic (colour map, average) adds a few float ulps, bounded generously by 2^-20.
+FINE_ERROR = 2.0**-12 + 2.0**-20
+HALF_REL = 2.0**-11  # half float: relative rounding error <= 2^-11 (round to nearest, 11-bit significand)
+GEOMETRY_FRAMES = (("x", "x", "y"), ("y", "z", "z"), ("t", "t", "id"))  # channel quantities per frame
+GEOMETRY_PARTS = (("coarse", "fine", "coarse"), ("fine", "coarse", "fine"), ("coarse", "fine", ""))
+
+
+# ---------------------------------------------------------------------------------------------
+# What to render
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame of the animation: a colour render (channel 0-2 for grey per-channel renders, -1 for
+    all channels at once) or geometry group 0-2 (see GEOMETRY_FRAMES)."""
+
+    kind: str  # "color" | "geometry"
+    index: int
+
+    @property
+    def label(self) -> str:
+        if self.kind == "color":
+            return "color" if self.index < 0 else f"color.{'RGB'[self.index]}"
+        return "geometry." + "+".join(
+            f"{q}.{p}" if p else q for q, p in zip(GEOMETRY_FRAMES[self.index], GEOMETRY_PARTS[self.index], strict=True)
+        )
+
+
+def _grey(c: tuple[float, float, float]) -> bool:
+    return c[0] == c[1] == c[2]
+
+
+def _ambient_numerator(m: Material, scene: Scene, rules: Rules, fx: Effects) -> tuple[float, float, float]:
+    bg = scene.background if (rules.background == "on-hit" and fx.background) else (0.0, 0.0, 0.0)
+    ac = m.ambient if fx.ambient else (0.0, 0.0, 0.0)
+    return (ac[0] + bg[0], ac[1] + bg[1], ac[2] + bg[2])
+
+
+def needs_per_channel(scene: Scene, rules: Rules) -> bool:
+    """True when one RGB render cannot express the materials: phong is a scalar (a non-grey specular
+    colour), or ambient = pigment * ambient cannot carry a non-zero ambient where the diffuse pigment
+    has a zero channel (and the pigment is not grey, i.e. diffuse cannot go into the scalar ``diffuse``)."""
+    fx = effects(scene, rules)
+    for s in scene.shapes:
+        m = s.material
+        if fx.specular and not _grey(m.specular):
+            return True
+        if fx.diffuse and not _grey(m.diffuse):
+            a = _ambient_numerator(m, scene, rules, fx)
+            if any(m.diffuse[i] == 0.0 and a[i] != 0.0 for i in range(3)):
+                return True
+    return False
+
+
+def color_frames(scene: Scene, rules: Rules) -> list[Frame]:
+    if needs_per_channel(scene, rules):
+        return [Frame("color", c) for c in range(3)]
+    return [Frame("color", -1)]
+
+
+def geometry_frames() -> list[Frame]:
+    return [Frame("geometry", g) for g in range(len(GEOMETRY_FRAMES))]
+
+
+# ---------------------------------------------------------------------------------------------
+# Numbers: the only thing besides fixed keywords that reaches a .pov file
+
+
+def _f(x: float) -> str:
+    x = float(x)
+    if not math.isfinite(x):
+        raise ValueError(f"non-finite number {x} cannot be exported")
+    if x == 0.0:
+        return "0"
+    s = repr(x)
+    return s[:-2] if s.endswith(".0") else s
+
+
+def _v(v) -> str:
+    return "<" + ", ".join(_f(c) for c in v) + ">"
+
+
+# ---------------------------------------------------------------------------------------------
+# Encoding ranges for the geometry buffers
+
+
+def _pinhole_directions(scene: Scene, rules: Rules) -> np.ndarray:
+    from dataclasses import replace
+
+    _, d = camera.primary_rays(scene, replace(rules, ray_origin="camera"))
+    return d
+
+
+def encoding_ranges(scene: Scene, rules: Rules) -> list[dict[str, tuple[float, float]] | None]:
+    """Per shape, the (lo, hi) of x, y, z and t over every hit of POV-Ray's primary rays with that shape
+    alone (both roots, t < 1e7), padded by 1e-4 of the span so rounded hits stay inside [lo, hi).
+
+    A superset of what is visible (occlusion ignored), so every decoded value lies in its range. None
+    for a shape no primary ray reaches."""
+    d = _pinhole_directions(scene, rules)
+    cam = np.array(scene.camera.position)
+    dist = scene.camera.distance
+    out = []
+    for s in scene.shapes:
+        ts = []
+        if isinstance(s, Ball):
+            f = cam - np.array(s.center)
+            b = d @ f
+            c = f @ f - s.radius**2
+            disc = b * b - c
+            ok = disc >= 0
+            sq = np.sqrt(np.where(ok, disc, 0.0))
+            for t in (-b - sq, -b + sq):
+                ts.append(np.where(ok & (t > 0), t, np.nan))
+        else:
+            n = np.array(s.normal)
+            nd = d @ n
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (s.distance - n @ cam) / nd
+            ts.append(np.where((nd != 0) & (t > 0), t, np.nan))
+        t = np.concatenate(ts)
+        dd = np.concatenate([d] * len(ts))
+        keep = np.isfinite(t) & (t < MAX_DISTANCE)
+        t, dd = t[keep], dd[keep]
+        ranges: dict[str, tuple[float, float]] = {}
+        if t.size == 0:
+            out.append(None)  # no primary ray reaches it: nothing to encode
+            continue
+        p = cam + t[:, None] * dd
+        tq = t * p[:, 2] / (p[:, 2] + dist) if rules.ray_origin == "image-plane" else t
+        # A constant coordinate (a plane's y) still gets a span of 1e-6 of the scene's scale, so POV-Ray's
+        # rounding of far hits (~1e-16 of |P|) stays far inside the padding.
+        scale = max(1.0, float(np.abs(p).max()), float(t.max()))
+        for name, q in (("x", p[:, 0]), ("y", p[:, 1]), ("z", p[:, 2]), ("t", tq)):
+            lo, hi = float(q.min()), float(q.max())
+            span = max(hi - lo, 1e-6 * scale)
+            ranges[name] = (lo - 1e-4 * span, hi + 1e-4 * span)
+        out.append(ranges)
+    return out
+
+
+def precision(scene: Scene, ranges: list[dict[str, tuple[float, float]]]) -> dict[str, Any]:
+    """The buffer precision the encoding guarantees (derived, not including POV-Ray's own rounding)."""
+    per = FINE_ERROR / SPLIT  # error of v, as a fraction of the range
+    pos = 0.0
+    t_abs = 0.0
+    t_rel = 0.0
+    nrm = 0.0
+    for s, r in zip(scene.shapes, ranges, strict=True):
+        if r is None:
+            continue
+        e = max((r[q][1] - r[q][0]) * per for q in "xyz")
+        pos = max(pos, e)
+        et = (r["t"][1] - r["t"][0]) * per
+        t_abs = max(t_abs, et)
+        t_rel = max(t_rel, et / r["t"][0]) if r["t"][0] > 0 else math.inf
+        if isinstance(s, Ball):
+            nrm = max(nrm, math.sqrt(3) * e / s.radius)
+    return {
+        "position_abs": pos,
+        "t_abs": t_abs,
+        "t_rel": t_rel,
+        "normal_abs": nrm,
+        "color_rel": HALF_REL / 2,
+        "color8": "exact (POV-Ray's +FN8 rounds floor(c*255 + 0.5))",
+        "derivation": (
+            "q = lo + (1024 coarse + fine) (hi - lo) / 1024 per shape and quantity; the fine channel in [0, 1) "
+            "is a half float (error <= 2^-12) plus single-precision colour arithmetic (<= 2^-20), so "
+            "|dq| <= (2^-12 + 2^-20)/1024 (hi - lo) = 2.4e-7 of the range; position_abs/t_abs are the largest "
+            "over shapes, t_rel divides by the smallest t in the range; normals (P - C)/r err by "
+            "sqrt(3) position_abs / r (planes exact); the float colour is half: relative 2^-12"
+        ),
+    }
+
+
+def band_threshold(scene: Scene) -> float:
+    """K·eps for minirt.band: rays whose relative margin is below it may legitimately flip in POV-Ray.
+
+    - With 3 or more finite objects POV-Ray bounds them with single-precision boxes: a box face can sit
+      2^-24 (|C| + r) inside the true silhouette, i.e. a relative margin of 2^-24 (|C| + r)/r;
+    - its double-precision sphere test uses the textbook discriminant b^2 - (|f|^2 - r^2), whose error
+      is about 2^-53 |f|^2, a relative margin 2^-53 |f|^2/r^2 (silhouettes and depth ties alike);
+    - a plane is missed when |n·d| < 1e-10 (the grazing margin).
+    eps is the largest of these over the scene's balls; K = 8 covers the few roundings chained in each.
+    """
+    eps = 1e-10
+    cam = scene.camera.position
+    for s in scene.shapes:
+        if isinstance(s, Ball):
+            c = math.hypot(*s.center)
+            f = math.dist(cam, s.center) + s.radius
+            eps = max(eps, 2.0**-24 * (c + s.radius) / s.radius, 2.0**-53 * f * f / (s.radius * s.radius))
+    return 8 * eps
+
+
+# ---------------------------------------------------------------------------------------------
+# Exporter: pure functions from (scene, rules) to text
+
+
+def _camera(scene: Scene, rules: Rules) -> str:
+    w, h, d = scene.camera.width, scene.camera.height, _f(scene.camera.distance)
+    # corner: half a pixel up-left of POV-Ray's centre rays
+    direction = f"<-0.5/{w}, 0.5/{h}, {d}>" if rules.pixel_sample == "corner" else f"<0, 0, {d}>"
+    return f"camera {{ perspective location <0, 0, -{d}> right <1, 0, 0> up <0, 1, 0> direction {direction} }}"
+
+
+def _shape_head(s) -> str:
+    if isinstance(s, Ball):
+        return f"sphere {{ {_v(s.center)}, {_f(s.radius)}"
+    return f"plane {{ {_v(s.normal)}, {_f(s.distance)}"  # stored normalised: x·n = distance
+
+
+def _material(m: Material, scene: Scene, rules: Rules, fx: Effects, channel: int) -> str:
+    a = _ambient_numerator(m, scene, rules, fx)
+    fin = []
+    if channel >= 0:
+        pigment = "rgb 1"
+        fin.append(f"ambient {_f(a[channel])}")
+        fin.append(f"diffuse {_f(m.diffuse[channel]) if fx.diffuse else '0'}")
+        spec, refl = m.specular[channel], m.reflection[channel]
+        if fx.specular and spec != 0:
+            fin.append(f"phong {_f(spec)} phong_size 8")
+        if fx.reflection and refl != 0:
+            fin.append(f"reflection {{ rgb {_f(refl)} }}")
+    else:
+        dc = m.diffuse
+        if not fx.diffuse or _grey(dc):
+            pigment = "rgb 1"
+            fin.append(f"ambient rgb {_v(a)}")
+            fin.append(f"diffuse {_f(dc[0]) if fx.diffuse else '0'}")
+        else:
+            pigment = f"rgb {_v(dc)}"
+            amb = tuple(a[i] / dc[i] if dc[i] != 0 else 0.0 for i in range(3))  # ambient is x pigment
+            fin.append(f"ambient rgb {_v(amb)}")
+            fin.append("diffuse 1")
+        if fx.specular and m.specular[0] != 0:
+            fin.append(f"phong {_f(m.specular[0])} phong_size 8")
+        if fx.reflection and any(c != 0 for c in m.reflection):
+            fin.append(f"reflection {{ rgb {_v(m.reflection)} }}")
+    return f"pigment {{ {pigment} }} finish {{ {' '.join(fin)} }}"
+
+
+def _color_frame(scene: Scene, rules: Rules, channel: int) -> list[str]:
+    fx = effects(scene, rules)
+    out = []
+    pick = (lambda c: _f(c[channel])) if channel >= 0 else _v
+    if fx.diffuse or fx.specular:
+        out.append(f"light_source {{ {_v(scene.light.position)} color rgb {pick(scene.light.color)} }}")
+    if rules.background == "on-miss" and fx.background:
+        out.append(f"background {{ rgb {pick(scene.background)} }}")
+    for s in scene.shapes:
+        out.append(f"{_shape_head(s)} {_material(s.material, scene, rules, fx, channel)} }}")
+    return out
+
+
+def _functions(
+    scene: Scene, rules: Rules, k: int, rng: dict[str, tuple[float, float]] | None
+) -> dict[tuple[str, str], str]:
+    d = _f(scene.camera.distance)
+    cam_dist = f"sqrt(x*x + y*y + (z + {d})*(z + {d}))"
+    tfun = f"{cam_dist} * z / (z + {d})" if rules.ray_origin == "image-plane" else cam_dist
+    exprs = {"x": "x", "y": "y", "z": "z", "t": tfun}
+    out = {}
+    for q, e in exprs.items():
+        lo, hi = rng[q] if rng is not None else (0.0, 1.0)
+        scaled = f"(({e}) - ({_f(lo)})) * {_f(SPLIT / (hi - lo))}"
+        out[(q, "coarse")] = f"floor({scaled}) / {SPLIT}"
+        out[(q, "fine")] = f"{scaled} - floor({scaled})"
+    out[("id", "")] = _f((k + 1) / ID_SCALE)
+    return out
+
+
+def _geometry_frame(scene: Scene, rules: Rules, group: int, ranges) -> list[str]:
+    out = []
+    for k, s in enumerate(scene.shapes):
+        fn = _functions(scene, rules, k, ranges[k])
+        entries = []
+        for ch, (q, part) in enumerate(zip(GEOMETRY_FRAMES[group], GEOMETRY_PARTS[group], strict=True)):
+            unit = ["0", "0", "0"]
+            unit[ch] = "3"  # average of three pigments divides by 3
+            entries.append(
+                f"    [1 function {{ {fn[(q, part)]} }} color_map {{ [0 rgb 0] [1 rgb <{', '.join(unit)}>] }}]"
+            )
+        out.append(f"{_shape_head(s)}")
+        out.append("  pigment { average pigment_map {")
+        out.extend(entries)
+        out.append("  } } finish { ambient 1 diffuse 0 } }")
+    return out
+
+
+def scene_to_pov(
+    scene: Scene,
+    rules: Rules,
+    frames: list[Frame] | None = None,
+    ranges: list[dict[str, tuple[float, float]]] | None = None,
+) -> str:
+    """The scene as POV-Ray 3.7 text. ``frames``: the passes, one animation frame each (frame_number
+    1, 2, ...); default the colour frame(s) only. Only numbers and fixed keywords are written."""
+    if frames is None:
+        frames = color_frames(scene, rules)
+    if ranges is None and any(f.kind == "geometry" for f in frames):
+        ranges = encoding_ranges(scene, rules)
+    fx = effects(scene, rules)
+    depth = scene.max_depth + 1 if fx.reflection else 1
+    # No comments at all: nothing but numbers and fixed keywords, so a grep can prove it.
+    lines = [
+        "#version 3.7;",
+        f"global_settings {{ assumed_gamma 1.0 ambient_light 1 max_trace_level {depth} adc_bailout 0 }}",
+        _camera(scene, rules),
+    ]
+    bodies = []
+    for f in frames:
+        if f.kind == "color":
+            body = _color_frame(scene, rules, f.index)
+        else:
+            body = _geometry_frame(scene, rules, f.index, ranges)
+        bodies.append((f, body))
+    if len(bodies) == 1:
+        lines.extend(bodies[0][1])
+    else:
+        lines.append("#switch (frame_number)")
+        for i, (_, body) in enumerate(bodies, start=1):
+            lines.append(f"#case ({i})")
+            lines.extend("  " + ln for ln in body)
+            lines.append("#break")
+        lines.append("#end")
+    return "\n".join(lines) + "\n"
+
+
+def command(
+    scene: Scene, n_frames: int, first: int, last: int, kind: str, stem: str = "out", threads: int | None = None
+) -> list[str]:
+    """The povray command line: frames first..last of an n_frames animation; kind "exr" or "png8"."""
+    w, h = scene.camera.width, scene.camera.height
+    cmd = ["povray", "-D", "-A", "+Q9", f"+W{w}", f"+H{h}"]
+    if kind == "exr":
+        cmd += ["+FE", "+UA", f"+O{stem}.exr"]
+    else:
+        cmd += ["+FN8", "File_Gamma=1.0", f"+O{stem}.png"]
+    if n_frames > 1:  # an animation: frame_number selects the pass; outputs are numbered stem1, stem2, ...
+        cmd += ["+KFI1", f"+KFF{n_frames}", f"+SF{first}", f"+EF{last}"]
+    if threads:
+        cmd.append(f"+WT{int(threads)}")
+    cmd.append("+Iscene.pov")
+    return cmd
+
+
+# ---------------------------------------------------------------------------------------------
+# Scenes POV-Ray's pinhole camera cannot reproduce
+
+
+def _ball_pyramid_distance(scene: Scene, ball: Ball) -> float:
+    """Distance from the ball's centre to the pyramid spanned by the camera and the image square z = 0."""
+    d = scene.camera.distance
+    cx, cy, cz = ball.center
+
+    def dist(z: float) -> float:
+        s = 0.5 * (z + d) / d
+        return math.hypot(max(abs(cx) - s, 0.0), max(abs(cy) - s, 0.0), z - cz)
+
+    lo, hi = -d, 0.0
+    for _ in range(200):  # dist is convex in z (distance to a convex set, minimised over slices)
+        m1, m2 = lo + (hi - lo) / 3, hi - (hi - lo) / 3
+        if dist(m1) <= dist(m2):
+            hi = m2
+        else:
+            lo = m1
+    return min(dist(lo), dist(-d), dist(0.0))
+
+
+def between_camera_and_image_plane(scene: Scene) -> list[int]:
+    """Shapes whose surface reaches into the pyramid between the camera and the image square z = 0.
+
+    There POV-Ray's camera rays and the exercise's image-plane rays can see different things."""
+    d = scene.camera.distance
+    verts = [(0.0, 0.0, -d)] + [(x, y, 0.0) for x in (-0.5, 0.5) for y in (-0.5, 0.5)]
+    out = []
+    for k, s in enumerate(scene.shapes):
+        if isinstance(s, Ball):
+            near = _ball_pyramid_distance(scene, s) <= s.radius * (1 + 1e-9)
+            far = max(math.dist(v, s.center) for v in verts)
+            if near and far >= s.radius * (1 - 1e-9):  # pyramid wholly inside the ball: same far root
+                out.append(k)
+        else:
+            side = [sum(s.normal[i] * v[i] for i in range(3)) - s.distance for v in verts]
+            if min(side) <= 0 <= max(side):
+                out.append(k)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Running POV-Ray
+
+
+class PovrayError(Exception):
+    """POV-Ray failed; the message is one line."""
+
+
+_PARSE_ERR = re.compile(r"^File '[^']*' line (\d+):\s*(.*)$")
+_TIME = re.compile(r"^\s*(Parse|Bounding|Trace|Photon|Radiosity) Time:.*\(([\d.]+) seconds\)")
+
+
+def parse_error(stderr: str) -> str:
+    """One line from POV-Ray's output saying what went wrong (its parse error with the line number)."""
+    lines = stderr.splitlines()
+    for i, ln in enumerate(lines):
+        m = _PARSE_ERR.match(ln.strip())
+        if m and "error" in ln.lower():
+            msg = m.group(2)
+            for cont in lines[i + 1 :]:  # POV-Ray wraps messages at 80 columns
+                c = cont.strip()
+                if not c or c.startswith(("Fatal", "Render failed", "File '")):
+                    break
+                msg += " " + c
+            return f"POV-Ray: scene.pov line {m.group(1)}: {msg}"
+    for ln in reversed(lines):
+        c = ln.strip()
+        if re.search(r"error|failed|cannot|unable", c, re.I) and "user configuration file" not in c:
+            return f"POV-Ray: {c}"
+    tail = [ln.strip() for ln in lines if ln.strip()]
+    return f"POV-Ray: {tail[-1]}" if tail else "POV-Ray failed without a message"
+
+
+def _timings(stderr: str) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for ln in stderr.splitlines():
+        m = _TIME.match(ln)
+        if m:
+            key = m.group(1).lower()
+            out[key] = out.get(key, 0.0) + float(m.group(2))
+    return out
+
+
+def _run(cmd: list[str], cwd: Path, timeout: float) -> tuple[str, dict[str, float]]:
+    exe = shutil.which(cmd[0])
+    if exe is None:
+        raise FileNotFoundError(INSTALL_HINT)
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run(
+            [exe, *cmd[1:]], cwd=cwd, capture_output=True, text=True, errors="replace", timeout=timeout,
+            stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+    except subprocess.TimeoutExpired:
+        raise PovrayError(f"POV-Ray timed out after {timeout:g} s") from None
+    wall = time.perf_counter() - t0
+    if p.returncode < 0:
+        raise PovrayError(f"POV-Ray crashed (signal {-p.returncode}): {parse_error(p.stderr + p.stdout)}")
+    if p.returncode != 0:
+        raise PovrayError(parse_error(p.stderr + p.stdout))
+    tm = _timings(p.stderr + p.stdout)
+    inside = tm.get("parse", 0.0) + tm.get("bounding", 0.0) + tm.get("trace", 0.0)
+    return p.stderr, {"wall": wall, **tm, "setup": max(wall - inside, 0.0)}
+
+
+def _frame_files(cwd: Path, stem: str, ext: str) -> dict[int, Path]:
+    out = {}
+    for p in cwd.glob(f"{stem}*.{ext}"):
+        num = p.name[len(stem) : -len(ext) - 1] or "1"  # a single frame is not numbered
+        if num.isdigit():
+            out[int(num)] = p
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The oracle
+
+
+class PovrayOracle(Oracle):
+    name: ClassVar[str] = NAME
+    shades: ClassVar[bool] = True
+    supported: ClassVar[dict[str, tuple[Any, ...]]] = {
+        "background": ("on-hit", "on-miss"),  # folded into ambient, or a background statement
+        "near_root_only": (False,),  # it sees the inside of balls
+        "shadow_range": ("to-light",),  # only objects before the light block
+        "two_sided": (True,),  # normals flipped to face the viewer
+        "clamp": (True,),  # light skipped when n·l < 1e-10, phong only when r·l > 0
+        "offset": ("error-bound",),  # its own epsilons (1e-3 for shadow rays): the closest rule
+        "ray_origin": ("image-plane", "camera"),  # image-plane: skip when something is in between
+        "pixel_sample": ("corner", "center"),  # skewed or plain direction vector
+    }
+
+    def available(self) -> tuple[bool, str]:
+        if shutil.which("povray") is None:
+            return False, INSTALL_HINT
+        try:
+            return True, self.version()
+        except Exception as e:  # a broken install: say so, do not raise
+            return False, f"povray found but not runnable: {e}"
+
+    def version(self) -> str:
+        exe = shutil.which("povray")
+        if exe is None:
+            raise FileNotFoundError(INSTALL_HINT)
+        p = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=30, stdin=subprocess.DEVNULL)
+        m = re.search(r"POV-Ray\s+(\d+(?:\.\d+)+)", p.stdout + p.stderr)
+        if not m:
+            raise RuntimeError("cannot read the version from 'povray --version'")
+        return f"POV-Ray {m.group(1)}"
+
+    # ---- render -------------------------------------------------------------------------
+    def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
+        opts = dict(options or {})
+        w, h = scene.camera.width, scene.camera.height
+        meta: dict[str, Any] = {"scene": scene.name, "rules": rules.as_dict(), "options": opts}
+
+        def fail(status: str, reason: str) -> RenderResult:
+            extra = {k: v for k, v in meta.items() if k != "backend"}
+            return RenderResult.failed(NAME, w, h, status, reason, **extra)
+
+        if shutil.which("povray") is None:
+            return fail("skip", INSTALL_HINT)
+        bad = self.cannot_follow(rules)
+        if bad:
+            return fail("skip", f"POV-Ray cannot follow rule(s): {', '.join(bad)}")
+        if rules.ray_origin == "image-plane":
+            between = between_camera_and_image_plane(scene)
+            if between:
+                return fail("skip", f"object between camera and image plane (shape {', '.join(map(str, between))})")
+        try:
+            return self._render(scene, rules, opts, meta)
+        except FileNotFoundError as e:
+            return fail("skip", (str(e).splitlines() or [INSTALL_HINT])[0])
+        except PovrayError as e:
+            return fail("error", str(e))
+        except Exception as e:  # never raise out of render()
+            msg = (str(e).splitlines() or [""])[0]
+            return fail("error", f"{type(e).__name__}: {msg}")
+
+    def _render(self, scene: Scene, rules: Rules, opts: dict[str, Any], meta: dict[str, Any]) -> RenderResult:
+        w, h = scene.camera.width, scene.camera.height
+        timeout = float(opts.get("timeout", 120.0))
+        threads = opts.get("threads")
+        geometry = bool(opts.get("geometry", True))
+        t_start = time.perf_counter()
+        fx = effects(scene, rules)
+        cframes = color_frames(scene, rules)
+        gframes = geometry_frames() if geometry and scene.shapes else []
+        frames = cframes + gframes
+        ranges = encoding_ranges(scene, rules) if gframes else None
+        text = scene_to_pov(scene, rules, frames, ranges)
+        meta.update(
+            backend=NAME,
+            version=self.version(),
+            # one ray per pixel (-A): POV-Ray's antialiasing jitters its own grid, not the exercise's pattern
+            settings={"width": w, "height": h, "max_depth": scene.max_depth, "timeout": timeout,
+                      "samples_requested": scene.samples, "samples_rendered": 1,
+                      "channel_mode": "per-channel" if len(cframes) == 3 else "rgb",
+                      "frames": [f.label for f in frames], "max_trace_level": scene.max_depth + 1 if fx.reflection
+                      else 1},
+            effects={"simulated": fx.simulated(), "skipped": fx.skipped(), **fx.as_dict()},
+        )  # fmt: skip
+        passes: list[dict[str, Any]] = []
+        timings: dict[str, Any] = {"export": time.perf_counter() - t_start}
+        with tempfile.TemporaryDirectory(prefix="minirt-povray-") as tmp:
+            cwd = Path(tmp)
+            (cwd / "scene.pov").write_text(text)
+            n = len(frames)
+            # One EXR animation: float colour frames and geometry frames, +UA for the hit mask.
+            cmd_exr = command(scene, n, 1, n, "exr", threads=threads)
+            _, t_exr = _run(cmd_exr, cwd, timeout)
+            passes.append({"name": "exr", "frames": [f.label for f in frames], "command": shlex.join(cmd_exr),
+                           "timings": t_exr})  # fmt: skip
+            # The 8-bit PNG of the colour frames: POV-Ray's own rounding, exact.
+            cmd_png = command(scene, n, 1, len(cframes), "png8", threads=threads)
+            _, t_png = _run(cmd_png, cwd, timeout)
+            passes.append({"name": "png8", "frames": [f.label for f in cframes], "command": shlex.join(cmd_png),
+                           "timings": t_png})  # fmt: skip
+            t0 = time.perf_counter()
+            exr = _frame_files(cwd, "out", "exr")
+            png = _frame_files(cwd, "out", "png")
+            missing = [i for i in range(1, n + 1) if i not in exr] + [
+                i for i in range(1, len(cframes) + 1) if i not in png
+            ]
+            if missing:
+                raise PovrayError(f"POV-Ray wrote no output for frame(s) {sorted(set(missing))}")
+            color = np.zeros((h, w, 3))
+            color8 = np.zeros((h, w, 3), dtype=np.uint8)
+            for i, f in enumerate(cframes, start=1):
+                img, _ = read_image(exr[i])
+                img8 = read_image_u8(png[i])
+                if f.index < 0:
+                    color = img[..., :3].astype(np.float64)
+                    color8 = img8[..., :3].copy()
+                else:
+                    color[..., f.index] = img[..., 0]
+                    color8[..., f.index] = img8[..., 0]
+            geom: dict[str, np.ndarray] = {}
+            if gframes:
+                imgs = [read_image(exr[len(cframes) + 1 + g])[0] for g in range(len(gframes))]
+                geom = decode_geometry(scene, rules, imgs, ranges)
+            timings["decode"] = time.perf_counter() - t0
+        timings["passes"] = {p["name"]: p["timings"] for p in passes}
+        timings["setup"] = sum(p["timings"]["setup"] for p in passes)
+        timings["trace"] = sum(p["timings"].get("trace", 0.0) for p in passes)
+        timings["parse"] = sum(p["timings"].get("parse", 0.0) for p in passes)
+        timings["total"] = time.perf_counter() - t_start
+        meta.update(passes=passes, commands=[p["command"] for p in passes], timings=timings)
+        if gframes:
+            meta["precision"] = precision(scene, ranges)
+            meta["precision"]["band_threshold"] = band_threshold(scene)
+            meta["encoding_ranges"] = ranges
+            # pixels where the three frames' alpha and the id channel disagree on hit/miss (expected 0)
+            meta["hit_consistency"] = geom.pop("hit_mismatch")
+            meta["surface_residual"] = geom.pop("surface_residual")
+        else:
+            miss = np.zeros((h, w), dtype=bool)
+            geom = {"hit": miss, "shape_id": np.full((h, w), -1, np.int32), "t": np.full((h, w), np.inf),
+                    "position": np.zeros((h, w, 3)), "normal": np.zeros((h, w, 3))}  # fmt: skip
+            if geometry:
+                meta["precision"] = precision(scene, [])
+        # POV-Ray's own 8-bit image (exact rounding; rounding the half-float colour flips .5 ties)
+        return RenderResult(backend=NAME, width=w, height=h, color=color, image8=color8, meta=meta, **geom)
+
+    # ---- export ---------------------------------------------------------------------------
+    def export(self, scene: Scene, rules: Rules, out_dir: Path, options: dict[str, Any] | None = None) -> list[Path]:
+        return export(scene, rules, out_dir)
+
+
+def decode_geometry(
+    scene: Scene, rules: Rules, imgs: list[np.ndarray], ranges: list[dict[str, tuple[float, float]]]
+) -> dict[str, Any]:
+    """Buffers from the three geometry frames (RGBA half floats)."""
+    h, w = imgs[0].shape[:2]
+    ch: dict[tuple[str, str], np.ndarray] = {}
+    for g, img in enumerate(imgs):
+        for c, (q, part) in enumerate(zip(GEOMETRY_FRAMES[g], GEOMETRY_PARTS[g], strict=True)):
+            ch[(q, part)] = img[..., c].astype(np.float64)
+    alphas = [img[..., 3] > 0.5 for img in imgs]
+    hit = alphas[0]
+    sid = np.rint(ch[("id", "")] * ID_SCALE).astype(np.int32) - 1
+    mismatch = int(sum(np.count_nonzero(a != hit) for a in alphas[1:]) + np.count_nonzero((sid >= 0) != hit))
+    sid = np.where(hit, sid, -1)
+    pos = np.zeros((h, w, 3))
+    t = np.full((h, w), np.inf)
+    nrm = np.zeros((h, w, 3))
+    residual: dict[str, float] = {}  # self-check: distance of decoded points from their surface
+    for k, s in enumerate(scene.shapes):
+        m = sid == k
+        if not m.any():
+            continue
+        vals = {}
+        for q in ("x", "y", "z", "t"):
+            lo, hi = ranges[k][q] if ranges[k] is not None else (0.0, 1.0)
+            v1024 = np.rint(ch[(q, "coarse")][m] * SPLIT) + ch[(q, "fine")][m]
+            vals[q] = lo + v1024 * ((hi - lo) / SPLIT)
+        p = np.stack([vals["x"], vals["y"], vals["z"]], axis=-1)
+        pos[m] = p
+        t[m] = vals["t"]
+        if isinstance(s, Ball):
+            nrm[m] = (p - np.array(s.center)) / s.radius
+            residual[str(k)] = float(np.abs(np.linalg.norm(p - np.array(s.center), axis=-1) - s.radius).max())
+        else:
+            nrm[m] = np.array(s.normal)
+            residual[str(k)] = float(np.abs(p @ np.array(s.normal) - s.distance).max())
+    return {"hit": hit, "shape_id": sid, "t": t, "position": pos, "normal": nrm, "hit_mismatch": mismatch,
+            "surface_residual": residual}  # fmt: skip
+
+
+def export(scene: Scene, rules: Rules, out_dir: str | Path) -> list[Path]:
+    """Write ``scene.pov`` (the colour pass(es)), ``render.sh`` with the exact command and a README."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    frames = color_frames(scene, rules)
+    pov = out / "scene.pov"
+    pov.write_text(scene_to_pov(scene, rules, frames))
+    cmd = shlex.join(command(scene, len(frames), 1, len(frames), "png8"))
+    sh = out / "render.sh"
+    header = "# Render scene.pov with POV-Ray 3.7 (linear 8-bit PNG, no antialiasing)"
+    sh.write_text(f'#!/bin/sh\n{header}\ncd "$(dirname "$0")"\n{cmd}\n')
+    sh.chmod(0o755)
+    readme = out / "README.txt"
+    note = ""
+    if len(frames) == 3:
+        note = (
+            " The scene is rendered once per colour channel (frames 1-3 are grey renders of R, G and B):"
+            " take channel 0 of out1.png, out2.png and out3.png."
+        )
+    if rules.ray_origin == "image-plane" and between_camera_and_image_plane(scene):
+        note += (
+            " Warning: a shape lies between the camera and the image plane, where POV-Ray's camera rays"
+            " see it and the exercise's do not."
+        )
+    output = "out.png" if len(frames) == 1 else "out1.png, out2.png, out3.png"
+    readme.write_text(f"Render with: {cmd}\nOutput: {output} (linear, File_Gamma 1.0).{note}\n")
+    return [pov, sh, readme]

@@ -1,0 +1,357 @@
+"""The POV-Ray oracle against the reference tracer, on every scene at 48x48, plus its exporter and failures.
+
+Comparisons are made under ``oracle.adapt(rules)``, so the reference follows the same model rules.
+
+- Hit mask: may differ only inside the silhouette band, margin < K·eps with K·eps =
+  ``povray.band_threshold(scene)`` (float bounding boxes 2^-24 (|C| + r)/r, the textbook discriminant
+  2^-53 |f|^2/r^2, planes missed below |n·d| = 1e-10; K = 8) -- a few 1e-6 for these scenes.
+- Shape ids: equal on every pixel both call a hit, outside the band.
+- t, position, normal: within the encoding precision in ``meta["precision"]`` (derived in
+  povray.precision: 2.4e-7 of each per-shape range) plus 1e-9 relative for POV-Ray's own rounding.
+- Colour: POV-Ray's 8-bit PNG within 1 level of the reference's 8-bit image outside the band (measured:
+  all pixels equal); the half-float EXR within 2^-11 relative of the reference colour.
+
+Set MINIRT_UPDATE_SNAPSHOTS=1 to rewrite tests/snapshots/povray/ after an intended exporter change.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import oracles
+from minirt import band, camera, tracer
+from minirt import rules as R
+from minirt.imageio import read_image_u8
+from minirt.scene import Scene, load_scene, parse_scene
+from oracles import povray
+from oracles.povray import PovrayOracle
+
+ROOT = Path(__file__).resolve().parent.parent
+SNAPSHOTS = Path(__file__).resolve().parent / "snapshots" / "povray"
+SIZE = 48
+ORACLE = PovrayOracle()
+
+# (case id, scene file stem, rule overrides): every scene with its own profile, plus the rule values the
+# exporter handles differently (background on-miss, pixel centres, camera-origin rays).
+CASES = [(p.stem, p.stem, {}) for p in sorted((ROOT / "scenes").glob("*.toml"))] + [
+    ("exercise-conventional", "exercise", {"profile": "conventional"}),
+    ("three_balls-center", "three_balls", {"pixel_sample": "center"}),
+    ("near-ball-camera", None, {"ray_origin": "camera"}),
+    ("rules-camera", "rules", {"ray_origin": "camera"}),  # "rules" itself is a skip: a ball crosses z = 0
+]
+
+NEAR_BALL = """
+[camera]
+distance = 2.0
+[light]
+position = [3.0, 4.0, -3.0]
+[render]
+background = [0.1, 0.1, 0.2]
+max_depth = 2
+[materials.m]
+ambient = [0.1, 0.05, 0.0]
+diffuse = [0.5, 0.6, 0.7]
+specular = [0.4, 0.4, 0.4]
+reflection = [0.3, 0.3, 0.3]
+[[shapes]]
+type = "ball"
+center = [0.1, 0.0, -0.6]
+radius = 0.15
+material = "m"
+[[shapes]]
+type = "ball"
+center = [0.0, 0.0, 4.0]
+radius = 1.0
+material = "m"
+[[shapes]]
+type = "plane"
+normal = [0.0, 1.0, 0.0]
+distance = -1.0
+material = "m"
+"""
+
+
+def _scene(stem: str | None) -> Scene:
+    sc = load_scene(ROOT / "scenes" / f"{stem}.toml") if stem else parse_scene(NEAR_BALL, "near_ball.toml")
+    return sc.with_overrides(width=SIZE, height=SIZE)
+
+
+def _rules(sc: Scene, overrides: dict) -> R.Rules:
+    ov = dict(overrides)
+    profile = ov.pop("profile", None)
+    return ORACLE.adapt(R.resolve(sc, profile, ov))
+
+
+@pytest.fixture(scope="module")
+def renders():
+    cache: dict[str, dict] = {}
+
+    def get(case: str) -> dict:
+        if case not in cache:
+            _, stem, ov = next(c for c in CASES if c[0] == case)
+            sc = _scene(stem)
+            rules = _rules(sc, ov)
+            res = ORACLE.render(sc, rules)
+            ref = tracer.render(sc, rules)
+            o, d = camera.primary_rays(sc, rules)
+            with np.errstate(invalid="ignore"):
+                margin = band.margins(sc, o, d)["margin"].reshape(SIZE, SIZE)
+            outside = margin >= povray.band_threshold(sc)
+            skip = rules.ray_origin == "image-plane" and bool(povray.between_camera_and_image_plane(sc))
+            cache[case] = {"scene": sc, "rules": rules, "res": res, "ref": ref, "outside": outside, "skip": skip}
+        return cache[case]
+
+    return get
+
+
+CASE_IDS = [c[0] for c in CASES]
+
+
+def test_available_and_version():
+    ok, why = ORACLE.available()
+    assert ok, why  # a fresh machine must have povray installed (make test installs it)
+    assert re.fullmatch(r"POV-Ray 3\.7\.\d+\.\d+", ORACLE.version())
+    assert oracles.get("povray").name == "povray"
+
+
+@pytest.mark.parametrize("case", CASE_IDS)
+def test_render_ok_with_two_invocations(renders, case):
+    r = renders(case)
+    res = r["res"]
+    if r["skip"]:  # the pinhole camera cannot reproduce it: the one right answer is a skip
+        assert res.status == "skip" and res.reason.startswith("object between camera and image plane")
+        return
+    assert res.ok, res.reason
+    assert len(res.meta["commands"]) == 2  # one EXR animation (colour + buffers) and the 8-bit PNG
+    assert all(c.startswith("povray -D -A") for c in res.meta["commands"])
+    tm = res.meta["timings"]
+    assert tm["setup"] > 0 and tm["total"] >= tm["setup"]
+    assert res.meta["hit_consistency"] == 0  # alpha of every frame and the id channel agree
+
+
+@pytest.mark.parametrize("case", CASE_IDS)
+def test_hit_mask_and_ids(renders, case):
+    r = renders(case)
+    if r["skip"]:
+        return  # asserted in test_render_ok_with_two_invocations
+    res, ref, outside = r["res"], r["ref"], r["outside"]
+    diff = res.hit != ref.hit
+    assert not (diff & outside).any(), f"{int((diff & outside).sum())} hit mismatches outside the band"
+    both = res.hit & ref.hit & outside
+    assert np.array_equal(res.shape_id[both], ref.shape_id[both])
+
+
+@pytest.mark.parametrize("case", CASE_IDS)
+def test_geometry_within_encoding_precision(renders, case):
+    r = renders(case)
+    if r["skip"]:
+        return  # asserted in test_render_ok_with_two_invocations
+    res, ref, outside = r["res"], r["ref"], r["outside"]
+    prec = res.meta["precision"]
+    ok = res.hit & ref.hit & (res.shape_id == ref.shape_id) & outside
+    assert ok.sum() > 0
+    scale = np.maximum(1.0, np.abs(ref.t[ok]))
+    assert np.all(np.abs(res.t[ok] - ref.t[ok]) <= prec["t_abs"] + 1e-9 * scale)
+    dp = np.abs(res.position[ok] - ref.position[ok]).max(axis=-1)
+    assert np.all(dp <= prec["position_abs"] + 1e-9 * scale)
+    dn = np.abs(res.normal[ok] - ref.normal[ok]).max(axis=-1)
+    assert np.all(dn <= prec["normal_abs"] + 1e-9)
+    # self-check of the decoding: every decoded point lies on its surface
+    assert max(res.meta["surface_residual"].values()) <= 2 * prec["position_abs"] + 1e-9 * scale.max()
+
+
+@pytest.mark.parametrize("case", CASE_IDS)
+def test_color(renders, case):
+    r = renders(case)
+    if r["skip"]:
+        return  # asserted in test_render_ok_with_two_invocations
+    res, ref, outside = r["res"], r["ref"], r["outside"]
+    pov8 = res.image8.astype(int)
+    ref8 = ref.color8().astype(int)
+    d8 = np.abs(pov8 - ref8).max(axis=-1)
+    differ = int((d8[outside] > 0).sum())
+    print(f"{case}: 8-bit pixels differing outside the band: {differ} of {int(outside.sum())}")
+    assert d8[outside].max() <= 1, f"{int((d8[outside] > 1).sum())} pixels differ by more than 1 level"
+    # half float: relative rounding 2^-12, POV-Ray's single-precision colour arithmetic well below
+    tol = 2.0**-11 * np.abs(ref.color) + 1e-6
+    assert np.all((np.abs(res.color - ref.color) <= tol)[outside])
+
+
+def test_only_needed_features_are_emitted():
+    matte = _scene("matte")
+    text = povray.scene_to_pov(matte, _rules(matte, {}))
+    assert "phong" not in text and "reflection" not in text and "#switch" not in text
+    shadows = _scene("shadows")  # max_depth 0: no reflection
+    assert "reflection" not in povray.scene_to_pov(shadows, _rules(shadows, {}))
+    cs = _scene("colored_specular")
+    assert povray.needs_per_channel(cs, _rules(cs, {}))
+    assert not povray.needs_per_channel(_scene("exercise"), _rules(_scene("exercise"), {}))
+    ex = _scene("exercise")
+    assert "background" not in povray.scene_to_pov(ex, _rules(ex, {}))  # on-hit: folded into ambient
+    assert "background {" in povray.scene_to_pov(ex, _rules(ex, {"profile": "conventional"}))
+
+
+def _snapshot(name: str, text: str) -> None:
+    path = SNAPSHOTS / name
+    if os.environ.get("MINIRT_UPDATE_SNAPSHOTS"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    assert path.exists(), f"missing snapshot {path}: run MINIRT_UPDATE_SNAPSHOTS=1 pytest {__file__}"
+    assert text == path.read_text(), f"{name} changed; if intended: MINIRT_UPDATE_SNAPSHOTS=1 pytest {__file__}"
+
+
+@pytest.mark.parametrize("stem", ["exercise", "colored_specular"])
+def test_exporter_snapshot(stem):
+    sc = _scene(stem)
+    _snapshot(f"{stem}.pov", povray.scene_to_pov(sc, _rules(sc, {})))
+
+
+def test_exporter_snapshot_geometry_frames():
+    sc = _scene("exercise")
+    ranges = [{"x": (-1.0, 1.0), "y": (-2.0, 0.5), "z": (3.0, 5.0), "t": (0.5, 4.0)}, None]
+    frames = povray.color_frames(sc, _rules(sc, {})) + povray.geometry_frames()
+    _snapshot("exercise_geometry.pov", povray.scene_to_pov(sc, _rules(sc, {}), frames, ranges))
+
+
+HOSTILE = r'''
+[scene]
+name = "evil\" #fopen F \"/etc/passwd\" read #declare X = 1; // /* */"
+description = """line one
+#write (F, "pwned") */ /* // #include "colors.inc"
+#declare Y = 2;"""
+
+[camera]
+distance = 2.0
+width = 48
+height = 48
+
+[light]
+position = [10.0, 10.0, -1.0]
+
+[materials."red\"} #fopen G \"x\" write //"]
+ambient = [0.1, 0.0, 0.0]
+diffuse = [0.7, 0.1, 0.1]
+specular = [0.5, 0.5, 0.5]
+reflection = [1e-7, 1e-7, 1e-7]
+
+[materials."#declare\n/*"]
+ambient = [0.05, 0.05, 0.05]
+diffuse = [0.5, 0.5, 0.5]
+
+[[shapes]]
+type = "ball"
+center = [0.0, 0.0, 4.0]
+radius = 0.5
+material = "red\"} #fopen G \"x\" write //"
+
+[[shapes]]
+type = "plane"
+normal = [0.0, 3.0, 0.0]
+distance = -3.0
+material = "#declare\n/*"
+'''
+
+# Every word the exporter may write (the 'e' of exponents included): anything else came from the scene.
+KEYWORDS = {
+    "version", "global_settings", "assumed_gamma", "ambient_light", "max_trace_level", "adc_bailout", "camera",
+    "perspective", "location", "right", "up", "direction", "switch", "frame_number", "case", "break", "end",
+    "light_source", "color", "rgb", "background", "sphere", "plane", "pigment", "finish", "ambient", "diffuse",
+    "phong", "phong_size", "reflection", "average", "pigment_map", "function", "color_map", "floor", "sqrt",
+    "x", "y", "z", "e",
+}  # fmt: skip
+
+
+def test_hostile_names_never_reach_the_pov_file(tmp_path):
+    sc = parse_scene(HOSTILE, "hostile.toml")
+    rules = _rules(sc, {})
+    frames = povray.color_frames(sc, rules) + povray.geometry_frames()
+    text = povray.scene_to_pov(sc, rules, frames)
+    for bad in ['"', "//", "/*", "*/", "#declare", "#fopen", "#write", "#include", "evil", "red", "passwd", "pwned"]:
+        assert bad not in text, bad
+    words = set(re.findall(r"[A-Za-z_]+", text))
+    assert words <= KEYWORDS, words - KEYWORDS
+    assert set(re.findall(r"#\w+", text)) <= {"#version", "#switch", "#case", "#break", "#end"}
+    files = povray.export(sc, rules, tmp_path)
+    for f in files:
+        if f.suffix == ".pov":
+            assert f.read_text() == povray.scene_to_pov(sc, rules)
+    res = ORACLE.render(sc, rules)
+    assert res.ok, res.reason
+    assert res.hit.any()
+
+
+def test_export_writes_a_runnable_command(tmp_path):
+    sc = _scene("exercise")
+    rules = _rules(sc, {})
+    files = povray.export(sc, rules, tmp_path)
+    assert {f.name for f in files} == {"scene.pov", "render.sh", "README.txt"}
+    cmd = povray.shlex.join(povray.command(sc, 1, 1, 1, "png8"))
+    assert cmd in (tmp_path / "render.sh").read_text() and cmd in (tmp_path / "README.txt").read_text()
+    subprocess.run(["sh", str(tmp_path / "render.sh")], check=True, capture_output=True, timeout=120)
+    png = read_image_u8(tmp_path / "out.png")
+    ref = tracer.render(sc, rules).color8()
+    assert np.abs(png[..., :3].astype(int) - ref.astype(int)).max() <= 1
+
+
+def test_broken_scene_reports_povray_parse_error(monkeypatch):
+    garbage = "#version 3.7;\nsphere { <0, 0, 4>, 0.5 pigmnt { rgb 1 } }\n"
+    monkeypatch.setattr(povray, "scene_to_pov", lambda *a, **k: garbage)
+    sc = _scene("exercise")
+    res = ORACLE.render(sc, _rules(sc, {}))
+    assert res.status == "error"
+    assert "line 2" in res.reason and "Parse Error" in res.reason and "pigmnt" in res.reason
+    assert "\n" not in res.reason
+
+
+def test_timeout_is_an_error_not_a_hang():
+    sc = _scene("matte")
+    res = ORACLE.render(sc, _rules(sc, {}), {"timeout": 0.05})
+    assert res.status == "error" and "timed out" in res.reason
+
+
+def test_missing_povray_is_a_skip(monkeypatch):
+    monkeypatch.setenv("PATH", str(Path("/nonexistent-minirt")))
+    ok, why = ORACLE.available()
+    assert not ok and why == "povray not found on PATH; install: sudo apt-get install povray"
+    sc = _scene("exercise")
+    res = ORACLE.render(sc, _rules(sc, {}))
+    assert res.status == "skip" and res.reason == why
+
+
+def test_missing_povray_via_which(monkeypatch):
+    monkeypatch.setattr(povray.shutil, "which", lambda name: None)
+    sc = _scene("matte")
+    res = ORACLE.render(sc, _rules(sc, {}))
+    assert res.status == "skip" and "povray not found" in res.reason
+
+
+def test_object_between_camera_and_image_plane_is_skipped():
+    sc = _scene(None)
+    rules = _rules(sc, {})
+    assert rules.ray_origin == "image-plane"
+    assert povray.between_camera_and_image_plane(sc) == [0]
+    res = ORACLE.render(sc, rules)
+    assert res.status == "skip" and "object between camera and image plane" in res.reason
+    # a plane crossing the pyramid, and a ball wholly outside it
+    assert povray.between_camera_and_image_plane(_scene("shadows")) == []
+    plane = parse_scene(
+        NEAR_BALL.replace("distance = -1.0", "distance = -0.1").replace("[0.0, 1.0, 0.0]", "[0.0, 0.0, 1.0]")
+    )
+    assert 2 in povray.between_camera_and_image_plane(plane)
+
+
+def test_supported_rules_and_adapt():
+    ex = R.PROFILES["exercise"]
+    adapted = ORACLE.adapt(ex)
+    assert adapted == replace(
+        R.PROFILES["conventional"], background="on-hit", offset="error-bound", ray_origin="image-plane"
+    )
+    assert set(ORACLE.cannot_follow(ex)) == {"near_root_only", "shadow_range", "two_sided", "clamp", "offset"}
+    assert ORACLE.cannot_follow(R.PROFILES["conventional"]) == []
