@@ -316,6 +316,141 @@ def export(
 
 
 # ---------------------------------------------------------------------------------------------
+VERDICT_STYLE = {"pass": "green", "warn": "yellow", "fail": "bold red", "error": "bold magenta", "skip": "dim"}
+
+
+def _scene_paths(paths: list[Path] | None) -> list[Path]:
+    if not paths:
+        found = sorted(Path("scenes").glob("*.toml"))
+        if not found:
+            raise MinirtError("no scenes given and none in scenes/")
+        return found
+    out_: list[Path] = []
+    for p in paths:
+        if p.is_dir():
+            out_ += sorted(p.glob("*.toml"))
+        else:
+            out_.append(p)
+    return out_
+
+
+def _parse_size(size: str | None) -> tuple[int, int] | None:
+    if not size:
+        return None
+    try:
+        w, _, h = size.lower().partition("x")
+        wh = (int(w), int(h or w))
+    except ValueError:
+        raise MinirtError(f"--size {size}: expected WIDTHxHEIGHT, e.g. 128x128") from None
+    if min(wh) < 1:
+        raise MinirtError(f"--size {size}: width and height must be >= 1")
+    return wh
+
+
+def run_checks(paths, backend: str, size: str | None, quiet: bool):
+    """Shared by `check` and `report`: render and compare, with a progress bar on a terminal."""
+    from minirt import backends, harness
+
+    scenes_ = _scene_paths(paths)
+    names = backends.parse_backends(backend)
+    wh = _parse_size(size)
+    for p in scenes_:  # bad input first, before any long work
+        _load(p)
+    results = []
+    oracle_count = max(1, len([n for n in names if n != backends.REFERENCE]))
+    with _progress(not quiet) as bar:
+        task = bar.add_task("checking", total=len(scenes_) * oracle_count) if bar else None
+        for i, p in enumerate(scenes_):
+
+            def tick(scene: str, name: str, j: int, n: int, i=i) -> None:
+                if bar:
+                    bar.update(task, completed=i * oracle_count + j, description=f"{scene}: {name}")
+
+            results.append(harness.check_scene(p, names, wh, tick))
+            if bar:
+                bar.update(task, completed=(i + 1) * oracle_count)
+    return harness.CheckResult(verdict=harness.worst([s.verdict for s in results]), scenes=results)
+
+
+def _print_check(result) -> None:
+    t = Table(title="minirt check", title_justify="left")
+    for col in ("scene", "backend", "verdict", "geometry", "shading", "rules", "seconds"):
+        t.add_column(col)
+    for s in result.scenes:
+        for name, b in s.backends.items():
+            g = b.checks.get("geometry")
+            sh = b.checks.get("shading")
+            geo = (
+                f"mask {g.figures['mask_mismatch']} ({g.figures['mask_mismatch_outside_band']} off band), "
+                f"id {g.figures['id_mismatch']}, dt {g.figures['depth_rel_err_max']:.1e}, "
+                f"n {g.figures['normal_deg_max']:.1e} deg"
+                if g
+                else "-"
+            )
+            if sh is None:
+                shade = "-"
+            elif sh.verdict == "skip":
+                shade = "skip"
+            elif "color8_max_diff" in sh.figures:
+                shade = f"8-bit max {sh.figures['color8_max_diff']}, dE p95 {sh.figures['delta_e_p95']:.2f}"
+            elif "diffuse_rel_err_max" in sh.figures:
+                shade = f"diffuse rel {sh.figures['diffuse_rel_err_max']:.1e}, lit flips {sh.figures['lit_mismatch']}"
+            else:
+                shade = f"Z pass {sh.figures.get('pass_fraction', 0):.2%}"
+            st = b.checks.get("stochastic")
+            if st is not None and st.figures:
+                shade += f"; Z pass {st.figures['pass_fraction']:.2%}"
+            v = b.verdict
+            verdict = f"[{VERDICT_STYLE[v]}]{v.upper()}[/]"
+            if v in ("skip", "error", "fail", "warn") and b.reason:
+                verdict += f" {b.reason}"
+            rules_ = ", ".join(f"{k} {n}" for k, n in b.rules.items() if n) or "-"
+            t.add_row(s.scene, name, verdict, geo, shade, rules_, f"{b.seconds:.1f}")
+    err.print(t)
+
+
+@app.command()
+def check(
+    scene_paths: Annotated[
+        list[Path] | None, typer.Argument(metavar="SCENE...", help="Scene files or folders (default: scenes/).")
+    ] = None,
+    backend: Annotated[
+        str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")
+    ] = "all",
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON.")] = None,
+    junit: Annotated[Path | None, typer.Option("--junit", help="Write the results as JUnit XML.")] = None,
+    size: Annotated[
+        str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")
+    ] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Compare the reference tracer with the oracles: geometry pixel by pixel, shading, rules.
+
+    Exit status: 0 all pass (or warn/skip), 1 a check failed, 2 bad input or a backend error.
+    """
+    from minirt.imageio import atomic_path
+
+    result = run_checks(scene_paths, backend, size, quiet)
+    _print_check(result)
+    if json_out:
+        from minirt.imageio import write_json
+
+        write_json(json_out, result.as_dict())
+    if junit:
+        from minirt.harness import junit_xml
+
+        with atomic_path(junit) as tmp:
+            tmp.write_text(junit_xml(result))
+    counts = {v: 0 for v in ("pass", "warn", "fail", "error", "skip")}
+    for s in result.scenes:
+        for b in s.backends.values():
+            counts[b.verdict] += 1
+    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
+    out.print(f"{result.verdict.upper()}: {summary}")
+    raise typer.Exit(result.exit_code())
+
+
+# ---------------------------------------------------------------------------------------------
 def main() -> None:
     try:
         rv = app(standalone_mode=False)

@@ -413,8 +413,9 @@ class Tracer:
         timings["primary"] = time.perf_counter() - t0
         if progress:
             progress(1, max(1, sc.samples))
+        aux: dict[str, np.ndarray] = {}
         if sc.samples > 1:
-            col, terms = self._render_samples(progress)
+            col, terms, aux = self._render_samples(progress)
         timings["total"] = time.perf_counter() - t0
         for k in TERMS:
             terms.setdefault(k, np.zeros((h, w, 3)))
@@ -430,24 +431,40 @@ class Tracer:
                         **self.effects.as_dict()},
             "timings": timings,
         }  # fmt: skip
-        return RenderResult(backend="reference", width=w, height=h, color=col, terms=terms, meta=meta, **geom)
+        return RenderResult(backend="reference", width=w, height=h, color=col, terms=terms, aux=aux, meta=meta, **geom)
 
-    def _render_samples(self, progress=None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Average `samples` stratified, jittered rays per pixel (see camera.sample_offsets)."""
+    def _render_samples(self, progress=None) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Average `samples` stratified, jittered rays per pixel (see camera.sample_offsets).
+
+        Also returns the per-pixel sample variance (unbiased, of one sample; divide by n for the
+        mean's) of the colour and of the diffuse term, for statistical comparisons.
+        """
         sc = self.scene
         w, h, n = sc.camera.width, sc.camera.height, sc.samples
-        acc = np.zeros((h * w, 3))
+        acc, acc2 = np.zeros((h * w, 3)), np.zeros((h * w, 3))
         acc_terms: dict[str, np.ndarray] = {}
+        dif2 = np.zeros((h * w, 3))
         for s in range(n):
             u, v = camera.sample_offsets(n, s, w * h)
             o_np, d_np = camera.rays_through(sc, self.rules, u, v)
             c, levels = self.trace(self._load(o_np), self._load(d_np))
-            acc += self._to_numpy3(c)
+            c = self._to_numpy3(c)
+            acc += c
+            acc2 += c * c
             for k, val in levels[0].terms.items():
-                acc_terms[k] = acc_terms.get(k, 0.0) + self._to_numpy3(val)
+                t = self._to_numpy3(val)
+                acc_terms[k] = acc_terms.get(k, 0.0) + t
+                if k == "diffuse":
+                    dif2 += t * t
             if progress:
                 progress(s + 1, n)
-        return (acc / n).reshape(h, w, 3), {k: (v / n).reshape(h, w, 3) for k, v in acc_terms.items()}
+        mean = acc / n
+        terms = {k: (v / n).reshape(h, w, 3) for k, v in acc_terms.items()}
+        aux = {"variance": (np.maximum(acc2 - n * mean * mean, 0.0) / (n - 1)).reshape(h, w, 3)}
+        if "diffuse" in acc_terms:
+            dm = acc_terms["diffuse"] / n
+            aux["variance_diffuse"] = (np.maximum(dif2 - n * dm * dm, 0.0) / (n - 1)).reshape(h, w, 3)
+        return mean.reshape(h, w, 3), terms, aux
 
     def _load(self, a: np.ndarray) -> Any:
         a = np.ascontiguousarray(a.astype(self.T.np_dtype))

@@ -21,7 +21,9 @@ Conventions bridged (each one is a place where Mitsuba and the exercise differ):
   stratified sampler at 1 spp gives the pixel centre. The exercise's ray goes through the pixel's
   top-left corner (rule pixel_sample = "corner"), so the principal point is shifted by half a pixel
   (``principal_point_offset_x = -0.5/W`` in the mirrored frame, ``_y = -0.5/H``); for
-  pixel_sample = "center" no shift. Field of view: ``fov_axis = x``, ``fov = 2 atan(0.5 / d)`` (the
+  pixel_sample = "center" no shift. With spp > 1 there is no shift either: the samples then cover
+  the pixel square [x, x+1] x [y, y+1] whose top-left is the exercise's corner ray, the same square
+  the reference tracer's stratified samples cover. Field of view: ``fov_axis = x``, ``fov = 2 atan(0.5 / d)`` (the
   image plane is [-0.5, 0.5]^2 at distance d); W != H (non-square pixels) cannot be expressed.
 - Near clip: Mitsuba moves sensor ray origins onto the plane z_cam = near_clip and counts t from
   there. With near_clip = d the origins are exactly the exercise's image-plane points (rule
@@ -320,10 +322,10 @@ def _matrix(m: np.ndarray) -> str:
     return " ".join(_num(v) for v in np.asarray(m, dtype=np.float64).reshape(-1))
 
 
-def sensor_params(scene: Scene, rules: Rules) -> dict[str, Any]:
+def sensor_params(scene: Scene, rules: Rules, spp: int = 1) -> dict[str, Any]:
     """The perspective sensor reproducing the exercise's rays (square images; see the docstring)."""
     w, h, d = scene.camera.width, scene.camera.height, scene.camera.distance
-    corner = rules.pixel_sample == "corner"
+    corner = rules.pixel_sample == "corner" and spp == 1  # spp > 1: the whole pixel square, as the reference
     # camera-to-world: look_at((0,0,-d) -> 0, up +y) is the identity rotation plus a translation;
     # scale(-1, 1, 1) mirrors camera x so that image columns run toward world +x.
     to_world = np.array([[-1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, -d], [0, 0, 0, 1.0]])
@@ -829,7 +831,7 @@ class _SensorRender(_Base):
 
     def _sensor_dict(self, sampler_type: str, spp: int, seed: int) -> dict[str, Any]:
         mi = self.mi
-        sp = sensor_params(self.scene, self.rules)
+        sp = sensor_params(self.scene, self.rules, spp)
         return {
             "type": "perspective",
             "fov_axis": "x",

@@ -1,0 +1,614 @@
+"""The harness: compare any backend's RenderResult with the reference, pixel by pixel and statistically.
+
+For each scene and oracle:
+1. Pre-flight: same size, required channels present, no NaN or infinity where the other side is
+   finite, values in range. (OpenImageIO's compare lets NaN pixels and size mismatches pass: we
+   check ourselves, first, and fail loudly.)
+2. The reference is rendered under the rules the oracle can follow (``oracle.adapt``), so the
+   comparison is like with like.
+3. Geometry on the same rays: hit mask, shape id, t, normal, with a per-pixel silhouette band and
+   tolerances derived from the oracle's own precision (minirt.tolerances).
+4. Shading: deterministic per pixel where the oracle shades the same rays (POV-Ray: the whole
+   model in 8 bits; Mitsuba: the diffuse term with its physical factors divided out), colour
+   differences as CIEDE2000 and FLIP summaries; pixels on silhouettes, shadow edges and terminators
+   are classified and reported apart. For stochastic renders (scene samples > 1): a per-pixel
+   Z-test with a Sidak correction and a pass fraction, and per-shape means with standard errors.
+5. Rules: the difference between the exercise-profile image and the oracle's rules is attributed
+   to each rule singly (pixels changed, and a mask per rule).
+Verdicts: PASS, WARN, FAIL, ERROR (the backend broke), SKIP (does not apply, with the reason).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from minirt import backends, band, camera
+from minirt.errors import MinirtError
+from minirt.result import RenderResult
+from minirt.rules import Rules, resolve
+from minirt.scene import Scene, load_scene
+from minirt.tolerances import THRESHOLDS, geometry_tolerance
+
+ORDER = ["skip", "pass", "warn", "fail", "error"]
+
+# How each backend's colour relates to the exercise's model.
+SHADING_MODEL = {"povray": "exercise", "mitsuba": "physical", "embree": None}
+
+
+def worst(verdicts: list[str]) -> str:
+    vs = [v for v in verdicts if v]
+    if not vs:
+        return "skip"
+    real = [v for v in vs if v != "skip"]
+    return max(real, key=ORDER.index) if real else "skip"
+
+
+@dataclass
+class Check:
+    verdict: str
+    figures: dict[str, Any] = field(default_factory=dict)
+    reason: str = ""
+    thresholds: dict[str, str] = field(default_factory=dict)
+    images: dict[str, np.ndarray] = field(default_factory=dict)  # evidence for the report
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {"verdict": self.verdict, **self.figures}
+        if self.reason:
+            d["reason"] = self.reason
+        if self.thresholds:
+            d["thresholds"] = self.thresholds
+        return d
+
+
+@dataclass
+class BackendCheck:
+    backend: str
+    verdict: str
+    reason: str = ""
+    checks: dict[str, Check] = field(default_factory=dict)
+    rules: dict[str, int] = field(default_factory=dict)
+    rule_masks: dict[str, np.ndarray] = field(default_factory=dict)
+    rules_followed: dict[str, Any] = field(default_factory=dict)
+    seconds: float = 0.0
+    result: RenderResult | None = None
+    reference: RenderResult | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"verdict": self.verdict}
+        if self.reason:
+            d["reason"] = self.reason
+        for name, c in self.checks.items():
+            d[name] = c.as_dict()
+        d["rules"] = self.rules
+        d["rules_followed"] = self.rules_followed
+        d["seconds"] = round(self.seconds, 3)
+        if self.result is not None:
+            d["version"] = self.result.meta.get("version")
+        return d
+
+
+@dataclass
+class SceneCheck:
+    scene: str
+    file: str
+    verdict: str
+    backends: dict[str, BackendCheck] = field(default_factory=dict)
+    reference: RenderResult | None = None
+    description: str = ""
+    reason: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {"scene": self.scene, "file": self.file, "verdict": self.verdict, "description": self.description}
+        if self.reason:
+            d["reason"] = self.reason
+        d["backends"] = {k: v.as_dict() for k, v in self.backends.items()}
+        return d
+
+
+@dataclass
+class CheckResult:
+    verdict: str
+    scenes: list[SceneCheck]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "verdict": self.verdict,
+            "scenes": [s.as_dict() for s in self.scenes],
+            "thresholds": {k: {"value": t.value, "why": t.why} for k, t in THRESHOLDS.items()},
+            **self.meta,
+        }
+
+    def exit_code(self) -> int:
+        if self.verdict == "error":
+            return 2
+        return 1 if self.verdict == "fail" else 0
+
+
+# ---------------------------------------------------------------------------------------------
+# 1. Pre-flight
+
+
+def preflight(ref: RenderResult, res: RenderResult, need_color: bool) -> Check:
+    problems = []
+    if (res.width, res.height) != (ref.width, ref.height):
+        problems.append(f"size {res.width}x{res.height}, expected {ref.width}x{ref.height}")
+    for name in ("hit", "shape_id", "t", "position", "normal"):
+        a = getattr(res, name)
+        if a is None:
+            problems.append(f"missing {name} buffer")
+        elif a.shape[:2] != (ref.height, ref.width):
+            problems.append(f"{name} buffer is {a.shape[1]}x{a.shape[0]}, expected {ref.width}x{ref.height}")
+    if need_color and res.color is None:
+        problems.append("missing colour")
+    if problems:
+        return Check("fail", {"problems": problems}, reason="; ".join(problems))
+    nonfinite = {}
+    for name in ("position", "normal", "color"):
+        a, b = getattr(res, name), getattr(ref, name)
+        if a is None or b is None:
+            continue
+        bad = ~np.isfinite(a) & np.isfinite(b)
+        if bad.any():
+            nonfinite[name] = int(bad.any(axis=-1).sum() if bad.ndim == 3 else bad.sum())
+    tbad = res.hit & ~np.isfinite(res.t)
+    if tbad.any():
+        nonfinite["t"] = int(tbad.sum())
+    if nonfinite:
+        where = ", ".join(f"{k}: {v} pixel(s)" for k, v in nonfinite.items())
+        return Check(
+            "fail", {"nonfinite": nonfinite}, reason=f"NaN or infinity where the reference is finite ({where})"
+        )
+    out_of_range = []
+    n_shapes = int(ref.meta.get("shapes", 0)) or int(max(ref.shape_id.max(), res.shape_id.max()) + 1)
+    if res.shape_id.min() < -1 or res.shape_id.max() >= max(n_shapes, 1):
+        out_of_range.append(f"shape ids outside [-1, {n_shapes - 1}]")
+    if not np.array_equal(res.hit, res.shape_id >= 0):
+        out_of_range.append("hit mask and shape ids disagree")
+    nl = np.linalg.norm(res.normal, axis=-1)[res.hit]
+    if nl.size and np.abs(nl - 1).max() > 1e-3:
+        out_of_range.append(f"normals not unit length (|n| up to {nl.max():.4g})")
+    if res.color is not None and np.nanmin(res.color) < -1e-6:
+        out_of_range.append("negative colour")
+    if out_of_range:
+        return Check("fail", {"problems": out_of_range}, reason="; ".join(out_of_range))
+    return Check("pass")
+
+
+# ---------------------------------------------------------------------------------------------
+# 3. Geometry
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between vectors, stable for tiny angles (atan2 of |a x b| and a . b, not acos)."""
+    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.einsum("...i,...i", a, b)))
+
+
+def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderResult) -> Check:
+    o, d = camera.primary_rays(scene, rules)
+    margins = band.margins(scene, o, d)
+    tol = geometry_tolerance(res, ref, margins)
+    mism = ref.hit != res.hit
+    inside, outside = mism & tol.band, mism & ~tol.band
+    both = ref.hit & res.hit
+    idm = both & (ref.shape_id != res.shape_id)
+    tie_eps = tol.summary.get("band_eps", 1e-6)
+    ties = idm & (margins["tie"].reshape(ref.height, ref.width) < max(tie_eps, 1e-12) * 4)
+    id_out = idm & ~tol.band & ~ties
+    same = both & ~idm
+    dt = np.abs(np.where(same, ref.t - res.t, 0.0))
+    rel = np.where(same, dt / np.maximum(np.abs(np.where(same, ref.t, 1.0)), 1e-300), 0.0)
+    ang = np.where(same, angle_deg(ref.normal, res.normal), 0.0)
+    judged = same & ~tol.band
+    t_viol = judged & (dt > tol.t_abs)
+    n_viol = judged & (ang > tol.normal_deg)
+    figures = {
+        "pixels": int(ref.hit.size),
+        "band_pixels": int(tol.band.sum()),
+        "mask_mismatch": int(mism.sum()),
+        "mask_mismatch_outside_band": int(outside.sum()),
+        "id_mismatch": int(id_out.sum()),
+        "ties": int(ties.sum()),
+        "depth_rel_err_max": float(rel[same].max()) if same.any() else 0.0,
+        "depth_rel_err_p99": float(np.percentile(rel[same], 99)) if same.any() else 0.0,
+        "depth_violations": int(t_viol.sum()),
+        "normal_deg_max": float(ang[same].max()) if same.any() else 0.0,
+        "normal_violations": int(n_viol.sum()),
+        "tolerance": tol.summary,
+    }
+    bad = []
+    if outside.any():
+        bad.append(f"{int(outside.sum())} hit-mask mismatch(es) outside the silhouette band")
+    if id_out.any():
+        bad.append(f"{int(id_out.sum())} shape id mismatch(es)")
+    if t_viol.any():
+        bad.append(f"{int(t_viol.sum())} t error(s) above tolerance")
+    if n_viol.any():
+        bad.append(f"{int(n_viol.sum())} normal error(s) above tolerance")
+    images = {
+        "mask_inside_band": inside,
+        "mask_outside_band": outside,
+        "id_mismatch": id_out,
+        "depth_rel_err": rel,
+        "normal_deg": ang,
+        "band": tol.band,
+    }
+    thresholds = {
+        "mask_outside_band": f"0: {THRESHOLDS['mask_outside_band'].why}",
+        "band": tol.why["band"],
+        "t": tol.why["t"],
+        "normal": tol.why["normal"],
+    }
+    return Check("fail" if bad else "pass", figures, reason="; ".join(bad), thresholds=thresholds, images=images)
+
+
+# ---------------------------------------------------------------------------------------------
+# 4. Shading
+
+
+def edge_classes(ref: RenderResult) -> dict[str, np.ndarray]:
+    """Pixels whose 3x3 neighbourhood crosses a silhouette, a shadow edge or a terminator."""
+    from scipy import ndimage
+
+    def changes(labels: np.ndarray) -> np.ndarray:
+        mx = ndimage.maximum_filter(labels, size=3, mode="nearest")
+        mn = ndimage.minimum_filter(labels, size=3, mode="nearest")
+        return mx != mn
+
+    sil = changes(ref.shape_id)
+    lit = (ref.terms.get("diffuse", np.zeros((ref.height, ref.width, 3))) > 0).any(-1) | (
+        ref.terms.get("specular", np.zeros((ref.height, ref.width, 3))) > 0
+    ).any(-1)
+    light_edge = changes(lit.astype(np.int8)) & ~sil
+    return {"silhouette": sil, "shadow_or_terminator": light_edge}
+
+
+def color_differences(a8: np.ndarray, b8: np.ndarray) -> dict[str, float]:
+    """CIEDE2000 (colour-science) and FLIP (flip-evaluator) on 8-bit images read as sRGB display values."""
+    import colour
+    import flip_evaluator
+
+    fa, fb = a8.astype(np.float64) / 255.0, b8.astype(np.float64) / 255.0
+    lab_a = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(fa))
+    lab_b = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(fb))
+    de = colour.delta_E(lab_a, lab_b, method="CIE 2000")
+    flip_map, flip_mean, _ = flip_evaluator.evaluate(
+        fa.astype(np.float32), fb.astype(np.float32), "LDR", applyMagma=False
+    )
+    return {
+        "delta_e_mean": float(de.mean()),
+        "delta_e_p95": float(np.percentile(de, 95)),
+        "delta_e_max": float(de.max()),
+        "flip_mean": float(flip_mean),
+        "_delta_e": de,
+        "_flip": np.asarray(flip_map).reshape(a8.shape[:2]),
+    }
+
+
+def check_shading(scene: Scene, ref: RenderResult, res: RenderResult, geom: Check) -> Check:
+    model = SHADING_MODEL.get(res.backend, "exercise" if res.color is not None else None)
+    if model is None or res.color is None:
+        return Check("skip", reason=f"{res.backend} is a geometry-only oracle: it does not shade")
+    classes = edge_classes(ref)
+    band_px = geom.images.get("band", np.zeros_like(ref.hit))
+    edges = classes["silhouette"] | classes["shadow_or_terminator"] | band_px
+    if model == "exercise":
+        return _shading_exercise(ref, res, classes, edges)
+    return _shading_physical(scene, ref, res, classes, edges)
+
+
+def _shading_exercise(ref, res, classes, edges) -> Check:
+    a8, b8 = ref.color8().astype(int), res.color8().astype(int)
+    d8 = np.abs(a8 - b8).max(axis=-1)
+    judged = ~edges
+    over = judged & (d8 > THRESHOLDS["color8_levels"].value)
+    one = judged & (d8 == 1)
+    frac_one = float(one.sum() / max(judged.sum(), 1))
+    cd = color_differences(ref.color8(), res.color8())
+    rel = np.abs(ref.color - res.color) / np.maximum(np.abs(ref.color), 1e-3)
+    figures = {
+        "compared_pixels": int(judged.sum()),
+        "edge_pixels": {k: int(v.sum()) for k, v in classes.items()},
+        "color8_max_diff": int(d8[judged].max()) if judged.any() else 0,
+        "color8_over_1": int(over.sum()),
+        "color8_off_by_one": int(one.sum()),
+        "color8_diff_on_edges": int((edges & (d8 > 0)).sum()),
+        "color_rel_err_max": float(rel[judged].max()) if judged.any() else 0.0,
+        **{k: v for k, v in cd.items() if not k.startswith("_")},
+    }
+    verdict, reason = "pass", ""
+    if over.any():
+        verdict, reason = "fail", f"{int(over.sum())} pixel(s) differ by more than 1 level off edges"
+    elif frac_one > THRESHOLDS["color8_off_by_one_fraction"].value:
+        verdict, reason = "warn", f"{frac_one:.2%} of pixels differ by 1 level"
+    elif figures["delta_e_p95"] > THRESHOLDS["delta_e_p95"].value:
+        verdict, reason = "warn", f"CIEDE2000 p95 {figures['delta_e_p95']:.2f}"
+    images = {"color8_diff": d8, "delta_e": cd["_delta_e"], "flip": cd["_flip"], "edges": edges}
+    thresholds = {
+        k: f"{THRESHOLDS[k].value}: {THRESHOLDS[k].why}"
+        for k in ("color8_levels", "color8_off_by_one_fraction", "delta_e_p95")
+    }
+    return Check(verdict, figures, reason, thresholds, images)
+
+
+def _light_scale(scene: Scene, position: np.ndarray) -> np.ndarray:
+    """Per pixel pi r^2: Mitsuba's point light and diffuse BSDF carry I / (pi r^2), and I = lc.
+
+    For a pixel average, r is taken at the pixel's centre ray: the average of f * g over a pixel
+    with g = 1/r^2 smooth differs from mean(f) * g(centre) only in second order of the footprint.
+    """
+    lpos = np.asarray(scene.light.position)
+    r2 = np.sum((position - lpos) ** 2, axis=-1)
+    return (math.pi * r2)[..., None] * np.ones(3)
+
+
+def _shading_physical(scene, ref, res, classes, edges) -> Check:
+    if "diffuse_exercise" not in res.aux:
+        return Check("skip", reason="no per-ray diffuse buffer (a sensor render is compared statistically)")
+    a = ref.terms.get("diffuse", np.zeros_like(ref.color))
+    b = res.aux["diffuse_exercise"]
+    both_hit = ref.hit & res.hit & (ref.shape_id == res.shape_id)
+    lc_dc = np.zeros_like(a)
+    for k, s in enumerate(scene.shapes):
+        lc_dc[ref.shape_id == k] = np.asarray(scene.light.color) * np.asarray(s.material.diffuse)
+    lit_a, lit_b = (a > 0).any(-1), (b > 0).any(-1)
+    judged = both_hit & ~edges
+    lit_flip = judged & (lit_a != lit_b)
+    err = np.abs(a - b)
+    allowed = THRESHOLDS["diffuse_rel"].value * np.maximum(lc_dc, 1e-12)
+    over = judged[..., None] & (err > allowed)
+    rel = np.where(lc_dc > 0, err / np.maximum(lc_dc, 1e-12), 0.0)
+    figures = {
+        "compared_pixels": int(judged.sum()),
+        "edge_pixels": {k: int(v.sum()) for k, v in classes.items()},
+        "diffuse_rel_err_max": float(rel[judged].max()) if judged.any() else 0.0,
+        "diffuse_over_tolerance": int(over.any(-1).sum()),
+        "lit_mismatch": int(lit_flip.sum()),
+        "lit_mismatch_on_edges": int((both_hit & edges & (lit_a != lit_b)).sum()),
+        "not_compared_terms": res.meta.get("unsupported_terms", []),
+    }
+    bad = []
+    if lit_flip.any():
+        bad.append(f"{int(lit_flip.sum())} pixel(s) lit on one side and shadowed on the other, off edges")
+    if over.any():
+        bad.append(f"{int(over.any(-1).sum())} diffuse value(s) above tolerance")
+    images = {"diffuse_rel_err": rel.max(axis=-1), "lit_mismatch": lit_flip, "edges": edges}
+    thresholds = {"diffuse_rel": f"{THRESHOLDS['diffuse_rel'].value}: {THRESHOLDS['diffuse_rel'].why}"}
+    return Check("fail" if bad else "pass", figures, "; ".join(bad), thresholds, images)
+
+
+def z_test(a: np.ndarray, var_a: np.ndarray, n_a: int, b: np.ndarray, var_b: np.ndarray, n_b: int, mask: np.ndarray):
+    """Per pixel-channel two-sample Z-test of equal means; Sidak-corrected significance.
+
+    Returns (p-values, alpha corrected, pass fraction) over the masked pixel-channels.
+    """
+    from scipy.stats import norm
+
+    floor = THRESHOLDS["z_var_floor"].value
+    se = np.sqrt(var_a / n_a + var_b / n_b + floor)
+    z = np.abs(a - b) / se
+    p = 2 * norm.sf(z)
+    vals = p[mask]
+    n = max(vals.size, 1)
+    alpha = 1 - (1 - THRESHOLDS["z_significance"].value) ** (1 / n)
+    frac = float((vals > alpha).mean()) if vals.size else 1.0
+    return p, alpha, frac
+
+
+def _scale_bias(f: np.ndarray, g: np.ndarray, shape_id: np.ndarray) -> np.ndarray:
+    """Bound on the error of converting a pixel average with the centre value of its factor.
+
+    Mitsuba averages f h over a pixel (h = 1/g = I/(pi r^2)); we multiply its average by g(centre).
+    For smooth f and h over a unit pixel, mean(f h) = f(c) h(c) + (f lap h + h lap f + 2 grad f . grad h)/24
+    + O(4th order), and the reference's own average already holds the h lap f part; the remaining
+    g (f lap h + 2 grad f . grad h) / 24 is the conversion's bias. Central differences in pixel units;
+    pixels with a neighbour on another shape get none (they are edge pixels, excluded anyway).
+    """
+    h = 1.0 / g
+    out = np.zeros_like(f)
+    for axis in (0, 1):
+        fp, fm = np.roll(f, -1, axis), np.roll(f, 1, axis)
+        hp, hm = np.roll(h, -1, axis), np.roll(h, 1, axis)
+        out += np.abs(f * (hp + hm - 2 * h) + 2 * (fp - fm) * (hp - hm) / 4) / 24
+    same = np.ones(shape_id.shape, bool)
+    for axis in (0, 1):
+        same &= (np.roll(shape_id, 1, axis) == shape_id) & (np.roll(shape_id, -1, axis) == shape_id)
+    return np.where(same[..., None], out * g, 0.0)
+
+
+def check_stochastic(scene, ref, res, classes, edges, centre: RenderResult) -> Check:
+    """Mitsuba's sensor at n spp against the reference at n samples: Z-test and per-shape means.
+
+    `centre` is the reference's one-ray render through pixel centres (for the pi r^2 factor).
+    """
+    n_ref = int(ref.meta.get("settings", {}).get("samples", 1))
+    n_res = int(res.meta.get("options", {}).get("spp", res.meta.get("settings", {}).get("spp", 1)))
+    if n_ref < 2 or "variance" not in res.aux or "variance_diffuse" not in ref.aux:
+        return Check("skip", reason="statistical comparison needs samples > 1 on both sides")
+    scale = _light_scale(scene, centre.position)
+    bias = _scale_bias(ref.terms["diffuse"], scale, centre.shape_id)
+    b = res.color * scale
+    var_b = res.aux["variance"] * scale**2
+    a, var_a = ref.terms["diffuse"], ref.aux["variance_diffuse"]
+    cover = res.aux.get("coverage", np.ones(ref.hit.shape))
+    interior = ref.hit & ~edges & (cover >= 1 - 1e-6)
+    mask = np.repeat(interior[..., None], 3, axis=-1)
+    p, alpha, frac = z_test(a, var_a, n_ref, b, var_b, n_res, mask)
+    shapes = {}
+    bad_shapes = []
+    for k in range(len(scene.shapes)):
+        m = interior & (ref.shape_id == k)
+        if m.sum() < 4:
+            continue
+        ma, mb = a[m].mean(0), b[m].mean(0)
+        se = np.sqrt(var_a[m].sum(0) / n_ref + var_b[m].sum(0) / n_res) / m.sum()
+        known = bias[m].mean(0) + 1e-6 * np.abs(ma)  # the pi r^2 approximation, and float32 rounding
+        dev = np.maximum(np.abs(ma - mb) - known, 0) / np.maximum(se, 1e-12)
+        shapes[str(k)] = {
+            "pixels": int(m.sum()),
+            "reference": ma.tolist(),
+            "oracle": mb.tolist(),
+            "known_bias": known.tolist(),
+            "sigma": dev.max().item(),
+        }
+        if dev.max() > THRESHOLDS["shape_mean_sigma"].value:
+            bad_shapes.append(k)
+    figures = {
+        "samples": n_ref,
+        "spp": n_res,
+        "compared_pixel_channels": int(mask.sum()),
+        "alpha_sidak": alpha,
+        "pass_fraction": frac,
+        "shape_means": shapes,
+    }
+    bad = []
+    if frac < THRESHOLDS["z_pass_fraction"].value:
+        bad.append(f"Z-test: {frac:.4%} of pixel-channels pass, {THRESHOLDS['z_pass_fraction'].value:.2%} required")
+    if bad_shapes:
+        bad.append(f"mean shading differs on shape(s) {bad_shapes}")
+    thresholds = {
+        k: f"{THRESHOLDS[k].value}: {THRESHOLDS[k].why}"
+        for k in ("z_significance", "z_pass_fraction", "z_var_floor", "shape_mean_sigma")
+    }
+    images = {"p_value": np.where(mask, p, 1.0).min(axis=-1), "edges": edges}
+    return Check("fail" if bad else "pass", figures, "; ".join(bad), thresholds, images)
+
+
+# ---------------------------------------------------------------------------------------------
+# Whole scenes
+
+
+class _ReferenceCache:
+    """Reference renders of one scene, keyed by rules (many oracles share the same adapted rules)."""
+
+    def __init__(self, scene: Scene):
+        self.scene, self.cache = scene, {}
+
+    def get(self, rules: Rules, samples: int | None = None) -> RenderResult:
+        key = (rules, samples)
+        if key not in self.cache:
+            sc = self.scene if samples is None else self.scene.with_overrides(samples=samples)
+            r = backends.render(backends.REFERENCE, sc, rules)
+            if not r.ok:
+                raise MinirtError(f"{self.scene.source}: the reference tracer failed: {r.reason}")
+            r.meta["shapes"] = len(self.scene.shapes)
+            self.cache[key] = r
+        return self.cache[key]
+
+
+def attribute_rules(
+    refs: _ReferenceCache, rules: Rules, followed: Rules
+) -> tuple[dict[str, int], dict[str, np.ndarray]]:
+    """Pixels of the scene-rules image that each rule the oracle cannot follow changes, singly."""
+    base = refs.get(rules)
+    counts, masks = {}, {}
+    for name in rules.differs(followed):
+        alt = refs.get(replace(rules, **{name: getattr(followed, name)}))
+        m = (alt.color8() != base.color8()).any(-1) | (alt.hit != base.hit)
+        counts[name], masks[name] = int(m.sum()), m
+    return counts, masks
+
+
+def check_backend(
+    scene: Scene, rules: Rules, name: str, refs: _ReferenceCache, options: dict | None = None
+) -> BackendCheck:
+    t0 = time.perf_counter()
+    followed = backends.rules_for(name, rules) if backends.info(name).available else rules
+    bc = BackendCheck(backend=name, verdict="skip", rules_followed=followed.as_dict())
+    res = backends.render(name, scene, rules, options)
+    bc.result = res
+    if not res.ok:
+        bc.verdict, bc.reason = res.status, res.reason
+        bc.seconds = time.perf_counter() - t0
+        return bc
+    ref = refs.get(followed, samples=1)  # deterministic checks: the one-ray-per-pixel rays the oracle cast
+    bc.reference = ref
+    pre = preflight(ref, res, need_color=False)
+    bc.checks["preflight"] = pre
+    if pre.verdict == "fail":
+        bc.verdict, bc.reason = "fail", f"pre-flight: {pre.reason}"
+    else:
+        geom = check_geometry(scene, followed, ref, res)
+        bc.checks["geometry"] = geom
+        bc.checks["shading"] = check_shading(scene, ref, res, geom)
+        if scene.samples > 1 and SHADING_MODEL.get(name) == "physical":
+            bc.checks["stochastic"] = _stochastic_run(scene, followed, name, refs, geom)
+        bc.verdict = worst([c.verdict for c in bc.checks.values()])
+        bc.reason = "; ".join(
+            f"{k}: {c.reason}" for k, c in bc.checks.items() if c.verdict in ("fail", "warn", "error")
+        )
+    bc.rules, bc.rule_masks = attribute_rules(refs, rules, followed)
+    bc.seconds = time.perf_counter() - t0
+    return bc
+
+
+def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache, geom: Check) -> Check:
+    res = backends.render(name, scene, rules, {"mode": "sensor", "spp": scene.samples})
+    if not res.ok:
+        return Check("skip" if res.status == "skip" else "error", reason=res.reason)
+    ref = refs.get(rules)
+    centre = refs.get(replace(rules, pixel_sample="center"), samples=1)
+    classes = edge_classes(ref)
+    edges = classes["silhouette"] | classes["shadow_or_terminator"] | geom.images["band"]
+    return check_stochastic(scene, ref, res, classes, edges, centre)
+
+
+def check_scene(path: str | Path, names: list[str], size: tuple[int, int] | None = None, progress=None) -> SceneCheck:
+    """Check one scene file against the given backends (the reference itself is always rendered)."""
+    scene = load_scene(path)
+    if size:
+        scene = scene.with_overrides(width=size[0], height=size[1])
+    rules = resolve(scene)
+    sc = SceneCheck(scene=scene.name, file=str(path), verdict="skip", description=scene.description)
+    refs = _ReferenceCache(scene)
+    sc.reference = refs.get(rules)
+    oracle_names = [n for n in names if n != backends.REFERENCE]
+    for i, name in enumerate(oracle_names):
+        if progress:
+            progress(scene.name, name, i, len(oracle_names))
+        sc.backends[name] = check_backend(scene, rules, name, refs)
+    sc.verdict = worst([b.verdict for b in sc.backends.values()]) if sc.backends else "pass"
+    return sc
+
+
+def run(paths: list[Path], names: list[str], size: tuple[int, int] | None = None, progress=None) -> CheckResult:
+    scenes = [check_scene(p, names, size, progress) for p in paths]
+    return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
+
+
+# ---------------------------------------------------------------------------------------------
+# JUnit
+
+
+def junit_xml(result: CheckResult) -> str:
+    import xml.etree.ElementTree as ET
+
+    root = ET.Element("testsuites", name="minirt check")
+    for s in result.scenes:
+        suite = ET.SubElement(root, "testsuite", name=s.scene, file=s.file)
+        n = {"tests": 0, "failures": 0, "errors": 0, "skipped": 0}
+        for b in s.backends.values():
+            checks = b.checks or {"render": Check(b.verdict, reason=b.reason)}
+            for cname, c in checks.items():
+                case = ET.SubElement(
+                    suite, "testcase", classname=f"{s.scene}.{b.backend}", name=cname, time=f"{b.seconds:.3f}"
+                )
+                n["tests"] += 1
+                if c.verdict == "fail":
+                    ET.SubElement(case, "failure", message=c.reason or "fail")
+                    n["failures"] += 1
+                elif c.verdict == "error":
+                    ET.SubElement(case, "error", message=c.reason or "error")
+                    n["errors"] += 1
+                elif c.verdict == "skip":
+                    ET.SubElement(case, "skipped", message=c.reason or "skip")
+                    n["skipped"] += 1
+        for k, v in n.items():
+            suite.set(k, str(v))
+    return ET.tostring(root, encoding="unicode", xml_declaration=True)

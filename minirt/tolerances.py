@@ -1,0 +1,143 @@
+"""Every tolerance and threshold the harness applies, in one place, each with its derivation.
+
+Geometry tolerances come from the oracle's own precision (recorded in ``result.meta["precision"]``
+by the oracle that knows its encoding, intersector and tessellation); this module translates each
+oracle's vocabulary into one shape, :class:`GeometryTolerance`. Shading and statistical thresholds
+are the harness's own and are listed in :data:`THRESHOLDS`. The report prints both.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from minirt.result import RenderResult
+
+U32 = 2.0**-24  # float32 unit round-off
+U64 = 2.0**-53
+
+
+@dataclass(frozen=True)
+class Threshold:
+    value: float
+    why: str
+
+
+THRESHOLDS: dict[str, Threshold] = {
+    "mask_outside_band": Threshold(
+        0,
+        "A hit/miss disagreement on a ray whose every decision is farther than the oracle's precision from "
+        "flipping is a defect.",
+    ),
+    "id_mismatch": Threshold(
+        0, "Outside the band and away from depth ties the closest shape is decided with margin: ids must agree."
+    ),
+    "color8_levels": Threshold(
+        1,
+        "8-bit levels: both sides round floor(c*255+0.5); a value within float error of a .5 tie may round either "
+        "way, so 1 level is rounding, 2 or more is a shading difference.",
+    ),
+    "color8_off_by_one_fraction": Threshold(
+        0.002,
+        "Fraction of compared pixels allowed at exactly 1 level: ties are rare (a value must lie within ~1e-6 of a "
+        "tie, ~1e-4 of values for POV-Ray's half-precision internals); measured 3/65536 on the bundled scenes.",
+    ),
+    "diffuse_rel": Threshold(
+        2e-4,
+        "Mitsuba diffuse after its factors (pi r^2 / I) are divided out, relative to lc*dc: float32 shading "
+        "(~16 u32 = 1e-6) plus the float32 normal's angle error (<= 0.01 deg = 1.7e-4 rad) moving cos(theta).",
+    ),
+    "z_significance": Threshold(
+        0.01, "Per-pixel Z-test significance before correction, as in Mitsuba's own render tests."
+    ),
+    "z_pass_fraction": Threshold(
+        0.9975, "Fraction of pixel-channels that must pass the Sidak-corrected Z-test (Mitsuba's test_renders.py)."
+    ),
+    "z_var_floor": Threshold(
+        1e-8,
+        "Variance floor per pixel-channel: a constant pixel has zero sample variance, and the float32 renderer's "
+        "rounding (~1e-4 of 1 at worst) must not count as a significant difference.",
+    ),
+    "shape_mean_sigma": Threshold(
+        4.0, "Per-shape mean shading: the two means must agree within 4 combined standard errors."
+    ),
+    "delta_e_p95": Threshold(
+        1.0, "CIEDE2000 95th percentile on the 8-bit images: 1.0 is the just-noticeable difference (WARN above)."
+    ),
+}
+
+
+@dataclass
+class GeometryTolerance:
+    """Per-pixel tolerances for one oracle's geometry buffers against the float64 reference."""
+
+    band: np.ndarray  # bool (H, W): decisions within the oracle's precision of flipping
+    t_abs: np.ndarray  # float (H, W): allowed |t_oracle - t_ref|
+    normal_deg: np.ndarray  # float (H, W): allowed angle between normals
+    why: dict[str, str] = field(default_factory=dict)
+    summary: dict[str, float] = field(default_factory=dict)
+
+
+def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[str, np.ndarray]) -> GeometryTolerance:
+    """Translate an oracle's recorded precision into per-pixel tolerances (see each oracle's docstring)."""
+    h, w = ref.height, ref.width
+    p = result.meta.get("precision") or {}
+    m = {k: v.reshape(h, w) for k, v in margins.items()}
+    t_ref = np.where(ref.hit, ref.t, 0.0)
+    name = result.backend
+    if name == "mitsuba":
+        eps = p["band_k"] * p["band_eps"]
+        plane_abs = max([pl.get("abs_error", 0.0) for pl in result.meta.get("planes", {}).values()] or [0.0])
+        # A shadow or hit decision moved by the rectangle's absolute error: relative to the smallest radius.
+        band = m["margin"] < eps
+        t_abs = p["t_rel"] * t_ref + plane_abs
+        nd = np.full((h, w), p["normal_deg"])
+        why = {
+            "band": f"margin < band_k*band_eps = {eps:.3g}: {p.get('why', '')}",
+            "t": f"t_rel*t + plane_abs = {p['t_rel']:.3g}*t + {plane_abs:.3g} "
+            "(float32 roots; rectangles interpolate their corners)",
+            "normal": f"{p['normal_deg']} deg (float32 normals)",
+        }
+        summary = {"band_eps": eps, "t_rel": p["t_rel"], "plane_abs": plane_abs, "normal_deg": p["normal_deg"]}
+    elif name == "povray":
+        eps = p["band_threshold"]
+        band = m["margin"] < eps
+        t_abs = np.full((h, w), p["t_abs"])
+        deg = math.degrees(math.asin(min(1.0, 2 * p["normal_abs"]))) + 1e-9
+        nd = np.full((h, w), deg)
+        why = {
+            "band": f"margin < {eps:.3g}: single-precision bounding boxes and textbook sphere roots in POV-Ray",
+            "t": f"|dt| <= {p['t_abs']:.3g}: {p.get('derivation', '')}",
+            "normal": f"{deg:.3g} deg: normals from decoded positions, |dn| <= {p['normal_abs']:.3g}",
+        }
+        summary = {"band_eps": eps, "t_abs": p["t_abs"], "normal_deg": deg}
+    elif name == "embree":
+        tb = result.aux.get("t_bound", np.full((h, w), p["t_abs"]))
+        t_abs = tb + p["eps32_abs"]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tie_rel = np.where(t_ref > 0, t_abs / np.maximum(t_ref, 1e-300), np.inf)
+        band = (
+            (m["silhouette"] < p["band_abs"])
+            | (m["origin"] < p["origin_band_abs"])
+            | (m["grazing"] < p["grazing_abs"])
+            | (m["tie"] < 2 * tie_rel)
+        )
+        nd = result.aux.get("normal_bound_deg", np.full((h, w), p["normal_deg"]))
+        why = {
+            "band": f"silhouette < {p['band_abs']:.3g} (tessellation gap + float32), grazing < {p['grazing_abs']:.3g} "
+            "(far plane cut), depth ties within the t bound",
+            "t": "per pixel: the tessellated shell's thickness along the ray (aux t_bound) "
+            "+ float32 of the mesh extent",
+            "normal": "per pixel: face-to-vertex normal angle + the shell's tilt (aux normal_bound_deg)",
+        }
+        summary = {"band_eps": p["band_abs"], "t_abs_max": float(np.max(t_abs)), "normal_deg_max": float(np.max(nd))}
+    else:  # a backend that records only generic keys
+        eps = p.get("band_eps", 1e-6)
+        band = m["margin"] < eps
+        t_abs = p.get("t_rel", 1e-6) * t_ref + p.get("t_abs", 0.0)
+        nd = np.full((h, w), p.get("normal_deg", 1e-3))
+        why = {"band": f"margin < {eps:.3g}", "t": "t_rel*t + t_abs from the backend", "normal": "normal_deg"}
+        summary = {"band_eps": eps}
+    return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary)
