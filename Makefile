@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := povray libllvm19
 
-.PHONY: setup system demo test lint format bench clean
+.PHONY: setup system demo test lint format bench goldens clean
 
 setup: system $(STAMP)
 
@@ -34,6 +34,10 @@ lint:
 format:
 	$(BIN)/ruff format minirt oracles tests benchmarks
 	$(BIN)/ruff check --fix minirt oracles tests benchmarks
+
+# Refresh the reference tracer's golden images on purpose (after an intended change to its output).
+goldens: setup
+	MINIRT_UPDATE_GOLDENS=1 $(BIN)/python -m pytest -q tests/test_goldens.py
 
 bench: setup
 	$(BIN)/python benchmarks/bench.py

@@ -202,7 +202,7 @@ def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderRes
     ties = idm & (margins["tie"].reshape(ref.height, ref.width) < max(tie_eps, 1e-12) * 4)
     id_out = idm & ~tol.band & ~ties
     same = both & ~idm
-    dt = np.abs(np.where(same, ref.t - res.t, 0.0))
+    dt = np.abs(np.where(same, ref.t, 0.0) - np.where(same, res.t, 0.0))  # misses hold inf
     rel = np.where(same, dt / np.maximum(np.abs(np.where(same, ref.t, 1.0)), 1e-300), 0.0)
     ang = np.where(same, angle_deg(ref.normal, res.normal), 0.0)
     judged = same & ~tol.band
