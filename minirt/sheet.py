@@ -20,7 +20,7 @@ def preview(r: RenderResult) -> tuple[np.ndarray, str]:
     if not r.ok:
         return np.full((r.height, r.width, 3), 64, np.uint8), f"{r.status.upper()}"
     if r.color is not None:
-        return r.color8(), "colour"
+        return r.color8(), r.meta.get("image8_shows", "colour")
     n = np.where(r.hit[..., None], r.normal * 0.5 + 0.5, 0.0)
     return (np.clip(n, 0, 1) * 255 + 0.5).astype(np.uint8), "normals"
 

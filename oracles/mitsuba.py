@@ -47,6 +47,9 @@ Conventions bridged (each one is a place where Mitsuba and the exercise differ):
   aux["diffuse_to_exercise"] = pi r^2 make terms["diffuse"] * pi r^2 = n.s dc lc (I = lc; divided by
   I it is n.s dc);
   aux["diffuse_exercise"] and aux["reflection_exercise"] apply the same factor per bounce.
+  Mitsuba writes no 8-bit image of its own and its radiance is tiny in these units (1/(pi r^2)), so
+  ``image8`` (the PNG) shows diffuse_exercise + reflection_exercise: viewable beside the other
+  backends. The EXR's colour channels stay Mitsuba's own radiance.
 - Ambient, Phong specular, background: Mitsuba has no ambient term and no (r.s)^8 lobe, and a miss
   returns black. They are not simulated; meta["unsupported_terms"] lists the ones the scene uses.
 - One-sidedness: ``rectangle``/``diffuse``/``conductor`` are one-sided, so every BSDF is wrapped in
@@ -71,7 +74,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from minirt import camera
-from minirt.result import RenderResult, geometry_from_flat
+from minirt.result import RenderResult, geometry_from_flat, to8
 from minirt.rules import Rules
 from minirt.scene import Ball, Plane, Scene
 from oracles.base import Oracle
@@ -612,6 +615,7 @@ class _RayRender(_Base):
         extra = {
             "planes": {f"shape{k}": r_.describe() for k, r_ in rects.items()},
             "plane_resizes": resizes,
+            "image8_shows": "diffuse + reflection only, x pi r^2",
             "parameters": {"reflection_depth": depth, "shading": "diffuse" if lit else "none",
                            "reflective_shapes": reflective},
             "aux": {
@@ -622,8 +626,9 @@ class _RayRender(_Base):
                 "reflection_exercise": "terms.reflection with the same correction applied at every bounce",
             },
         }  # fmt: skip
+        image8 = to8(aux["diffuse_exercise"] + aux["reflection_exercise"])  # display only: see the docstring
         return RenderResult(
-            backend=BACKEND, width=w, height=h, color=color, terms=terms, aux=aux,
+            backend=BACKEND, width=w, height=h, color=color, terms=terms, aux=aux, image8=image8,
             meta=self.meta("rays", extra), **geom,
         )  # fmt: skip
 
