@@ -35,7 +35,7 @@ pytestmark = pytest.mark.skipif(not EmbreeOracle().available()[0], reason="insta
 
 
 def _small(path: Path):
-    return load_scene(path).with_overrides(width=SIZE, height=SIZE)
+    return load_scene(path).with_overrides(width=SIZE, height=SIZE, samples=1)
 
 
 def _compare(scene, level: int, tmp_path: Path) -> dict:

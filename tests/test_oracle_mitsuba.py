@@ -50,7 +50,7 @@ _cache: dict[str, tuple] = {}
 def _pair(oracle, path: Path):
     """(scene, rules, mitsuba result, reference result), rendered once per scene."""
     if path.stem not in _cache:
-        scene = load_scene(path).with_overrides(width=SIZE, height=SIZE)
+        scene = load_scene(path).with_overrides(width=SIZE, height=SIZE, samples=1)  # ray-for-ray: one ray per pixel
         rules = oracle.adapt(resolve(scene))
         res = oracle.render(scene, rules)
         assert res.ok, res.reason

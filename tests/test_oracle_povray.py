@@ -80,7 +80,7 @@ material = "m"
 
 def _scene(stem: str | None) -> Scene:
     sc = load_scene(ROOT / "scenes" / f"{stem}.toml") if stem else parse_scene(NEAR_BALL, "near_ball.toml")
-    return sc.with_overrides(width=SIZE, height=SIZE)
+    return sc.with_overrides(width=SIZE, height=SIZE, samples=1)
 
 
 def _rules(sc: Scene, overrides: dict) -> R.Rules:
