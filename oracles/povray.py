@@ -38,6 +38,12 @@ Conventions bridged (measured with Debian's povray 3.7.0.10; see /work/shared/no
   v = (q - lo)/(hi - lo) with a per-shape range and split into a coarse channel floor(1024 v)/1024 and a
   fine channel frac(1024 v) (decode v = coarse + fine/1024); normals analytically per shape from the
   decoded position ((P - C)/r, or the plane's normal, unflipped like the reference's).
+- Antialiasing (``options={"antialias": R}``, R in 1..9): ``+A0.0 +R{R}`` instead of ``-A``. Threshold 0
+  supersamples every pixel on POV-Ray's own jittered sub-pixel grid (method 1, default jitter, which is
+  deterministic), not the exercise's stratified pattern. Colour only: no geometry frames and no 8-bit PNG
+  pass (one start-up per render), ``image8`` is None. The supersampled area is POV-Ray's pixel square,
+  which the "corner" skew shifts by half a pixel; to compare with the reference's samples (which cover
+  [x, x+1) x [y, y+1)) render both with rule pixel_sample "center". Without the option: one ray per pixel.
 - Numeric limits: hits beyond 1e7 are dropped; an exactly tangent ray misses a sphere; |n·d| < 1e-10
   misses a plane; with 3 or more finite objects POV-Ray builds float bounding boxes; coincident surfaces:
   the first declared object wins.
@@ -72,6 +78,7 @@ NAME = "povray"
 INSTALL_HINT = "povray not found on PATH; install: sudo apt-get install povray"
 MAX_DISTANCE = 1e7  # POV-Ray drops hits beyond this (configbackend.h MAX_DISTANCE)
 SPLIT = 1024  # coarse/fine split of an encoded value
+MAX_ANTIALIAS = 9  # POV-Ray accepts Antialias_Depth 1..9
 ID_SCALE = 2048  # shape id k is the constant (k + 1)/2048: exact in half float for k < 2047
 # Error of one decoded value v in [0, 1) in units of 1/SPLIT: the fine channel lies in [0, 1), where a
 # half float's spacing is at most 2^-11, so rounding errs by at most 2^-12; POV-Ray's single-precision
@@ -405,11 +412,22 @@ def scene_to_pov(
 
 
 def command(
-    scene: Scene, n_frames: int, first: int, last: int, kind: str, stem: str = "out", threads: int | None = None
+    scene: Scene,
+    n_frames: int,
+    first: int,
+    last: int,
+    kind: str,
+    stem: str = "out",
+    threads: int | None = None,
+    antialias: int | None = None,
 ) -> list[str]:
-    """The povray command line: frames first..last of an n_frames animation; kind "exr" or "png8"."""
+    """The povray command line: frames first..last of an n_frames animation; kind "exr" or "png8".
+
+    ``antialias`` R (1..MAX_ANTIALIAS): ``+A0.0 +R{R}`` -- threshold 0, so every pixel is supersampled
+    with POV-Ray's own jittered sub-pixel grid of depth R (method 1, default jitter); None: ``-A``."""
     w, h = scene.camera.width, scene.camera.height
-    cmd = ["povray", "-D", "-A", "+Q9", f"+W{w}", f"+H{h}"]
+    aa = ["-A"] if antialias is None else ["+A0.0", f"+R{int(antialias)}"]
+    cmd = ["povray", "-D", *aa, "+Q9", f"+W{w}", f"+H{h}"]
     if kind == "exr":
         cmd += ["+FE", "+UA", f"+O{stem}.exr"]
     else:
@@ -609,6 +627,14 @@ class PovrayOracle(Oracle):
         timeout = float(opts.get("timeout", 120.0))
         threads = opts.get("threads")
         geometry = bool(opts.get("geometry", True))
+        antialias = opts.get("antialias")
+        if antialias is not None:
+            ok = isinstance(antialias, int) and not isinstance(antialias, bool) and 1 <= antialias <= MAX_ANTIALIAS
+            if not ok:
+                raise ValueError(f"antialias must be an integer in 1..{MAX_ANTIALIAS}, got {antialias!r}")
+            # Antialiased renders are colour only: supersampling jitters the geometry passes' encodings
+            # (an average of positions is no position), and the 8-bit PNG pass would pay the start-up twice.
+            geometry = False
         t_start = time.perf_counter()
         fx = effects(scene, rules)
         cframes = color_frames(scene, rules)
@@ -621,7 +647,8 @@ class PovrayOracle(Oracle):
             version=self.version(),
             # one ray per pixel (-A): POV-Ray's antialiasing jitters its own grid, not the exercise's pattern
             settings={"width": w, "height": h, "max_depth": scene.max_depth, "timeout": timeout,
-                      "samples_requested": scene.samples, "samples_rendered": 1,
+                      "samples_requested": scene.samples, "samples_rendered": 1 if antialias is None else None,
+                      "antialias": antialias,
                       "channel_mode": "per-channel" if len(cframes) == 3 else "rgb",
                       "frames": [f.label for f in frames], "max_trace_level": scene.max_depth + 1 if fx.reflection
                       else 1},
@@ -634,34 +661,38 @@ class PovrayOracle(Oracle):
             (cwd / "scene.pov").write_text(text)
             n = len(frames)
             # One EXR animation: float colour frames and geometry frames, +UA for the hit mask.
-            cmd_exr = command(scene, n, 1, n, "exr", threads=threads)
+            cmd_exr = command(scene, n, 1, n, "exr", threads=threads, antialias=antialias)
             _, t_exr = _run(cmd_exr, cwd, timeout)
             passes.append({"name": "exr", "frames": [f.label for f in frames], "command": shlex.join(cmd_exr),
                            "timings": t_exr})  # fmt: skip
-            # The 8-bit PNG of the colour frames: POV-Ray's own rounding, exact.
-            cmd_png = command(scene, n, 1, len(cframes), "png8", threads=threads)
-            _, t_png = _run(cmd_png, cwd, timeout)
-            passes.append({"name": "png8", "frames": [f.label for f in cframes], "command": shlex.join(cmd_png),
-                           "timings": t_png})  # fmt: skip
+            png_pass = antialias is None
+            if png_pass:
+                # The 8-bit PNG of the colour frames: POV-Ray's own rounding, exact.
+                cmd_png = command(scene, n, 1, len(cframes), "png8", threads=threads)
+                _, t_png = _run(cmd_png, cwd, timeout)
+                passes.append({"name": "png8", "frames": [f.label for f in cframes],
+                               "command": shlex.join(cmd_png), "timings": t_png})  # fmt: skip
             t0 = time.perf_counter()
             exr = _frame_files(cwd, "out", "exr")
-            png = _frame_files(cwd, "out", "png")
+            png = _frame_files(cwd, "out", "png") if png_pass else {}
             missing = [i for i in range(1, n + 1) if i not in exr] + [
-                i for i in range(1, len(cframes) + 1) if i not in png
+                i for i in range(1, len(cframes) + 1) if png_pass and i not in png
             ]
             if missing:
                 raise PovrayError(f"POV-Ray wrote no output for frame(s) {sorted(set(missing))}")
             color = np.zeros((h, w, 3))
-            color8 = np.zeros((h, w, 3), dtype=np.uint8)
+            color8: np.ndarray | None = np.zeros((h, w, 3), dtype=np.uint8) if png_pass else None
             for i, f in enumerate(cframes, start=1):
                 img, _ = read_image(exr[i])
-                img8 = read_image_u8(png[i])
+                img8 = read_image_u8(png[i]) if png_pass else None
                 if f.index < 0:
                     color = img[..., :3].astype(np.float64)
-                    color8 = img8[..., :3].copy()
+                    if img8 is not None:
+                        color8 = img8[..., :3].copy()
                 else:
                     color[..., f.index] = img[..., 0]
-                    color8[..., f.index] = img8[..., 0]
+                    if img8 is not None and color8 is not None:
+                        color8[..., f.index] = img8[..., 0]
             geom: dict[str, np.ndarray] = {}
             if gframes:
                 imgs = [read_image(exr[len(cframes) + 1 + g])[0] for g in range(len(gframes))]
@@ -686,7 +717,8 @@ class PovrayOracle(Oracle):
                     "position": np.zeros((h, w, 3)), "normal": np.zeros((h, w, 3))}  # fmt: skip
             if geometry:
                 meta["precision"] = precision(scene, [])
-        # POV-Ray's own 8-bit image (exact rounding; rounding the half-float colour flips .5 ties)
+        # POV-Ray's own 8-bit image (exact rounding; rounding the half-float colour flips .5 ties); antialiased
+        # renders have none (color8() then rounds the half-float colour)
         return RenderResult(backend=NAME, width=w, height=h, color=color, image8=color8, meta=meta, **geom)
 
     # ---- export ---------------------------------------------------------------------------
