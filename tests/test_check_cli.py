@@ -1,0 +1,106 @@
+"""`minirt check` and `render --backend all` through the command line: exit codes, JSON, JUnit,
+and a missing or crashing backend reported while the others still run."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from minirt import backends, harness
+from minirt.result import RenderResult
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run(*args: str, env=None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=ROOT, env=env, timeout=300
+    )
+
+
+def test_check_json_and_junit(tmp_path):
+    j, x = tmp_path / "r.json", tmp_path / "r.xml"
+    p = run("check", "scenes/exercise.toml", "--size", "48x48", "--json", str(j), "--junit", str(x), "-q")
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.startswith("PASS")
+    d = json.loads(j.read_text())
+    assert d["verdict"] == "pass"
+    s = d["scenes"][0]
+    assert s["scene"] == "exercise" and s["file"] == "scenes/exercise.toml"
+    assert set(s["backends"]) == {"mitsuba", "povray", "embree"}
+    m = s["backends"]["mitsuba"]
+    geo_keys = {"verdict", "pixels", "mask_mismatch", "mask_mismatch_outside_band", "id_mismatch"}
+    geo_keys |= {"depth_rel_err_max", "depth_rel_err_p99", "normal_deg_max"}
+    assert geo_keys <= set(m["geometry"])
+    assert m["geometry"]["pixels"] == 48 * 48
+    assert {"verdict", "shading", "rules", "seconds"} <= set(m)
+    # the exercise's background rule alone changes pixels Mitsuba cannot reproduce
+    assert m["rules"]["background"] > 0
+    assert "mask_outside_band" in d["thresholds"] and d["thresholds"]["mask_outside_band"]["why"]
+    suites = ET.parse(x).getroot()
+    assert suites.find("testsuite").get("name") == "exercise"
+    assert int(suites.find("testsuite").get("failures")) == 0
+
+
+def test_check_bad_input_exits_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[camera]\ndistance = -1\n")
+    p = run("check", str(bad), "-q")
+    assert p.returncode == 2 and "camera.distance: must be > 0" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_missing_povray_is_a_skip_and_the_others_render(tmp_path):
+    env = dict(os.environ)
+    env["PATH"] = str(Path(sys.executable).parent)  # no povray on this PATH
+    p = run("render", "scenes/exercise.toml", "--backend", "all", "--width", "32", "--height", "32",
+            "--out", str(tmp_path), env=env)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "povray    SKIP" in p.stderr and "apt-get install" in p.stderr
+    names = {f.name for f in tmp_path.iterdir()}
+    assert {"exercise.reference.png", "exercise.mitsuba.exr", "exercise.embree.exr", "exercise.contact.png"} <= names
+    assert not any(n.startswith("exercise.povray") for n in names)
+
+
+def test_crashing_oracle_is_an_error_and_the_others_run(monkeypatch):
+    import oracles.embree
+
+    def boom(self, scene, rules, options=None):
+        raise RuntimeError("segfault in the intersector")
+
+    monkeypatch.setattr(oracles.embree.EmbreeOracle, "render", boom)
+    sc = harness.check_scene(ROOT / "scenes" / "exercise.toml", ["embree", "mitsuba"], (24, 24))
+    assert sc.backends["embree"].verdict == "error"
+    assert "segfault in the intersector" in sc.backends["embree"].reason
+    assert sc.backends["mitsuba"].verdict == "pass"
+    assert harness.CheckResult(harness.worst([sc.verdict]), [sc]).exit_code() == 2
+
+
+def test_unreproducible_scene_is_a_skip_with_reason():
+    sc = harness.check_scene(ROOT / "scenes" / "rules.toml", ["povray"], (24, 24))
+    b = sc.backends["povray"]
+    assert b.verdict == "skip" and "between camera and image plane" in b.reason
+
+
+def test_render_result_failed_carries_reason():
+    r = backends.render("nope-backend", *_tiny())
+    assert isinstance(r, RenderResult) and r.status == "error" and "nope-backend" in r.reason
+
+
+def _tiny():
+    from minirt.rules import resolve
+    from minirt.scene import load_scene
+
+    sc = load_scene(ROOT / "scenes" / "exercise.toml").with_overrides(width=8, height=8)
+    return sc, resolve(sc)
+
+
+@pytest.mark.parametrize("spec", ["all", "reference,embree"])
+def test_parse_backends(spec):
+    names = backends.parse_backends(spec)
+    assert "reference" in names and len(names) >= 2
