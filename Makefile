@@ -3,9 +3,9 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-APT_PACKAGES := povray libllvm19
+APT_PACKAGES := povray libllvm19 chromium
 
-.PHONY: setup system demo test lint format bench goldens clean
+.PHONY: setup system demo sample test lint format bench goldens clean
 
 setup: system $(STAMP)
 
@@ -20,8 +20,16 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
+# The main job: every backend on the exercise scene, then the comparison report of all bundled scenes.
+# A FAIL verdict (exit 1) still leaves a report to read; bad input or a backend error (exit 2) stops.
 demo: setup
 	$(BIN)/minirt render scenes/exercise.toml --backend all --out renders/exercise
+	$(BIN)/minirt report --out reports || test $$? -eq 1
+	@echo "open reports/index.html"
+
+# Refresh the committed sample report (bundled scenes at 64x64, every backend).
+sample: setup
+	$(BIN)/python -c 'from minirt.report import refresh_sample; refresh_sample()'
 
 test: setup
 	$(BIN)/ruff check minirt oracles tests benchmarks

@@ -30,7 +30,8 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
-err = Console(stderr=True, highlight=False, soft_wrap=True)
+# Tables in logs and pipes get room to breathe; a terminal keeps its own width.
+err = Console(stderr=True, highlight=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
 out = Console(highlight=False, soft_wrap=True)
 
 
@@ -51,6 +52,12 @@ RuleOpt = Annotated[
 ]
 WidthOpt = Annotated[int | None, typer.Option("--width", min=1, help="Image width in pixels (overrides the scene).")]
 HeightOpt = Annotated[int | None, typer.Option("--height", min=1, help="Image height in pixels (overrides the scene).")]
+ScenesArg = Annotated[
+    list[Path] | None, typer.Argument(metavar="SCENE...", help="Scene files or folders (default: scenes/).")
+]
+OraclesOpt = Annotated[str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")]
+SizeOpt = Annotated[str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
 
 
 def _parse_rules(items: list[str] | None) -> dict[str, Any]:
@@ -411,18 +418,12 @@ def _print_check(result) -> None:
 
 @app.command()
 def check(
-    scene_paths: Annotated[
-        list[Path] | None, typer.Argument(metavar="SCENE...", help="Scene files or folders (default: scenes/).")
-    ] = None,
-    backend: Annotated[
-        str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")
-    ] = "all",
+    scene_paths: ScenesArg = None,
+    backend: OraclesOpt = "all",
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON.")] = None,
     junit: Annotated[Path | None, typer.Option("--junit", help="Write the results as JUnit XML.")] = None,
-    size: Annotated[
-        str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")
-    ] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    size: SizeOpt = None,
+    quiet: QuietOpt = False,
 ) -> None:
     """Compare the reference tracer with the oracles: geometry pixel by pixel, shading, rules.
 
@@ -447,6 +448,75 @@ def check(
             counts[b.verdict] += 1
     summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
     out.print(f"{result.verdict.upper()}: {summary}")
+    raise typer.Exit(result.exit_code())
+
+
+@app.command()
+def sweep(
+    scene_path: SceneArg,
+    out_dir: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("renders/sweep"),
+    backend: Annotated[str, typer.Option("--backend", "-b", help="Backends to sweep (comma list or all).")] = "all",
+    size: Annotated[int, typer.Option("--size", min=4, help="Square image size in pixels.")] = 64,
+    repeats: Annotated[int, typer.Option("--repeats", min=1, help="Timed runs per setting (median).")] = 3,
+    profile: ProfileOpt = None,
+    rule: RuleOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """What accuracy costs in time: each backend's accuracy knob against time and error.
+
+    Reference: float32/float64 and 1-256 samples; Mitsuba: 1-1024 spp; POV-Ray: antialiasing off,
+    then +A0.0 +R1..4; Embree: icosphere subdivision 0-7. Writes sweep.csv, sweep.md, sweep.json
+    and log-log plots with the Pareto front and fitted slopes.
+    """
+    from minirt import backends
+    from minirt.sweep import run_sweep
+
+    scene, rules = _load(scene_path, profile=profile, rules=rule)
+    names = backends.parse_backends(backend)
+    with _progress(not quiet) as bar:
+        task = bar.add_task("sweep", total=1) if bar else None
+
+        def tick(done: int, total: int, label: str) -> None:
+            if bar:
+                bar.update(task, completed=done, total=total, description=label[:40])
+
+        result = run_sweep(scene, rules, names, out_dir, size=size, repeats=repeats, progress=tick)
+    for name, sl in sorted(result.get("slopes", {}).items()):
+        if isinstance(sl, dict) and sl.get("slope_cost") is not None:
+            err.print(f"  {name:<28} error ~ cost^{sl['slope_cost']:.2f}")
+    out.print(f"wrote {out_dir}/sweep.md, sweep.csv, sweep.json, sweep.png")
+
+
+@app.command()
+def report(
+    scene_paths: ScenesArg = None,
+    backend: OraclesOpt = "all",
+    out_dir: Annotated[Path, typer.Option("--out", "-o", help="Output folder for index.html.")] = Path("reports"),
+    size: SizeOpt = None,
+    sweep_dir: Annotated[
+        Path | None, typer.Option("--sweep", help="Embed a sweep written by `minirt sweep --out DIR`.")
+    ] = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Write the HTML comparison report (DIR/index.html, opens from disk) and DIR/report.json."""
+    import json as json_
+
+    from minirt.report import write_report
+
+    sweep_data = None
+    if sweep_dir is not None:
+        f = sweep_dir / "sweep.json"
+        if not f.is_file():
+            raise MinirtError(f"--sweep {sweep_dir}: no sweep.json there (run: minirt sweep SCENE --out {sweep_dir})")
+        try:
+            sweep_data = json_.loads(f.read_text())
+        except (OSError, ValueError) as e:
+            raise MinirtError(f"{f}: not a readable sweep ({e})") from None
+    result = run_checks(scene_paths, backend, size, quiet)
+    _print_check(result)
+    command = "minirt " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["report"] else "minirt report"
+    index = write_report(result, out_dir, command=command, sweep=sweep_data, sweep_dir=sweep_dir)
+    out.print(f"{result.verdict.upper()}: wrote {index}")
     raise typer.Exit(result.exit_code())
 
 
