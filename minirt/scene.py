@@ -20,7 +20,10 @@ from minirt.errors import SceneError
 
 Vec3 = tuple[float, float, float]
 
-_Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
+# Geometry lives within 1e-100 .. 1e100: beyond that, squared lengths (dot products, |p|^2) over- or
+# underflow float64, and no intersection formula survives. Colours are not bounded.
+LIMIT = 1e100
+_Finite = Annotated[float, Field(allow_inf_nan=False, strict=True, ge=-LIMIT, le=LIMIT)]
 _NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False, strict=True)]
 # TOML arrays arrive as lists: the triple itself is lax (list -> tuple), its components stay strict.
 _Vec = Annotated[tuple[_Finite, _Finite, _Finite], Field(strict=False)]
@@ -38,7 +41,7 @@ class _SceneInfo(_Strict):
 
 
 class _Camera(_Strict):
-    distance: Annotated[float, Field(gt=0, allow_inf_nan=False)]
+    distance: Annotated[float, Field(ge=1 / LIMIT, le=LIMIT, allow_inf_nan=False)]
     width: Annotated[int, Field(ge=1, le=16384)] = 256
     height: Annotated[int, Field(ge=1, le=16384)] = 256
 
@@ -65,8 +68,15 @@ class _Material(_Strict):
 class _Ball(_Strict):
     type: Literal["ball"]
     center: _Vec
-    radius: Annotated[float, Field(gt=0, allow_inf_nan=False)]
+    radius: Annotated[float, Field(gt=0, le=LIMIT, allow_inf_nan=False)]
     material: str
+
+    @field_validator("radius")
+    @classmethod
+    def _not_tiny(cls, v: float) -> float:
+        if v < 1 / LIMIT:
+            raise ValueError(f"must be >= 1e-100, got {v:g}")
+        return v
 
 
 class _Plane(_Strict):
@@ -79,8 +89,10 @@ class _Plane(_Strict):
     @classmethod
     def _nonzero(cls, v: Vec3) -> Vec3:
         n = math.sqrt(sum(c * c for c in v))
-        if not n > 0 or not math.isfinite(n):
+        if not n > 0:
             raise ValueError(f"must be a non-zero vector, got {list(v)}")
+        if not 1 / LIMIT <= n <= LIMIT:
+            raise ValueError(f"must have a length within 1e-100 .. 1e100, got {n:g}")
         return v
 
 
@@ -213,8 +225,8 @@ def _message(err: dict[str, Any]) -> str:
     if kind in ("greater_than", "greater_than_equal", "less_than", "less_than_equal"):
         op = {"greater_than": ">", "greater_than_equal": ">=", "less_than": "<", "less_than_equal": "<="}[kind]
         bound = next(iter(ctx.values()))
-        if isinstance(bound, float) and bound.is_integer():
-            bound = int(bound)
+        if isinstance(bound, float):
+            bound = int(bound) if bound.is_integer() and abs(bound) < 1e15 else f"{bound:g}"
         return f"must be {op} {bound}, got {shown}"
     if kind == "missing":
         if isinstance(err["loc"][-1], int):

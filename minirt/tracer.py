@@ -110,6 +110,8 @@ class Tracer:
         require_llvm()
         self.scene, self.rules, self.precision, self.prune = scene, rules, precision, prune
         self.T = _Types.of(precision)
+        if precision == "f32":
+            _check_float32_range(scene)
         if prune:
             self.effects = effects(scene, rules)
         else:
@@ -189,6 +191,11 @@ class Tracer:
                 nk = (p - c) / dr.opaque(self.T.Float, s.radius)  # opaque: a true division (see _primary_rays)
                 if reproject:  # pbrt-style: put the point back on the sphere, normal from it
                     nk = dr.normalize(p - c)
+                # A ball smaller than an ulp of its centre: the hit point can round onto the centre,
+                # and p - C = 0 has no direction. Then the normal faces the ray.
+                degenerate = ~(dr.squared_norm(nk) > 0) | ~dr.isfinite(dr.squared_norm(nk))
+                nk = dr.select(degenerate, -d, nk)
+                if reproject:
                     p = dr.select(shape_id == k, c + s.radius * nk, p)
             else:
                 nk = self._vec(s.normal)
@@ -271,9 +278,11 @@ class Tracer:
             lc = self._vec(sc.light.color)
             to_light = lpos - p
             light_dist = dr.norm(to_light)
-            s = to_light / light_dist
+            # The light exactly at the hit point has no direction: that point is unlit (not 0/0).
+            at_light = ~(light_dist > 0)
+            s = dr.select(at_light, zero, to_light / dr.select(at_light, 1, light_dist))
             sn = dr.dot(s, ns)
-            lit = hit
+            lit = hit & ~at_light
             if fx.shadows:
                 so = self.offset_origin(p, ns, err, s)
                 blocked, shadow_ts = self.shadow_blocked(so, s, light_dist)
@@ -469,6 +478,25 @@ class Tracer:
     def _load(self, a: np.ndarray) -> Any:
         a = np.ascontiguousarray(a.astype(self.T.np_dtype))
         return self.T.Array3(self.T.Float(a[:, 0]), self.T.Float(a[:, 1]), self.T.Float(a[:, 2]))
+
+
+F32_LIMIT = 1e18  # squares stay below float32's max (3.4e38); reciprocals above its min normal
+
+
+def _check_float32_range(scene: Scene) -> None:
+    """Refuse a scene float32 cannot hold: its squared lengths would overflow to inf and then NaN."""
+    from minirt.errors import MinirtError
+
+    values = [scene.camera.distance, *scene.light.position]
+    for s in scene.shapes:
+        values += [*s.center, s.radius] if isinstance(s, Ball) else [*s.point, s.distance]
+    big = max(abs(v) for v in values)
+    small = min([scene.camera.distance] + [s.radius for s in scene.shapes if isinstance(s, Ball)])
+    if big > F32_LIMIT or small < 1 / F32_LIMIT:
+        raise MinirtError(
+            f"{scene.source or scene.name}: values from {small:g} to {big:g} are beyond float32's safe range "
+            f"(1e-18 .. 1e18): use --precision f64"
+        )
 
 
 def _versions() -> dict[str, str]:
