@@ -1,0 +1,578 @@
+"""minirt benchmark: the reference tracer's throughput, a plain NumPy model for the ratio, cold CLI time,
+peak memory, and every oracle on the same scenes -- all measured in one run, so ratios are like for like.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench.py [--quick] [--out benchmarks/results.json]
+
+Sections (JSON keys; the Markdown on stdout follows the same order):
+
+- ``meta``: machine (cores, CPU, load average before and after), versions, git commit, mode.
+- ``reference``: ``scenes/three_balls.toml`` (3 balls, mirror floor, max_depth 3, every effect) at
+  1024x1024, float64 and float32. ``trace`` is the kernel alone (primary rays + ``Tracer.trace`` +
+  ``dr.eval`` + ``dr.sync_thread``); ``render`` is the whole ``Tracer.render()`` including the buffers
+  back to NumPy. Steady state: warm-up runs first (the JIT compiles), then the median of >= 5 runs.
+- ``numpy``: a compact vectorised NumPy implementation of the same model (exercise rules: primary
+  rays, closest hit, shadow rays, ambient + diffuse + (r·s)^8 specular, 3 reflection levels), timed
+  in the same run; its image is checked against the reference (max abs difference reported), and the
+  speed-ups are ratios of medians measured here.
+- ``cold``: whole-command wall time of ``python -m minirt render scenes/exercise.toml --out <tmp>``
+  in a child process. Dr.Jit caches compiled kernels on disk (``~/.drjit``; the environment variable
+  ``DRJIT_CACHE_DIR`` moves it): "cold cache" runs each get a fresh empty cache directory, "warm cache"
+  runs share one directory primed by a first run. Python's own files are in the OS page cache either way.
+- ``memory``: ``resource.getrusage(RUSAGE_SELF).ru_maxrss`` of a child process after imports and after
+  rendering three_balls at 1024x1024 float64.
+- ``oracles``: each oracle (Mitsuba, POV-Ray, Embree) on exercise and three_balls at 256^2 and 512^2:
+  wall time, the part outside set-up (from each result's ``meta["timings"]``, keys listed per row),
+  Mpixel/s, and the ratio to the reference tracer's wall time on the same scene, size and rules (the
+  reference renders under the oracle's adapted rules). A missing or failing backend is a SKIP/ERROR
+  row with its reason, never a crash. One warm-up call per oracle first (imports, Mitsuba's JIT).
+- ``targets``: >= 20 Mpixel/s float64 (reference trace kernel, 1024^2 three_balls) and a cold-cache
+  CLI render of the 256^2 exercise scene under 3 s, each PASS or MISS (``n/a`` in --quick mode, whose
+  sizes are too small for the targets' conditions).
+
+--quick: small sizes and 1-2 repetitions (used by tests/test_bench.py; finishes well under a minute).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from minirt import backends, camera  # noqa: E402
+from minirt.rules import PROFILES, Rules, resolve  # noqa: E402
+from minirt.scene import Ball, Scene, load_scene  # noqa: E402
+
+REF_SCENE = ROOT / "scenes" / "three_balls.toml"
+COLD_SCENE = ROOT / "scenes" / "exercise.toml"
+ORACLE_SCENES = ("exercise", "three_balls")
+
+TARGET_MPIX_F64 = 20.0  # Mpixel/s, reference trace kernel, float64, 1024^2 three_balls, 2 cores
+TARGET_COLD_S = 3.0  # s, cold-cache `minirt render scenes/exercise.toml` (256^2)
+
+# The part of each oracle's meta["timings"] that is not set-up (what it spends rendering).
+ORACLE_WORK_KEYS: dict[str, tuple[str, ...]] = {
+    "povray": ("parse", "trace"),  # POV-Ray's own statistics, summed over its passes; start-up excluded
+    "mitsuba": ("render",),  # Mitsuba's intersection/shading calls; scene loading is "setup"
+    "embree": ("cast",),  # Embree's ray queries; tessellation and BVH build excluded
+}
+
+
+@dataclass(frozen=True)
+class Config:
+    quick: bool
+    ref_size: int
+    warmup: int
+    reps: int
+    numpy_reps: int
+    cold_reps: int
+    mem_size: int
+    oracle_sizes: tuple[int, ...]
+    oracle_reps: int
+    ref_compare_reps: int
+
+    @classmethod
+    def make(cls, quick: bool) -> Config:
+        if quick:
+            return cls(True, 128, 1, 2, 1, 1, 128, (64,), 1, 1)
+        return cls(False, 1024, 2, 7, 3, 3, 1024, (256, 512), 2, 3)
+
+
+# ---------------------------------------------------------------------------------------------
+# helpers
+
+
+def _stats(times: list[float], pixels: int) -> dict[str, Any]:
+    med = statistics.median(times)
+    return {
+        "runs_s": [round(t, 6) for t in times],
+        "median_s": med,
+        "min_s": min(times),
+        "mpix_s": pixels / med / 1e6,
+    }
+
+
+def _loadavg() -> list[float]:
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:  # pragma: no cover - not on Linux
+        return []
+
+
+def _cpu_model() -> str:
+    try:
+        for ln in Path("/proc/cpuinfo").read_text().splitlines():
+            if ln.startswith("model name"):
+                return ln.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def _git() -> str:
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True, text=True)
+        return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    except OSError:
+        return "unknown"
+
+
+def _scene(path: Path, size: int | None = None) -> Scene:
+    sc = load_scene(path)
+    return sc.with_overrides(width=size, height=size) if size else sc
+
+
+# ---------------------------------------------------------------------------------------------
+# reference tracer
+
+
+def bench_reference(cfg: Config) -> dict[str, Any]:
+    import drjit as dr
+
+    from minirt.tracer import Tracer
+
+    sc = _scene(REF_SCENE, cfg.ref_size)
+    rules = resolve(sc)
+    px = cfg.ref_size * cfg.ref_size
+    out: dict[str, Any] = {"scene": sc.name, "width": cfg.ref_size, "height": cfg.ref_size,
+                           "max_depth": sc.max_depth, "profile": sc.profile, "warmup": cfg.warmup,
+                           "reps": cfg.reps}  # fmt: skip
+    for prec in ("f64", "f32"):
+        tr = Tracer(sc, rules, precision=prec)
+
+        def kernel(tr=tr) -> None:
+            o, d = tr.primary_rays()
+            c, _levels = tr.trace(o, d)
+            dr.eval(c)
+            dr.sync_thread()
+
+        for _ in range(cfg.warmup):
+            kernel()
+        times = []
+        for _ in range(cfg.reps):
+            t0 = time.perf_counter()
+            kernel()
+            times.append(time.perf_counter() - t0)
+        trace = _stats(times, px)
+        for _ in range(cfg.warmup):
+            tr.render()
+        times = []
+        for _ in range(cfg.reps):
+            t0 = time.perf_counter()
+            tr.render()
+            times.append(time.perf_counter() - t0)
+        out[prec] = {"trace": trace, "render": _stats(times, px), "effects": tr.effects.simulated()}
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the same model in plain NumPy (exercise rules), for the ratio
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _np_intersect(shape, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """First t > 0 (near root only for balls, as the exercise says), +inf on a miss; stable forms."""
+    if isinstance(shape, Ball):
+        r = shape.radius
+        f = o - np.asarray(shape.center)
+        b = _dot(f, d)
+        lg = np.linalg.norm(f - b[:, None] * d, axis=1)
+        disc = (r - lg) * (r + lg)
+        hit = disc >= 0
+        q = -(b + np.copysign(np.sqrt(np.maximum(disc, 0.0)), b))
+        lf = np.linalg.norm(f, axis=1)
+        c = (lf - r) * (lf + r)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0 = np.where(q != 0, c / q, 0.0)
+        tn = np.minimum(t0, np.where(q != 0, q, 0.0))
+        return np.where(hit & (tn > 0), tn, np.inf)
+    n = np.asarray(shape.normal)
+    denom = d @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = ((np.asarray(shape.point) - o) @ n) / denom
+    return np.where((denom != 0) & (t > 0) & (t < np.inf), t, np.inf)
+
+
+def numpy_render(scene: Scene, rules: Rules) -> np.ndarray:
+    """The exercise's TraceRay, vectorised over rays with NumPy; returns (H, W, 3) float64 colours.
+
+    Exercise rules only: background added at each hit, near root only, any shadow-ray hit blocks,
+    one-sided normals, no clamping, origins offset by 1e-6 along the normal. Colour is accumulated
+    front to back with the product of reflection colours (the same sum as the recursion).
+    """
+    if rules != PROFILES["exercise"]:
+        raise ValueError("numpy_render follows the exercise profile only")
+    shapes = scene.shapes
+    w, h = scene.camera.width, scene.camera.height
+    o, d = camera.primary_rays(scene, rules)
+    # per-shape material rows; row -1 (a miss) is all zeros
+    mat = {k: np.array([getattr(s.material, k) for s in shapes] + [(0.0, 0.0, 0.0)])
+           for k in ("ambient", "diffuse", "specular", "reflection")}  # fmt: skip
+    light, lc, bg = (np.asarray(v) for v in (scene.light.position, scene.light.color, scene.background))
+    off = float(rules.offset)
+    color = np.zeros((w * h, 3))
+    weight = np.ones((w * h, 3))
+    idx = np.arange(w * h)
+    for level in range(scene.max_depth + 1):
+        t_best = np.full(len(o), np.inf)
+        sid = np.full(len(o), -1)
+        for k, s in enumerate(shapes):
+            tk = _np_intersect(s, o, d)
+            closer = tk < t_best
+            t_best = np.where(closer, tk, t_best)
+            sid = np.where(closer, k, sid)
+        hit = sid >= 0
+        p = o + np.where(hit, t_best, 0.0)[:, None] * d
+        nrm = np.zeros_like(p)
+        for k, s in enumerate(shapes):
+            m = sid == k
+            nrm[m] = (p[m] - np.asarray(s.center)) / s.radius if isinstance(s, Ball) else np.asarray(s.normal)
+        to_light = light - p
+        sdir = to_light / np.linalg.norm(to_light, axis=1, keepdims=True)
+        so = p + off * nrm
+        blocked = np.zeros(len(o), dtype=bool)
+        for s in shapes:
+            blocked |= _np_intersect(s, so, sdir) < np.inf
+        lit = (hit & ~blocked)[:, None]
+        r = d - 2.0 * _dot(d, nrm)[:, None] * nrm
+        rs2 = _dot(r, sdir) ** 2
+        rs8 = (rs2 * rs2) ** 2  # (r·s)^8 by repeated squaring, as the tracer does
+        local = mat["ambient"][sid] + np.where(lit, lc * mat["diffuse"][sid] * _dot(sdir, nrm)[:, None], 0.0)
+        local += np.where(lit, lc * mat["specular"][sid] * rs8[:, None], 0.0)
+        local += np.where(hit[:, None], bg, 0.0)
+        color[idx] += weight * local
+        if level == scene.max_depth:
+            break
+        kr = mat["reflection"][sid]
+        spawn = hit & (kr != 0).any(axis=1)
+        if not spawn.any():
+            break
+        weight = weight[spawn] * kr[spawn]
+        o, d, idx = p[spawn] + off * nrm[spawn], r[spawn], idx[spawn]
+    return color.reshape(h, w, 3)
+
+
+def bench_numpy(cfg: Config, ref: dict[str, Any]) -> dict[str, Any]:
+    from minirt.tracer import Tracer
+
+    sc = _scene(REF_SCENE, cfg.ref_size)
+    rules = resolve(sc)
+    px = cfg.ref_size * cfg.ref_size
+    img = numpy_render(sc, rules)  # warm-up (allocator, caches)
+    times = []
+    for _ in range(cfg.numpy_reps):
+        t0 = time.perf_counter()
+        img = numpy_render(sc, rules)
+        times.append(time.perf_counter() - t0)
+    st = _stats(times, px)
+    ref_img = Tracer(sc, rules, precision="f64").render().color
+    diff = float(np.abs(img - ref_img).max())
+    speedup = {f"{kind}_{prec}": st["median_s"] / ref[prec][kind]["median_s"]
+               for prec in ("f64", "f32") for kind in ("trace", "render")}  # fmt: skip
+    return {"scene": sc.name, "width": cfg.ref_size, "height": cfg.ref_size, "reps": cfg.numpy_reps, **st,
+            "max_abs_diff_vs_reference": diff, "speedup": speedup}  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# cold whole-command time, peak memory (child processes)
+
+
+def _cli_once(cache_dir: Path) -> float:
+    with tempfile.TemporaryDirectory(prefix="minirt-bench-out-") as out:
+        cmd = [sys.executable, "-m", "minirt", "render", str(COLD_SCENE), "--out", out]
+        env = {**os.environ, "DRJIT_CACHE_DIR": str(cache_dir)}
+        t0 = time.perf_counter()
+        p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+        dt = time.perf_counter() - t0
+        if p.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd)} failed ({p.returncode}): {p.stderr.strip()[-300:]}")
+    return dt
+
+
+def bench_cold(cfg: Config) -> dict[str, Any]:
+    sc = load_scene(COLD_SCENE)
+    px = sc.camera.width * sc.camera.height
+    cold, warm = [], []
+    with tempfile.TemporaryDirectory(prefix="minirt-bench-jit-") as tmp:
+        tmp = Path(tmp)
+        for i in range(cfg.cold_reps):
+            d = tmp / f"cold{i}"
+            d.mkdir()
+            cold.append(_cli_once(d))
+        kernels = len(list((tmp / "cold0").iterdir()))
+        primed = tmp / "cold0"  # primed by the first cold run
+        for _ in range(cfg.cold_reps):
+            warm.append(_cli_once(primed))
+    return {
+        "command": "python -m minirt render scenes/exercise.toml --out <tmp>",
+        "width": sc.camera.width,
+        "height": sc.camera.height,
+        "cache": "DRJIT_CACHE_DIR=<fresh empty dir> per cold run; warm runs share a primed dir",
+        "kernels_cached": kernels,
+        "cold_cache": _stats(cold, px),
+        "warm_cache": _stats(warm, px),
+    }
+
+
+_MEM_CHILD = r"""
+import json, resource, sys
+sys.path.insert(0, sys.argv[1])
+
+
+def hwm_kb():
+    # VmHWM: the peak RSS of this process's own address space. ru_maxrss is not enough on its own:
+    # Linux carries the parent's high-water mark across fork + exec, so a child of a big parent
+    # reports the parent's peak.
+    for ln in open("/proc/self/status"):
+        if ln.startswith("VmHWM:"):
+            return int(ln.split()[1])
+    return None
+
+
+from minirt.rules import resolve
+from minirt.scene import load_scene
+from minirt.tracer import Tracer
+
+base, base_hwm = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, hwm_kb()
+sc = load_scene(sys.argv[2]).with_overrides(width=int(sys.argv[3]), height=int(sys.argv[3]))
+res = Tracer(sc, resolve(sc), precision="f64").render()
+peak, peak_hwm = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, hwm_kb()
+print(json.dumps({"baseline_kb": base, "peak_kb": peak, "baseline_hwm_kb": base_hwm, "peak_hwm_kb": peak_hwm}))
+"""
+
+
+def bench_memory(cfg: Config) -> dict[str, Any]:
+    cmd = [sys.executable, "-c", _MEM_CHILD, str(ROOT), str(REF_SCENE), str(cfg.mem_size)]
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    if p.returncode != 0:
+        raise RuntimeError(f"memory child failed ({p.returncode}): {p.stderr.strip()[-300:]}")
+    m = json.loads(p.stdout.strip().splitlines()[-1])
+    # Linux reports ru_maxrss and VmHWM in KiB. The child is started first thing in the run (small parent).
+    hwm = m["peak_hwm_kb"] if m["peak_hwm_kb"] is not None else m["peak_kb"]
+    base = m["baseline_hwm_kb"] if m["baseline_hwm_kb"] is not None else m["baseline_kb"]
+    return {"scene": "three_balls", "width": cfg.mem_size, "height": cfg.mem_size, "precision": "f64",
+            "peak_mb": hwm / 1024, "after_imports_mb": base / 1024, "render_adds_mb": (hwm - base) / 1024,
+            "ru_maxrss_mb": m["peak_kb"] / 1024,
+            "how": "VmHWM of the child (/proc/self/status); ru_maxrss also given (includes the parent's "
+                   "high-water mark inherited across fork+exec)"}  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# oracles
+
+
+def _work_time(name: str, timings: dict[str, Any]) -> tuple[float | None, list[str]]:
+    keys = [k for k in ORACLE_WORK_KEYS.get(name, ()) if isinstance(timings.get(k), int | float)]
+    if not keys:
+        return None, []
+    return float(sum(timings[k] for k in keys)), keys
+
+
+def bench_oracles(cfg: Config) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = []
+    ref_cache: dict[tuple[str, int, tuple], float] = {}
+
+    def reference_wall(sc: Scene, rules: Rules) -> float:
+        key = (sc.name, sc.camera.width, tuple(sorted(rules.as_dict().items())))
+        if key not in ref_cache:
+            backends.render(backends.REFERENCE, sc, rules)  # warm-up: compile this rule set's kernels
+            walls = [backends.render(backends.REFERENCE, sc, rules).meta["timings"]["wall"]
+                     for _ in range(cfg.ref_compare_reps)]  # fmt: skip
+            ref_cache[key] = statistics.median(walls)
+        return ref_cache[key]
+
+    for name in backends.oracle_names():
+        info = backends.info(name)
+        base = {"backend": name, "version": info.detail if info.available else ""}
+        if not info.available:
+            for scn in ORACLE_SCENES:
+                for size in cfg.oracle_sizes:
+                    rows.append({**base, "scene": scn, "size": size, "status": "skip", "reason": info.detail})
+            continue
+        # warm-up: imports, Mitsuba's JIT, first-call costs; reported, not counted
+        sc0 = _scene(ROOT / "scenes" / f"{ORACLE_SCENES[0]}.toml", cfg.oracle_sizes[0])
+        t0 = time.perf_counter()
+        backends.render(name, sc0, resolve(sc0))
+        first_call = time.perf_counter() - t0
+        for scn in ORACLE_SCENES:
+            for size in cfg.oracle_sizes:
+                sc = _scene(ROOT / "scenes" / f"{scn}.toml", size)
+                rules = resolve(sc)
+                row: dict[str, Any] = {**base, "scene": scn, "size": size, "first_call_s": first_call}
+                walls, works, keys, res = [], [], [], None
+                for _ in range(cfg.oracle_reps):
+                    res = backends.render(name, sc, rules)
+                    if not res.ok:
+                        break
+                    tm = res.meta.get("timings", {})
+                    walls.append(float(tm["wall"]))
+                    w, keys = _work_time(name, tm)
+                    if w is not None:
+                        works.append(w)
+                assert res is not None
+                if not res.ok:
+                    rows.append({**row, "status": res.status, "reason": res.reason or "no reason given"})
+                    continue
+                px = size * size
+                wall = statistics.median(walls)
+                ref = reference_wall(sc, backends.rules_for(name, rules))
+                work = statistics.median(works) if works else None
+                row.update(
+                    status="ok",
+                    reason="",
+                    reps=len(walls),
+                    wall_s=wall,
+                    work_s=work,
+                    work_keys=keys,
+                    setup_s=(wall - work) if work is not None else None,
+                    mpix_s=px / wall / 1e6,
+                    work_mpix_s=(px / work / 1e6) if work else None,
+                    reference_wall_s=ref,
+                    ratio_wall_to_reference=wall / ref,
+                    ratio_work_to_reference=(work / ref) if work is not None else None,
+                    rules_changed=rules.differs(backends.rules_for(name, rules)),
+                    timings={k: v for k, v in res.meta.get("timings", {}).items() if isinstance(v, int | float)},
+                )
+                if name == "povray":
+                    passes = res.meta.get("passes") or []
+                    row["povray_frames"] = sum(len(p.get("frames", [])) for p in passes if isinstance(p, dict))
+                rows.append(row)
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# targets, report
+
+
+def evaluate_targets(cfg: Config, res: dict[str, Any]) -> list[dict[str, Any]]:
+    f64 = res["reference"]["f64"]["trace"]["mpix_s"]
+    cold = res["cold"]["cold_cache"]["median_s"]
+
+    def verdict(ok: bool) -> str:
+        return "n/a" if cfg.quick else ("PASS" if ok else "MISS")
+
+    return [
+        {"name": "reference float64 trace kernel, three_balls 1024x1024", "target": f">= {TARGET_MPIX_F64} Mpixel/s",
+         "measured": f64, "unit": "Mpixel/s", "verdict": verdict(f64 >= TARGET_MPIX_F64)},
+        {"name": "cold-cache `minirt render scenes/exercise.toml` (256x256)", "target": f"< {TARGET_COLD_S} s",
+         "measured": cold, "unit": "s", "verdict": verdict(cold < TARGET_COLD_S)},
+    ]  # fmt: skip
+
+
+def _f(x: Any, nd: int = 3) -> str:
+    if x is None:
+        return "–"
+    if isinstance(x, float):
+        return f"{x:.{nd}g}" if abs(x) < 1e-3 or abs(x) >= 1e4 else f"{x:.{nd}f}"
+    return str(x)
+
+
+def markdown(res: dict[str, Any]) -> str:
+    m, ref, npy, cold, mem = res["meta"], res["reference"], res["numpy"], res["cold"], res["memory"]
+    L = [f"# minirt benchmark{' (--quick)' if m['quick'] else ''}", ""]
+    L.append(f"{m['cpus']} cores ({m['cpu']}), load average {m['loadavg_start']} at start, {m['loadavg_end']} at "
+             f"end; Python {m['python']}, Dr.Jit {m['drjit']}, NumPy {m['numpy']}; commit {m['git']}; "
+             f"{m['elapsed_s']:.0f} s.")  # fmt: skip
+    L += ["", f"## Reference tracer: {ref['scene']} {ref['width']}x{ref['height']}, max_depth {ref['max_depth']}, "
+          f"median of {ref['reps']} after {ref['warmup']} warm-up", "",
+          "| precision | part | median s | min s | Mpixel/s | NumPy / this |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for prec in ("f64", "f32"):
+        for kind in ("trace", "render"):
+            s = ref[prec][kind]
+            L.append(f"| {prec} | {kind} | {_f(s['median_s'], 4)} | {_f(s['min_s'], 4)} | {_f(s['mpix_s'], 3)} | "
+                     f"{_f(npy['speedup'][f'{kind}_{prec}'], 3)}x |")  # fmt: skip
+    L.append(f"| NumPy f64 | whole model | {_f(npy['median_s'], 4)} | {_f(npy['min_s'], 4)} | "
+             f"{_f(npy['mpix_s'], 3)} | 1x |")  # fmt: skip
+    L += ["", f"NumPy model vs reference image: max abs difference {npy['max_abs_diff_vs_reference']:.3g}.", ""]
+    L += ["## Cold whole command", "", f"`{cold['command']}` ({cold['width']}x{cold['height']}); {cold['cache']}; "
+          f"{cold['kernels_cached']} kernels cached.", "", "| cache | runs s | median s |", "|---|---|---|",
+          *(f"| {k} | {', '.join(_f(t, 3) for t in cold[f'{k}_cache']['runs_s'])} | "
+            f"{_f(cold[f'{k}_cache']['median_s'])} |" for k in ("cold", "warm")),
+          ""]  # fmt: skip
+    L += ["## Peak memory", "", f"Child process, {mem['scene']} {mem['width']}x{mem['height']} {mem['precision']}: "
+          f"peak RSS {mem['peak_mb']:.0f} MB (after imports {mem['after_imports_mb']:.0f} MB, "
+          f"render adds {mem['render_adds_mb']:.0f} MB; ru_maxrss {mem['ru_maxrss_mb']:.0f} MB).", ""]  # fmt: skip
+    L += ["## Oracles (same run)", "",
+          "| backend | scene | size | status | wall s | work s (keys) | Mpixel/s wall | Mpixel/s work | "
+          "reference s | wall / reference | work / reference |",
+          "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in res["oracles"]:
+        if r["status"] != "ok":
+            L.append(f"| {r['backend']} | {r['scene']} | {r['size']} | {r['status'].upper()}: {r['reason']} "
+                     "| | | | | | | |")  # fmt: skip
+            continue
+        L.append(f"| {r['backend']} | {r['scene']} | {r['size']} | ok | {_f(r['wall_s'])} | {_f(r['work_s'])} "
+                 f"({'+'.join(r['work_keys'])}) | {_f(r['mpix_s'])} | {_f(r['work_mpix_s'])} | "
+                 f"{_f(r['reference_wall_s'])} | {_f(r['ratio_wall_to_reference'], 3)}x | "
+                 f"{_f(r['ratio_work_to_reference'], 3)}x |")  # fmt: skip
+    L += ["", "## Targets", "", "| target | measured | verdict |", "|---|---|---|"]
+    for t in res["targets"]:
+        L.append(f"| {t['name']}: {t['target']} | {_f(t['measured'])} {t['unit']} | {t['verdict']} |")
+    return "\n".join(L) + "\n"
+
+
+def run(cfg: Config) -> dict[str, Any]:
+    import drjit as dr
+
+    t_start = time.perf_counter()
+    meta: dict[str, Any] = {
+        "quick": cfg.quick,
+        "cpus": os.cpu_count(),
+        "cpu": _cpu_model(),
+        "loadavg_start": _loadavg(),
+        "python": platform.python_version(),
+        "drjit": dr.__version__,
+        "numpy": np.__version__,
+        "git": _git(),
+        "povray_on_path": shutil.which("povray") is not None,
+        "config": cfg.__dict__,
+    }
+    res: dict[str, Any] = {"meta": meta}
+    res["memory"] = bench_memory(cfg)  # first, while this process is small (see bench_memory)
+    res["reference"] = bench_reference(cfg)
+    res["numpy"] = bench_numpy(cfg, res["reference"])
+    res["cold"] = bench_cold(cfg)
+    res["oracles"] = bench_oracles(cfg)
+    res["targets"] = evaluate_targets(cfg, res)
+    meta["loadavg_end"] = _loadavg()
+    meta["elapsed_s"] = time.perf_counter() - t_start
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes, 1-2 repetitions (for tests)")
+    ap.add_argument("--out", type=Path, help="write the results as JSON here")
+    args = ap.parse_args(argv)
+    res = run(Config.make(args.quick))
+    print(markdown(res))
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(res, indent=2, default=float) + "\n")
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,98 @@
+"""benchmarks/bench.py --quick runs and writes every section with sane numbers.
+
+No timing assertions: the machine is shared and timings are noisy; only structure, positivity and
+finiteness are checked, and that a skipped or failed backend says why.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory) -> tuple[dict, str]:
+    out = tmp_path_factory.mktemp("bench") / "results.json"
+    p = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench.py"), "--quick", "--out", str(out)],
+        cwd=ROOT, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr[-2000:]
+    return json.loads(out.read_text()), p.stdout
+
+
+def _positive(x) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+
+
+def _stats_ok(s: dict) -> None:
+    assert _positive(s["median_s"]) and _positive(s["min_s"]) and _positive(s["mpix_s"])
+    assert s["runs_s"] and all(_positive(t) for t in s["runs_s"])
+
+
+@pytest.mark.slow
+def test_sections_present(quick):
+    res, stdout = quick
+    assert set(res) >= {"meta", "reference", "numpy", "cold", "memory", "oracles", "targets"}
+    assert res["meta"]["quick"] is True
+    for heading in ("## Reference tracer", "## Cold whole command", "## Peak memory", "## Oracles", "## Targets"):
+        assert heading in stdout
+
+
+@pytest.mark.slow
+def test_reference_and_numpy(quick):
+    res, _ = quick
+    for prec in ("f64", "f32"):
+        for kind in ("trace", "render"):
+            _stats_ok(res["reference"][prec][kind])
+    npy = res["numpy"]
+    _stats_ok(npy)
+    assert set(npy["speedup"]) == {"trace_f64", "render_f64", "trace_f32", "render_f32"}
+    assert all(_positive(v) for v in npy["speedup"].values())
+    # the NumPy version is the same model: it must reproduce the reference image
+    assert npy["max_abs_diff_vs_reference"] < 1e-9
+
+
+@pytest.mark.slow
+def test_cold_and_memory(quick):
+    res, _ = quick
+    _stats_ok(res["cold"]["cold_cache"])
+    _stats_ok(res["cold"]["warm_cache"])
+    assert res["cold"]["kernels_cached"] > 0  # DRJIT_CACHE_DIR was honoured
+    mem = res["memory"]
+    assert _positive(mem["peak_mb"]) and _positive(mem["after_imports_mb"]) and _positive(mem["ru_maxrss_mb"])
+    assert mem["peak_mb"] >= mem["after_imports_mb"]
+
+
+@pytest.mark.slow
+def test_oracle_rows(quick):
+    res, _ = quick
+    rows = res["oracles"]
+    backends = {r["backend"] for r in rows}
+    assert backends == {"mitsuba", "povray", "embree"}
+    for r in rows:
+        assert r["status"] in ("ok", "skip", "error")
+        if r["status"] != "ok":
+            assert isinstance(r["reason"], str) and r["reason"].strip(), r
+            continue
+        for key in ("wall_s", "mpix_s", "reference_wall_s", "ratio_wall_to_reference"):
+            assert _positive(r[key]), (key, r)
+        if r["work_s"] is not None:
+            assert _positive(r["work_s"]) and r["work_keys"]
+            assert r["work_s"] <= r["wall_s"] * 1.01
+
+
+@pytest.mark.slow
+def test_targets(quick):
+    res, _ = quick
+    assert len(res["targets"]) == 2
+    for t in res["targets"]:
+        assert _positive(t["measured"]) and t["verdict"] in ("PASS", "MISS", "n/a")
+        assert t["verdict"] == "n/a"  # --quick sizes are not the targets' conditions
