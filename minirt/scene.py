@@ -30,6 +30,13 @@ _Vec = Annotated[tuple[_Finite, _Finite, _Finite], Field(strict=False)]
 _Color = Annotated[tuple[_NonNeg, _NonNeg, _NonNeg], Field(strict=False)]
 
 
+def _at_least_tiny(v: float) -> float:
+    # Runs after the `> 0` bound, so a negative value is reported as "must be > 0", the rule a user knows.
+    if v < 1 / LIMIT:
+        raise ValueError(f"must be >= 1e-100, got {v:g}")
+    return v
+
+
 class _Strict(BaseModel):
     # strict: "1.0" is not a number and true is not 1; ints are still accepted where floats are asked.
     model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
@@ -41,9 +48,14 @@ class _SceneInfo(_Strict):
 
 
 class _Camera(_Strict):
-    distance: Annotated[float, Field(ge=1 / LIMIT, le=LIMIT, allow_inf_nan=False)]
+    distance: Annotated[float, Field(gt=0, le=LIMIT, allow_inf_nan=False)]
     width: Annotated[int, Field(ge=1, le=16384)] = 256
     height: Annotated[int, Field(ge=1, le=16384)] = 256
+
+    @field_validator("distance")
+    @classmethod
+    def _not_tiny(cls, v: float) -> float:
+        return _at_least_tiny(v)
 
 
 class _Light(_Strict):
@@ -74,9 +86,7 @@ class _Ball(_Strict):
     @field_validator("radius")
     @classmethod
     def _not_tiny(cls, v: float) -> float:
-        if v < 1 / LIMIT:
-            raise ValueError(f"must be >= 1e-100, got {v:g}")
-        return v
+        return _at_least_tiny(v)
 
 
 class _Plane(_Strict):
