@@ -141,14 +141,24 @@ def write_result(result: RenderResult, out_dir: str | Path, stem: str) -> dict[s
 
 
 def sidecar(result: RenderResult) -> dict[str, Any]:
+    """The metadata a render leaves beside its images, without timings (anywhere in the tree): the same
+    command writes the same bytes. Timings stay in ``result.meta`` for check, report and sweep."""
     return {
         "backend": result.backend,
         "status": result.status,
         "reason": result.reason,
         "width": result.width,
         "height": result.height,
-        **result.meta,
+        **_without_timings(result.meta),
     }
+
+
+def _without_timings(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {k: _without_timings(x) for k, x in v.items() if k != "timings"}
+    if isinstance(v, list):
+        return [_without_timings(x) for x in v]
+    return v
 
 
 def write_json(path: str | Path, data: Any) -> None:

@@ -36,9 +36,8 @@ def contact_sheet(results: list[RenderResult], path: Path) -> Path:
     for ax, r in zip(axes[0], results, strict=True):
         img, what = preview(r)
         ax.imshow(img, interpolation="nearest")
-        took = r.meta.get("timings", {}).get("wall")
-        sub = f"{what}" + (f", {took:.2f} s" if took is not None and r.ok else "")
-        ax.set_title(f"{r.backend}\n{sub}", fontsize=9)
+        # No timings on the sheet: the same command must write the same bytes (they are on stderr).
+        ax.set_title(f"{r.backend}\n{what}", fontsize=9)
         if not r.ok:
             ax.text(0.5, 0.5, r.reason[:60], ha="center", va="center", wrap=True, fontsize=6, color="w",
                     transform=ax.transAxes)  # fmt: skip
