@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -99,3 +100,38 @@ def test_ties_go_to_lower_id():
     two = BALL + BALL.replace("radius = 1.0", "radius = 1.0")
     ids, _, _ = _trace(two, [0, 0, -3], [0, 0, 1])
     assert ids[0] == 0
+
+
+@pytest.mark.parametrize("near_root_only", [True, False])
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+def test_shadow_predicate_decides_as_the_distance(near_root_only, precision):
+    """occludes_ball (signs only, used for shadow rays under shadow_range = "any") against
+    intersect_ball < inf, on rays built to sit on every boundary the signs decide: origins on, just
+    inside and just outside the surface (one ulp and 1e-6 off), at the centre, far away; directions
+    grazing (tangent), through the centre, away from it, and random. Any disagreement is a bug."""
+    import drjit as dr
+
+    rng = np.random.default_rng(7)
+    rules = dataclasses.replace(PROFILES["exercise"], near_root_only=near_root_only)
+    scene = parse_scene(SCENE.format(shapes=BALL.replace("radius = 1.0", "radius = 0.75")))
+    tr = Tracer(scene, rules, precision=precision)
+    ball = scene.shapes[0]
+    dirs = rng.normal(size=(4000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    radial = rng.normal(size=(4000, 3))
+    radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+    scale = np.array([0.0, 0.75, np.nextafter(0.75, 0), np.nextafter(0.75, 1), 0.75 - 1e-6, 0.75 + 1e-6, 5.0, 1e3])
+    o = radial * scale[rng.integers(0, len(scale), 4000)][:, None]
+    # a quarter of the rays: tangent to the ball at the origin's radius, or straight in/out
+    tangent = np.cross(radial, rng.normal(size=(4000, 3)))
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    kind = rng.integers(0, 4, 4000)
+    d = np.where((kind == 0)[:, None], tangent, np.where((kind == 1)[:, None], -radial,
+                 np.where((kind == 2)[:, None], radial, dirs)))  # fmt: skip
+    orig, dirn = tr._load(o), tr._load(d)
+    with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+        by_t = np.asarray(tr.intersect_ball(ball, orig, dirn) < math.inf)
+        by_sign = np.asarray(tr.occludes_ball(ball, orig, dirn))
+    assert 0.1 < by_t.mean() < 0.9  # both outcomes well represented (17% hits when inside origins never hit)
+    bad = np.flatnonzero(by_t != by_sign)
+    assert bad.size == 0, (o[bad[:3]], d[bad[:3]])
