@@ -12,7 +12,8 @@ exact description) this module gives the relative margin of every such decision:
 - a ray starting near a ball's surface (an image-plane origin just inside or outside a ball that
   crosses z = 0): whether it starts inside flips at |o - C| = r; margin | |o - C| - r | / r.
 
-``margin`` is the minimum over these. A disagreement on a ray with margin < k·e (k from the
+``margin`` is the minimum over these; ``near`` (absolute) is the distance to the nearest candidate hit,
+for renderers that ignore hits closer than a fixed depth. A disagreement on a ray with margin < k·e (k from the
 oracle's error analysis, chosen by the harness) is inside the band; elsewhere it is a real defect.
 """
 
@@ -65,4 +66,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
         with np.errstate(invalid="ignore"):  # inf - inf where fewer than two shapes are hit
             tie = np.where(both, (t2 - t1) / np.where(both, t2, 1.0), np.inf)
     margin = np.minimum.reduce([sil, graze, tie, origin])
-    return {"silhouette": sil, "grazing": graze, "tie": tie, "origin": origin, "margin": margin}
+    # Not a relative margin, so not in `margin`: the distance to the nearest candidate hit (either root
+    # of any shape). Renderers that ignore hits closer than a fixed depth (POV-Ray: 1e-4) disagree there.
+    near = np.minimum.reduce(ts) if ts else np.full(n, np.inf)
+    return {"silhouette": sil, "grazing": graze, "tie": tie, "origin": origin, "margin": margin, "near": near}

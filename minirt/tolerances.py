@@ -103,12 +103,14 @@ def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[st
         summary = {"band_eps": eps, "t_rel": p["t_rel"], "plane_abs": plane_abs, "normal_deg": p["normal_deg"]}
     elif name == "povray":
         eps = p["band_threshold"]
-        band = m["margin"] < eps
+        min_depth = p.get("min_depth", 0.0)
+        band = (m["margin"] < eps) | (m["near"] < min_depth)
         t_abs = np.full((h, w), p["t_abs"])
         deg = math.degrees(math.asin(min(1.0, 2 * p["normal_abs"]))) + 1e-9
         nd = np.full((h, w), deg)
         why = {
-            "band": f"margin < {eps:.3g}: single-precision bounding boxes and textbook sphere roots in POV-Ray",
+            "band": f"margin < {eps:.3g}: single-precision bounding boxes and textbook sphere roots in POV-Ray; "
+            f"or a candidate hit nearer than {min_depth:.3g} (POV-Ray ignores hits within 1e-4 of a ray's origin)",
             "t": f"|dt| <= {p['t_abs']:.3g}: {p.get('derivation', '')}",
             "normal": f"{deg:.3g} deg: normals from decoded positions, |dn| <= {p['normal_abs']:.3g}",
         }

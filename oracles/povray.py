@@ -11,9 +11,16 @@ Conventions bridged (measured with Debian's povray 3.7.0.10; see /work/shared/no
   plain ``direction <0,0,d>``. No look_at/angle (they make the parser rewrite the vectors).
 - Ray start: POV-Ray's primary rays start at the camera, the exercise's on the image plane z = 0 (rule
   ray_origin "image-plane"). The two agree unless a shape reaches into the pyramid between the camera
-  and the image plane; such scenes are returned as status "skip" ("object between camera and image
-  plane"; a mesh_camera could bridge it, not implemented). t is re-based on the image-plane origin:
-  t = |P - cam| * z / (z + d) (the part of the camera ray before z = 0 removed).
+  and the image plane. Only then (simulate only what the scene calls for) the camera is a
+  ``mesh_camera`` (distribution 0: pixel k's ray starts at the centroid of triangle k and runs along its
+  face normal): one triangle per pixel, centred on the exercise's ray origin on z = 0, perpendicular
+  to its direction. POV-Ray gives image row j the triangles of row j - 1, so H + 1 rows are rendered
+  and the first dropped (measured: with it the hit mask and ids equal the reference's). Mesh vertices
+  and normals are single precision: origins err by ~2^-24 |P|, directions by ~2^-23, which adds
+  2^-22 (1 + t) to positions (``precision``) and a relative margin to the band (``band_threshold``).
+  Antialiasing cannot be combined with it (the mesh camera maps a pixel to one triangle). t is
+  re-based on the image-plane origin: t = |P - cam| * z / (z + d) (the part of the camera ray before
+  z = 0 removed; with the mesh camera the same line starts at z = 0, so the same formula).
 - Normals: POV-Ray flips them to face the viewer (two_sided True) and skips a light entirely when
   n·l < 1e-10 (no diffuse, no phong; phong only when r·l > 0): clamp True. Balls are seen from inside
   (near_root_only False).
@@ -44,7 +51,9 @@ Conventions bridged (measured with Debian's povray 3.7.0.10; see /work/shared/no
   pass (one start-up per render), ``image8`` is None. The supersampled area is POV-Ray's pixel square,
   which the "corner" skew shifts by half a pixel; to compare with the reference's samples (which cover
   [x, x+1) x [y, y+1)) render both with rule pixel_sample "center". Without the option: one ray per pixel.
-- Numeric limits: hits beyond 1e7 are dropped; an exactly tangent ray misses a sphere; |n·d| < 1e-10
+- Numeric limits: hits beyond 1e7 and nearer than 1e-4 to the ray's origin are dropped (the
+  latter matters for the mesh camera's image-plane origins: the band includes rays with a candidate
+  hit nearer than MIN_DEPTH_BAND); an exactly tangent ray misses a sphere; |n·d| < 1e-10
   misses a plane; with 3 or more finite objects POV-Ray builds float bounding boxes; coincident surfaces:
   the first declared object wins.
 - Untrusted input: POV-Ray's language can open, read and write files. The exporter writes only numbers
@@ -77,6 +86,10 @@ from oracles.base import Oracle
 NAME = "povray"
 INSTALL_HINT = "povray not found on PATH; install: sudo apt-get install povray"
 MAX_DISTANCE = 1e7  # POV-Ray drops hits beyond this (configbackend.h MAX_DISTANCE)
+MIN_ISECT_DEPTH = 1e-4  # ... and hits nearer than this to the ray's origin (configcore.h MIN_ISECT_DEPTH)
+# Rays with a candidate hit nearer than this may disagree: MIN_ISECT_DEPTH plus 1% for the difference
+# between POV-Ray's t and the reference's (rounding ~1e-16 |o|; the mesh camera's origins ~1e-7).
+MIN_DEPTH_BAND = 1.01 * MIN_ISECT_DEPTH
 SPLIT = 1024  # coarse/fine split of an encoded value
 MAX_ANTIALIAS = 9  # POV-Ray accepts Antialias_Depth 1..9
 ID_SCALE = 2048  # shape id k is the constant (k + 1)/2048: exact in half float for k < 2047
@@ -211,6 +224,12 @@ def encoding_ranges(scene: Scene, rules: Rules) -> list[dict[str, tuple[float, f
             out.append(None)  # no primary ray reaches it: nothing to encode
             continue
         p = cam + t[:, None] * dd
+        if rules.ray_origin == "image-plane":  # the exercise's rays start on z = 0: nothing before it is hit
+            front = p[:, 2] >= 0
+            t, p = t[front], p[front]
+            if t.size == 0:
+                out.append(None)
+                continue
         tq = t * p[:, 2] / (p[:, 2] + dist) if rules.ray_origin == "image-plane" else t
         # A constant coordinate (a plane's y) still gets a span of 1e-6 of the scene's scale, so POV-Ray's
         # rounding of far hits (~1e-16 of |P|) stays far inside the padding.
@@ -223,8 +242,18 @@ def encoding_ranges(scene: Scene, rules: Rules) -> list[dict[str, tuple[float, f
     return out
 
 
-def precision(scene: Scene, ranges: list[dict[str, tuple[float, float]]]) -> dict[str, Any]:
-    """The buffer precision the encoding guarantees (derived, not including POV-Ray's own rounding)."""
+# Mesh camera rays (single-precision vertices and normals): the centroid errs by ~2^-24 (|P| + size)
+# < 2^-23 and the face normal, from vertex differences over edges of length size*sqrt(3) ~ 0.87 and then
+# stored as a float, by ~2^-22 rad; a point at distance t along the ray thus moves by <= 2^-22 (1 + t).
+# Twice that, 2^-21 (1 + t), is used below.
+MESH_RAY_ERROR = 2.0**-21
+
+
+def precision(
+    scene: Scene, ranges: list[dict[str, tuple[float, float]] | None], mesh_camera: bool = False
+) -> dict[str, Any]:
+    """The buffer precision the encoding guarantees (derived, not including POV-Ray's own rounding),
+    plus the mesh camera's ray error when one is used."""
     per = FINE_ERROR / SPLIT  # error of v, as a fraction of the range
     pos = 0.0
     t_abs = 0.0
@@ -233,9 +262,10 @@ def precision(scene: Scene, ranges: list[dict[str, tuple[float, float]]]) -> dic
     for s, r in zip(scene.shapes, ranges, strict=True):
         if r is None:
             continue
-        e = max((r[q][1] - r[q][0]) * per for q in "xyz")
+        ray = MESH_RAY_ERROR * (1 + r["t"][1]) if mesh_camera else 0.0
+        e = max((r[q][1] - r[q][0]) * per for q in "xyz") + ray
         pos = max(pos, e)
-        et = (r["t"][1] - r["t"][0]) * per
+        et = (r["t"][1] - r["t"][0]) * per + ray
         t_abs = max(t_abs, et)
         t_rel = max(t_rel, et / r["t"][0]) if r["t"][0] > 0 else math.inf
         if isinstance(s, Ball):
@@ -253,11 +283,13 @@ def precision(scene: Scene, ranges: list[dict[str, tuple[float, float]]]) -> dic
             "|dq| <= (2^-12 + 2^-20)/1024 (hi - lo) = 2.4e-7 of the range; position_abs/t_abs are the largest "
             "over shapes, t_rel divides by the smallest t in the range; normals (P - C)/r err by "
             "sqrt(3) position_abs / r (planes exact); the float colour is half: relative 2^-12"
+            + ("; plus the mesh camera's single-precision rays, 2^-21 (1 + t_max) per shape" if mesh_camera else "")
         ),
+        "mesh_camera": mesh_camera,
     }
 
 
-def band_threshold(scene: Scene) -> float:
+def band_threshold(scene: Scene, rules: Rules) -> float:
     """K·eps for minirt.band: rays whose relative margin is below it may legitimately flip in POV-Ray.
 
     - With 3 or more finite objects POV-Ray bounds them with single-precision boxes: a box face can sit
@@ -265,15 +297,22 @@ def band_threshold(scene: Scene) -> float:
     - its double-precision sphere test uses the textbook discriminant b^2 - (|f|^2 - r^2), whose error
       is about 2^-53 |f|^2, a relative margin 2^-53 |f|^2/r^2 (silhouettes and depth ties alike);
     - a plane is missed when |n·d| < 1e-10 (the grazing margin).
+    - with a mesh camera, rays start and point off by MESH_RAY_ERROR (1 + t): at a ball, t < |C| + r, a
+      relative margin MESH_RAY_ERROR (1 + |C| + r)/r; at a plane, |n·d| moves by MESH_RAY_ERROR.
     eps is the largest of these over the scene's balls; K = 8 covers the few roundings chained in each.
     """
     eps = 1e-10
+    mesh = uses_mesh_camera(scene, rules)
+    if mesh:
+        eps = max(eps, MESH_RAY_ERROR)
     cam = scene.camera.position
     for s in scene.shapes:
         if isinstance(s, Ball):
             c = math.hypot(*s.center)
             f = math.dist(cam, s.center) + s.radius
             eps = max(eps, 2.0**-24 * (c + s.radius) / s.radius, 2.0**-53 * f * f / (s.radius * s.radius))
+            if mesh:
+                eps = max(eps, MESH_RAY_ERROR * (1 + c + s.radius) / s.radius)
     return 8 * eps
 
 
@@ -281,7 +320,40 @@ def band_threshold(scene: Scene) -> float:
 # Exporter: pure functions from (scene, rules) to text
 
 
+def uses_mesh_camera(scene: Scene, rules: Rules) -> bool:
+    """The pinhole camera reproduces the exercise's rays unless a shape sits between it and z = 0."""
+    return rules.ray_origin == "image-plane" and bool(between_camera_and_image_plane(scene))
+
+
+MESH_TRIANGLE_SIZE = 0.5  # circumradius: large triangles keep the single-precision face normal accurate
+
+
+def _mesh_camera(scene: Scene, rules: Rules) -> str:
+    """A mesh_camera reproducing the exercise's primary rays: triangle k centred on ray k's origin on
+    z = 0, its face normal (POV-Ray: cross(P3 - P1, P2 - P1), normalised) along ray k's direction."""
+    o, d = camera.primary_rays(scene, rules)
+    a = np.where(np.abs(d[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    e1 = np.cross(d, a)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(d, e1)
+    s = MESH_TRIANGLE_SIZE
+    p1 = o + s * e1
+    p2 = o + s * (-0.5 * e1 + math.sqrt(3) / 2 * e2)
+    p3 = o + s * (-0.5 * e1 - math.sqrt(3) / 2 * e2)
+    wrong = np.einsum("ij,ij->i", np.cross(p3 - p1, p2 - p1), d) < 0
+    p2, p3 = np.where(wrong[:, None], p3, p2), np.where(wrong[:, None], p2, p3)
+    if not np.isfinite(np.concatenate([p1, p2, p3])).all():
+        raise ValueError("non-finite mesh camera vertex")
+    # 9 significant digits round-trip a single-precision float, which is what POV-Ray stores.
+    num = np.char.mod("%.9g", np.concatenate([p1, p2, p3], axis=1)).reshape(-1, 3, 3)
+    vec = ["<" + ",".join(v) + ">" for v in num.reshape(-1, 3)]
+    tris = ["triangle{" + ",".join(vec[3 * i : 3 * i + 3]) + "}" for i in range(len(o))]
+    return "camera { mesh_camera { 1 0 mesh {\n" + "\n".join(tris) + "\n} } }"
+
+
 def _camera(scene: Scene, rules: Rules) -> str:
+    if uses_mesh_camera(scene, rules):
+        return _mesh_camera(scene, rules)
     w, h, d = scene.camera.width, scene.camera.height, _f(scene.camera.distance)
     # corner: half a pixel up-left of POV-Ray's centre rays
     direction = f"<-0.5/{w}, 0.5/{h}, {d}>" if rules.pixel_sample == "corner" else f"<0, 0, {d}>"
@@ -420,12 +492,15 @@ def command(
     stem: str = "out",
     threads: int | None = None,
     antialias: int | None = None,
+    mesh_camera: bool = False,
 ) -> list[str]:
     """The povray command line: frames first..last of an n_frames animation; kind "exr" or "png8".
 
     ``antialias`` R (1..MAX_ANTIALIAS): ``+A0.0 +R{R}`` -- threshold 0, so every pixel is supersampled
     with POV-Ray's own jittered sub-pixel grid of depth R (method 1, default jitter); None: ``-A``."""
     w, h = scene.camera.width, scene.camera.height
+    if mesh_camera:
+        h += 1  # POV-Ray gives row j the mesh camera's triangles of row j - 1: the first row is dropped
     aa = ["-A"] if antialias is None else ["+A0.0", f"+R{int(antialias)}"]
     cmd = ["povray", "-D", *aa, "+Q9", f"+W{w}", f"+H{h}"]
     if kind == "exr":
@@ -608,10 +683,10 @@ class PovrayOracle(Oracle):
         bad = self.cannot_follow(rules)
         if bad:
             return fail("skip", f"POV-Ray cannot follow rule(s): {', '.join(bad)}")
-        if rules.ray_origin == "image-plane":
-            between = between_camera_and_image_plane(scene)
-            if between:
-                return fail("skip", f"object between camera and image plane (shape {', '.join(map(str, between))})")
+        if opts.get("antialias") is not None and uses_mesh_camera(scene, rules):
+            between = ", ".join(map(str, between_camera_and_image_plane(scene)))
+            return fail("skip", f"object between camera and image plane (shape {between}) needs a mesh camera, "
+                                "which cannot antialias")  # fmt: skip
         try:
             return self._render(scene, rules, opts, meta)
         except FileNotFoundError as e:
@@ -642,6 +717,7 @@ class PovrayOracle(Oracle):
         frames = cframes + gframes
         ranges = encoding_ranges(scene, rules) if gframes else None
         text = scene_to_pov(scene, rules, frames, ranges)
+        mesh = uses_mesh_camera(scene, rules)
         meta.update(
             backend=NAME,
             version=self.version(),
@@ -651,7 +727,7 @@ class PovrayOracle(Oracle):
                       "antialias": antialias,
                       "channel_mode": "per-channel" if len(cframes) == 3 else "rgb",
                       "frames": [f.label for f in frames], "max_trace_level": scene.max_depth + 1 if fx.reflection
-                      else 1},
+                      else 1, "camera": "mesh_camera" if mesh else "perspective"},
             effects={"simulated": fx.simulated(), "skipped": fx.skipped(), **fx.as_dict()},
         )  # fmt: skip
         passes: list[dict[str, Any]] = []
@@ -661,14 +737,14 @@ class PovrayOracle(Oracle):
             (cwd / "scene.pov").write_text(text)
             n = len(frames)
             # One EXR animation: float colour frames and geometry frames, +UA for the hit mask.
-            cmd_exr = command(scene, n, 1, n, "exr", threads=threads, antialias=antialias)
+            cmd_exr = command(scene, n, 1, n, "exr", threads=threads, antialias=antialias, mesh_camera=mesh)
             _, t_exr = _run(cmd_exr, cwd, timeout)
             passes.append({"name": "exr", "frames": [f.label for f in frames], "command": shlex.join(cmd_exr),
                            "timings": t_exr})  # fmt: skip
             png_pass = antialias is None
             if png_pass:
                 # The 8-bit PNG of the colour frames: POV-Ray's own rounding, exact.
-                cmd_png = command(scene, n, 1, len(cframes), "png8", threads=threads)
+                cmd_png = command(scene, n, 1, len(cframes), "png8", threads=threads, mesh_camera=mesh)
                 _, t_png = _run(cmd_png, cwd, timeout)
                 passes.append({"name": "png8", "frames": [f.label for f in cframes],
                                "command": shlex.join(cmd_png), "timings": t_png})  # fmt: skip
@@ -680,11 +756,16 @@ class PovrayOracle(Oracle):
             ]
             if missing:
                 raise PovrayError(f"POV-Ray wrote no output for frame(s) {sorted(set(missing))}")
+            first = 1 if mesh else 0  # the mesh camera's extra first row (see command)
+
+            def read(path: Path) -> np.ndarray:
+                return read_image(path)[0][first:]
+
             color = np.zeros((h, w, 3))
             color8: np.ndarray | None = np.zeros((h, w, 3), dtype=np.uint8) if png_pass else None
             for i, f in enumerate(cframes, start=1):
-                img, _ = read_image(exr[i])
-                img8 = read_image_u8(png[i]) if png_pass else None
+                img = read(exr[i])
+                img8 = read_image_u8(png[i])[first:] if png_pass else None
                 if f.index < 0:
                     color = img[..., :3].astype(np.float64)
                     if img8 is not None:
@@ -695,7 +776,7 @@ class PovrayOracle(Oracle):
                         color8[..., f.index] = img8[..., 0]
             geom: dict[str, np.ndarray] = {}
             if gframes:
-                imgs = [read_image(exr[len(cframes) + 1 + g])[0] for g in range(len(gframes))]
+                imgs = [read(exr[len(cframes) + 1 + g]) for g in range(len(gframes))]
                 geom = decode_geometry(scene, rules, imgs, ranges)
             timings["decode"] = time.perf_counter() - t0
         timings["passes"] = {p["name"]: p["timings"] for p in passes}
@@ -705,8 +786,9 @@ class PovrayOracle(Oracle):
         timings["total"] = time.perf_counter() - t_start
         meta.update(passes=passes, commands=[p["command"] for p in passes], timings=timings)
         if gframes:
-            meta["precision"] = precision(scene, ranges)
-            meta["precision"]["band_threshold"] = band_threshold(scene)
+            meta["precision"] = precision(scene, ranges, mesh)
+            meta["precision"]["band_threshold"] = band_threshold(scene, rules)
+            meta["precision"]["min_depth"] = MIN_DEPTH_BAND
             meta["encoding_ranges"] = ranges
             # pixels where the three frames' alpha and the id channel disagree on hit/miss (expected 0)
             meta["hit_consistency"] = geom.pop("hit_mismatch")
@@ -716,7 +798,7 @@ class PovrayOracle(Oracle):
             geom = {"hit": miss, "shape_id": np.full((h, w), -1, np.int32), "t": np.full((h, w), np.inf),
                     "position": np.zeros((h, w, 3)), "normal": np.zeros((h, w, 3))}  # fmt: skip
             if geometry:
-                meta["precision"] = precision(scene, [])
+                meta["precision"] = precision(scene, [], mesh)
         # POV-Ray's own 8-bit image (exact rounding; rounding the half-float colour flips .5 ties); antialiased
         # renders have none (color8() then rounds the half-float colour)
         return RenderResult(backend=NAME, width=w, height=h, color=color, image8=color8, meta=meta, **geom)
@@ -773,7 +855,8 @@ def export(scene: Scene, rules: Rules, out_dir: str | Path) -> list[Path]:
     frames = color_frames(scene, rules)
     pov = out / "scene.pov"
     pov.write_text(scene_to_pov(scene, rules, frames))
-    cmd = shlex.join(command(scene, len(frames), 1, len(frames), "png8"))
+    mesh = uses_mesh_camera(scene, rules)
+    cmd = shlex.join(command(scene, len(frames), 1, len(frames), "png8", mesh_camera=mesh))
     sh = out / "render.sh"
     header = "# Render scene.pov with POV-Ray 3.7 (linear 8-bit PNG, no antialiasing)"
     sh.write_text(f'#!/bin/sh\n{header}\ncd "$(dirname "$0")"\n{cmd}\n')
@@ -785,10 +868,10 @@ def export(scene: Scene, rules: Rules, out_dir: str | Path) -> list[Path]:
             " The scene is rendered once per colour channel (frames 1-3 are grey renders of R, G and B):"
             " take channel 0 of out1.png, out2.png and out3.png."
         )
-    if rules.ray_origin == "image-plane" and between_camera_and_image_plane(scene):
+    if mesh:
         note += (
-            " Warning: a shape lies between the camera and the image plane, where POV-Ray's camera rays"
-            " see it and the exercise's do not."
+            " A shape lies between the camera and the image plane, so the camera is a mesh_camera whose rays"
+            f" start on the image plane; POV-Ray renders {scene.camera.height + 1} rows: drop the first."
         )
     output = "out.png" if len(frames) == 1 else "out1.png, out2.png, out3.png"
     readme.write_text(f"Render with: {cmd}\nOutput: {output} (linear, File_Gamma 1.0).{note}\n")

@@ -81,12 +81,6 @@ def test_crashing_oracle_is_an_error_and_the_others_run(monkeypatch):
     assert harness.CheckResult(harness.worst([sc.verdict]), [sc]).exit_code() == 2
 
 
-def test_unreproducible_scene_is_a_skip_with_reason():
-    sc = harness.check_scene(ROOT / "scenes" / "rules.toml", ["povray"], (24, 24))
-    b = sc.backends["povray"]
-    assert b.verdict == "skip" and "between camera and image plane" in b.reason
-
-
 def test_render_result_failed_carries_reason():
     r = backends.render("nope-backend", *_tiny())
     assert isinstance(r, RenderResult) and r.status == "error" and "nope-backend" in r.reason
