@@ -97,6 +97,8 @@ class Level:
     bg: Any  # the background contribution at this level
     terms: dict[str, Any] = field(default_factory=dict)
     record: dict[str, Any] = field(default_factory=dict)
+    spawn: Any = None  # which rays spawned a reflected ray (None: none did)
+    slot: Any = None  # for those, the index of that ray in the next level (exclusive prefix sum of spawn)
 
 
 class Tracer:
@@ -394,17 +396,20 @@ class Tracer:
                 idx = dr.compress(spawn)
                 if dr.width(idx) == 0:
                     break
+                lvl.spawn, lvl.slot = spawn, dr.prefix_sum(self.T.UInt(spawn))
                 o, d, parent = dr.gather(self.T.Array3, ro, idx), dr.gather(self.T.Array3, rd, idx), idx
             # Back to front: c = ambient + diffuse + specular + kr * trace(reflected) + background.
-            child, child_parent = None, None
+            # A ray's reflected colour is gathered from the next level through its slot (0 where it
+            # spawned none): fused into this level's kernel, where a scatter into zeros would cost a
+            # memset and a kernel of its own per level.
+            child = None
             for k in range(len(levels) - 1, -1, -1):
                 lvl = levels[k]
                 c = lvl.local
                 if self.effects.reflection:
                     refl = self._vec((0.0, 0.0, 0.0))
                     if child is not None:
-                        refl = dr.zeros(self.T.Array3, dr.width(lvl.shape_id))
-                        dr.scatter(refl, child, child_parent)
+                        refl = dr.gather(self.T.Array3, child, lvl.slot, active=lvl.spawn)
                     lvl.terms["reflection"] = lvl.kr * refl
                     c = c + lvl.terms["reflection"]
                 if self.effects.background:
@@ -414,7 +419,7 @@ class Tracer:
                     dr.eval(c, lvl.terms)
                 else:
                     dr.eval(c)
-                child, child_parent = c, lvl.parent
+                child = c
             return child, levels
 
     # ---- whole images -----------------------------------------------------------------------
