@@ -172,8 +172,9 @@ class Tracer:
 
     def closest(self, o, d) -> tuple[Any, Any]:
         """Appendix 1: the closest hit over all shapes; ties keep the lower shape id."""
-        t_best = self.T.Float(math.inf)
-        id_best = self.T.Int(-1)
+        # Full width from the start: with no shapes at all these are the results, one per ray.
+        t_best = dr.full(self.T.Float, math.inf, dr.width(d))
+        id_best = dr.full(self.T.Int, -1, dr.width(d))
         for k, s in enumerate(self.scene.shapes):
             tk = self.intersect(s, o, d)
             closer = tk < t_best
@@ -455,7 +456,10 @@ class Tracer:
             hit = dr.gather(self.T.Int, shape_id, i) >= 0
             bufs = {}
             for name, v in vectors.items():
-                x, y, z = (F64(dr.gather(self.T.Float, v[k], i)) for k in range(3))
+                # A component that is one constant (the normal of a scene without shapes) is broadcast:
+                # a gather from a width-1 array would read past its end.
+                comps = [v[k] if dr.width(v[k]) == n else dr.full(self.T.Float, v[k][0], n) for k in range(3)]
+                x, y, z = (F64(dr.gather(self.T.Float, c, i)) for c in comps)
                 val = dr.select(comp == 0, x, dr.select(comp == 1, y, z))
                 if name in ("position", "normal"):
                     val = dr.select(hit, val, 0.0)

@@ -395,7 +395,10 @@ class EmbreeOracle(Oracle):
 
         t0 = time.perf_counter()
         hit = tri >= 0
-        sid = np.where(hit, face_shape[np.maximum(tri, 0)], -1).astype(np.int32)
+        if len(face_shape):
+            sid = np.where(hit, face_shape[np.maximum(tri, 0)], -1).astype(np.int32)
+        else:  # a scene without shapes: every ray misses
+            sid = np.full(n_rays, -1, dtype=np.int32)
         t = np.full(n_rays, np.inf)
         normal = np.zeros((n_rays, 3))
         t_bound = np.full(n_rays, np.inf)

@@ -806,8 +806,9 @@ class PovrayOracle(Oracle):
             miss = np.zeros((h, w), dtype=bool)
             geom = {"hit": miss, "shape_id": np.full((h, w), -1, np.int32), "t": np.full((h, w), np.inf),
                     "position": np.zeros((h, w, 3)), "normal": np.zeros((h, w, 3))}  # fmt: skip
-            if geometry:
+            if geometry:  # no shapes: nothing to encode, every ray misses
                 meta["precision"] = precision(scene, [], mesh)
+                meta["precision"].update(band_threshold=band_threshold(scene, rules), min_depth=MIN_DEPTH_BAND)
         # POV-Ray's own 8-bit image (exact rounding; rounding the half-float colour flips .5 ties); antialiased
         # renders have none (color8() then rounds the half-float colour)
         return RenderResult(backend=NAME, width=w, height=h, color=color, image8=color8, meta=meta, **geom)

@@ -39,3 +39,39 @@ def test_every_rule_an_oracle_cannot_follow_is_attributed():
     assert set(b.rules) == {"shadow_range", "near_root_only", "two_sided", "clamp", "offset"}
     assert b.rules["shadow_range"] > 100  # the ball beyond the light darkens the big ball
     assert b.rule_masks["shadow_range"].sum() == b.rules["shadow_range"]
+
+
+# Degenerate but valid scenes: every oracle must PASS on them, not crash or cry wolf.
+_EDGE_MATERIAL = """
+[light]
+position = [2.0, 3.0, -1.0]
+[render]
+background = [0.1, 0.2, 0.3]
+[materials.m]
+ambient = [0.1, 0.1, 0.1]
+diffuse = [0.6, 0.5, 0.4]
+specular = [0.3, 0.3, 0.3]
+reflection = [0.2, 0.2, 0.2]
+"""
+_BALL = '[[shapes]]\ntype = "ball"\ncenter = [0.0, 0.0, 3.0]\nradius = 1.0\nmaterial = "m"\n'
+_FLOOR = '[[shapes]]\ntype = "plane"\nnormal = [0.0, 1.0, 0.0]\ndistance = -1.0\nmaterial = "m"\n'
+EDGE_SCENES = {
+    "no_shapes": ("32x32", ""),
+    "one_pixel": ("1x1", _BALL),
+    "wide_strip": ("40x3", _BALL + _FLOOR),
+    # a ball around the camera position: POV-Ray needs its mesh camera, the near root is behind every ray
+    "ball_at_camera": ("24x24", _BALL + _BALL.replace("0.0, 0.0, 3.0", "0.0, 0.0, -2.0").replace("1.0", "0.5")),
+    "plane_through_camera": ("24x24", _FLOOR.replace("0.0, 1.0, 0.0", "1.0, 0.0, 0.0").replace("-1.0", "0.0")),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(EDGE_SCENES))
+def test_edge_scene_against_every_oracle(name, tmp_path):
+    size, shapes = EDGE_SCENES[name]
+    w, h = size.split("x")
+    path = tmp_path / f"{name}.toml"
+    path.write_text(f"[camera]\ndistance = 2.0\nwidth = {w}\nheight = {h}\n{_EDGE_MATERIAL}{shapes}")
+    sc = harness.check_scene(path, ["reference", *oracle_names()])
+    bad = {n: f"{b.verdict} {b.reason}" for n, b in sc.backends.items() if b.verdict != "pass"}
+    assert not bad, bad
