@@ -126,7 +126,7 @@ def render(
 
     scene, rules = _load(scene_path, width, height, samples, profile, rule)
     names = backends.parse_backends(backend)
-    dest = out_dir or Path("renders") / scene.name
+    dest = _out_dir(out_dir or Path("renders") / scene.name)
     w, h = scene.camera.width, scene.camera.height
     err.print(f"[bold]{scene.name}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}")
     results = []
@@ -317,7 +317,7 @@ def export(
         raise MinirtError(f"--to: unknown target {to!r} (known: mitsuba, povray, mesh)")
     scene, rules = _load(scene_path, profile=profile, rules=rule)
     o = oracles.get(target)
-    files = o.export(scene, o.adapt(rules), out_dir)
+    files = o.export(scene, o.adapt(rules), _out_dir(out_dir))
     for f in files:
         out.print(f"wrote {f}")
 
@@ -431,6 +431,8 @@ def check(
     """
     from minirt.imageio import atomic_path
 
+    _out_file(json_out, "--json")
+    _out_file(junit, "--junit")
     result = run_checks(scene_paths, backend, size, quiet)
     _print_check(result)
     if json_out:
@@ -473,6 +475,7 @@ def sweep(
 
     scene, rules = _load(scene_path, profile=profile, rules=rule)
     names = backends.parse_backends(backend)
+    _out_dir(out_dir)
     with _progress(not quiet) as bar:
         task = bar.add_task("sweep", total=1) if bar else None
 
@@ -512,6 +515,7 @@ def report(
             sweep_data = json_.loads(f.read_text())
         except (OSError, ValueError) as e:
             raise MinirtError(f"{f}: not a readable sweep ({e})") from None
+    _out_dir(out_dir)
     result = run_checks(scene_paths, backend, size, quiet)
     _print_check(result)
     command = "minirt " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["report"] else "minirt report"
@@ -521,6 +525,24 @@ def report(
 
 
 # ---------------------------------------------------------------------------------------------
+def _out_dir(path: Path, option: str = "--out") -> Path:
+    """Make the output folder before any work, so a bad --out fails in a second, not after a render."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise MinirtError(f"{option} {path}: cannot create the folder ({e.strerror or e})") from None
+    if not os.access(path, os.W_OK):
+        raise MinirtError(f"{option} {path}: the folder is not writable")
+    return path
+
+
+def _out_file(path: Path | None, option: str) -> None:
+    if path is not None:
+        if path.is_dir():
+            raise MinirtError(f"{option} {path}: is a folder, expected a file name")
+        _out_dir(path.parent if str(path.parent) else Path("."), option)
+
+
 def main() -> None:
     try:
         rv = app(standalone_mode=False)
@@ -537,6 +559,12 @@ def main() -> None:
     except typer.TyperException as e:  # usage errors: exit status 2, Click's message
         e.show()
         sys.exit(e.exit_code)
+    except OSError as e:  # an output folder that cannot be made or written, a disk that is full: bad input
+        if os.environ.get("MINIRT_DEBUG"):
+            raise
+        where = e.filename if e.filename is not None else "output"
+        err.print(f"minirt: error: {where}: {e.strerror or e}", markup=False)
+        sys.exit(2)
     except Exception as e:
         if os.environ.get("MINIRT_DEBUG"):
             raise

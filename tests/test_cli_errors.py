@@ -145,6 +145,31 @@ def test_bad_arguments(args, message):
     assert "Traceback" not in p.stderr
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["render", "scenes/exercise.toml", "--out", "{blocked}/out"], "--out {blocked}/out: cannot create the folder"),
+        (["report", "scenes/exercise.toml", "--out", "{blocked}/rep"], "--out {blocked}/rep: cannot create the folder"),
+        (["sweep", "scenes/exercise.toml", "--out", "{blocked}/sw"], "--out {blocked}/sw: cannot create the folder"),
+        (["export", "scenes/exercise.toml", "--to", "povray", "--out", "{blocked}/e"], "cannot create the folder"),
+        (["check", "scenes/exercise.toml", "--json", "{blocked}/c.json"], "--json {blocked}: cannot create"),
+        (["check", "scenes/exercise.toml", "--junit", "{tmp}"], "is a folder, expected a file name"),
+    ],
+    ids=["render", "report", "sweep", "export", "check-json", "check-junit"],
+)
+def test_unusable_output_fails_before_any_work(tmp_path, args, message):
+    """An output path under a regular file cannot be made (even as root): exit 2 and one line, and
+    nothing else -- the command checks its outputs before it renders or checks anything."""
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    fill = {"blocked": str(blocked), "tmp": str(tmp_path)}
+    root = Path(__file__).resolve().parent.parent
+    p = run(*(a.format(**fill) for a in args), cwd=root)
+    assert p.returncode == 2, (p.returncode, p.stderr)
+    assert message.format(**fill) in p.stderr and "Traceback" not in p.stderr, p.stderr
+    assert [ln for ln in (p.stdout + p.stderr).splitlines() if ln.strip()] == p.stderr.strip().splitlines()[-1:]
+
+
 def test_missing_llvm_is_explained(monkeypatch):
     from minirt import engine
     from minirt.errors import MinirtError
