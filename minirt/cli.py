@@ -119,6 +119,14 @@ def render(
     precision: Annotated[Precision, typer.Option("--precision", help="Reference tracer precision.")] = Precision.f64,
     profile: ProfileOpt = None,
     rule: RuleOpt = None,
+    timings: Annotated[
+        bool,
+        typer.Option(
+            "--timings",
+            help="Also record each backend's timings in its JSON sidecar (the sidecar then differs run to run; "
+            "without it every file is bit-identical and the timings are printed only).",
+        ),
+    ] = False,
 ) -> None:
     """Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend."""
     from minirt import backends
@@ -146,7 +154,7 @@ def render(
                 bar.update(task, completed=1, total=1)
             results.append(res)
             if res.ok:
-                paths = write_result(res, dest, f"{scene.name}.{name}")
+                paths = write_result(res, dest, f"{scene.name}.{name}", timings=timings)
                 _report_render(res, paths)
             else:
                 err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {res.reason}")

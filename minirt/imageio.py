@@ -124,8 +124,9 @@ def exr_channels(result: RenderResult) -> tuple[np.ndarray, list[str]]:
     return np.stack(planes, axis=-1), names
 
 
-def write_result(result: RenderResult, out_dir: str | Path, stem: str) -> dict[str, Path]:
-    """Write `stem.png` (the 8-bit bitmap), `stem.exr` (every buffer) and `stem.json` (metadata)."""
+def write_result(result: RenderResult, out_dir: str | Path, stem: str, timings: bool = False) -> dict[str, Path]:
+    """Write `stem.png` (the 8-bit bitmap), `stem.exr` (every buffer) and `stem.json` (metadata; with
+    ``timings`` also the run's timings, which makes it differ from run to run)."""
     out_dir = Path(out_dir)
     paths: dict[str, Path] = {}
     if result.color is not None:
@@ -136,20 +137,21 @@ def write_result(result: RenderResult, out_dir: str | Path, stem: str) -> dict[s
         paths["exr"] = out_dir / f"{stem}.exr"
         write_image(paths["exr"], data, names)
     paths["json"] = out_dir / f"{stem}.json"
-    write_json(paths["json"], sidecar(result))
+    write_json(paths["json"], sidecar(result, timings))
     return paths
 
 
-def sidecar(result: RenderResult) -> dict[str, Any]:
-    """The metadata a render leaves beside its images, without timings (anywhere in the tree): the same
-    command writes the same bytes. Timings stay in ``result.meta`` for check, report and sweep."""
+def sidecar(result: RenderResult, timings: bool = False) -> dict[str, Any]:
+    """The metadata a render leaves beside its images. Without ``timings`` none (anywhere in the tree),
+    so the same command writes the same bytes; timings stay in ``result.meta`` for check, report and
+    sweep either way."""
     return {
         "backend": result.backend,
         "status": result.status,
         "reason": result.reason,
         "width": result.width,
         "height": result.height,
-        **_without_timings(result.meta),
+        **(result.meta if timings else _without_timings(result.meta)),
     }
 
 

@@ -43,7 +43,7 @@ def test_pruning_skips_work():
 
 
 def test_files_are_bit_identical(tmp_path):
-    def render(out):
+    def render(out, *extra):
         cmd = [
             sys.executable,
             "-m",
@@ -56,6 +56,7 @@ def test_files_are_bit_identical(tmp_path):
             "24",
             "--out",
             str(out),
+            *extra,
         ]
         subprocess.run(cmd, check=True, capture_output=True, timeout=120)
 
@@ -66,6 +67,11 @@ def test_files_are_bit_identical(tmp_path):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
     meta = json.loads((tmp_path / "a" / "exercise.reference.json").read_text())
     assert "timings" not in meta and meta["scene_sha256"] and meta["effects"]["simulated"]
+    # --timings records them (asked for explicitly: the sidecar then measures the run)
+    render(tmp_path / "c", "--timings")
+    timed = json.loads((tmp_path / "c" / "exercise.reference.json").read_text())
+    assert timed["timings"]["wall"] > 0 and timed["timings"]["total"] > 0
+    assert {k: v for k, v in timed.items() if k != "timings"} == meta
 
 
 def test_exr_holds_every_buffer(tmp_path):
