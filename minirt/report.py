@@ -312,9 +312,10 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
             new8, old8, what = res.color8(), ref.color8(), "colour"
         else:
             new8, old8, what = _normals8(res), _normals8(ref), "normals"
+        part = what.replace(" ", "_")  # asset names stay [a-z0-9_-]: no spaces in URLs
         v["swap"] = {
-            "new": assets.image8(f"{stem}-{what}.png", new8),
-            "ref": assets.image8(f"{stem}-reference-{what}.png", old8),
+            "new": assets.image8(f"{stem}-{part}.png", new8),
+            "ref": assets.image8(f"{stem}-reference-{part}.png", old8),
             "what": what,
         }
         geom = bc.checks.get("geometry")

@@ -223,3 +223,17 @@ def test_in_a_browser(built, tmp_path):
     colours = np.unique(px.reshape(-1, 3), axis=0)
     white = (px > 245).all(-1).mean()
     assert len(colours) > 500 and white < 0.5 and px.std() > 10, (len(colours), white, px.std())
+
+
+def test_committed_sample_is_complete():
+    """reports/sample (refreshed by `make sample`): every image the page names exists, names URL-safe."""
+    sample = Path(__file__).resolve().parent.parent / "reports" / "sample"
+    html = (sample / "index.html").read_text()
+    srcs = re.findall(r'<img[^>]* src="([^"]+)"', html)
+    assert len(srcs) > 50
+    for s in srcs:
+        assert re.fullmatch(r"assets/[A-Za-z0-9_.-]+", s) and (sample / s).is_file(), s
+    used = {s.removeprefix("assets/") for s in srcs}
+    assert {p.name for p in (sample / "assets").iterdir()} <= used | {"sweep.png"}  # nothing stale
+    data = json.loads((sample / "report.json").read_text())
+    assert data["verdict"] == "pass" and all(s["verdict"] == "pass" for s in data["scenes"])
