@@ -446,6 +446,19 @@ class Tracer:
         NumPy then views the buffers (and the evaluated ids and t) without a copy. Measured on
         three_balls 1024²: 6 ms, against ~60 ms for a ravel kernel and two NumPy passes per buffer.
         """
+        t64 = dr.llvm.Float64(t)
+        out = self._interleave(w, h, vectors, shape_id=shape_id, masked=("position", "normal"), also=[t64])
+        out["shape_id"] = np.asarray(shape_id).reshape(h, w)
+        out["hit"] = out["shape_id"] >= 0
+        out["t"] = np.asarray(t64).reshape(h, w)  # inf on a miss already (shade_level)
+        return out
+
+    def _interleave(
+        self, w: int, h: int, vectors: dict[str, Any], shape_id=None, masked=(), also=()
+    ) -> dict[str, np.ndarray]:
+        """3-vectors (Dr.Jit, any float type) to (h, w, 3) float64 NumPy arrays in one kernel over 3 N
+        lanes; the names in ``masked`` are 0 where ``shape_id`` < 0; zeros canonical (+0.0). ``also``
+        (arrays of width N) are evaluated in the same kernel."""
         F64, U32 = dr.llvm.Float64, dr.llvm.UInt32
         n = w * h
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
@@ -453,25 +466,21 @@ class Tracer:
             j = dr.arange(U32, 3 * n)
             i = j // 3
             comp = j - 3 * i
-            hit = dr.gather(self.T.Int, shape_id, i) >= 0
+            hit = dr.gather(self.T.Int, shape_id, i) >= 0 if masked else None
             bufs = {}
             for name, v in vectors.items():
+                ftype = type(v[0])
                 # A component that is one constant (the normal of a scene without shapes) is broadcast:
                 # a gather from a width-1 array would read past its end.
-                comps = [v[k] if dr.width(v[k]) == n else dr.full(self.T.Float, v[k][0], n) for k in range(3)]
-                x, y, z = (F64(dr.gather(self.T.Float, c, i)) for c in comps)
+                comps = [v[k] if dr.width(v[k]) == n else dr.full(ftype, v[k][0], n) for k in range(3)]
+                x, y, z = (F64(dr.gather(ftype, c, i)) for c in comps)
                 val = dr.select(comp == 0, x, dr.select(comp == 1, y, z))
-                if name in ("position", "normal"):
+                if name in masked:
                     val = dr.select(hit, val, 0.0)
                 bufs[name] = val + zero
-            t64 = F64(t)
-            dr.eval(bufs, t64)
+            dr.eval(bufs, *also)
             dr.sync_thread()
-        out: dict[str, Any] = {k: np.asarray(b).reshape(h, w, 3) for k, b in bufs.items()}
-        out["shape_id"] = np.asarray(shape_id).reshape(h, w)
-        out["hit"] = out["shape_id"] >= 0
-        out["t"] = np.asarray(t64).reshape(h, w)  # inf on a miss already (shade_level)
-        return out
+        return {k: np.asarray(b).reshape(h, w, 3) for k, b in bufs.items()}
 
     def primary_rays(self) -> tuple[Any, Any]:
         """camera.primary_rays computed in Dr.Jit: the same IEEE operations in the same order, so
@@ -544,33 +553,55 @@ class Tracer:
 
         Also returns the per-pixel sample variance (unbiased, of one sample; divide by n for the
         mean's) of the colour and of the diffuse term, for statistical comparisons.
+
+        Rays (``_sample_rays``) and the float64 sums stay in Dr.Jit; only the sub-pixel offsets come
+        from NumPy (its seeded PCG64) and the sums go back once. The same additions in the same order
+        as summing in NumPy, FastMath off (no fused multiply-adds), so the same bits.
         """
         sc = self.scene
         w, h, n = sc.camera.width, sc.camera.height, sc.samples
-        acc, acc2 = np.zeros((h * w, 3)), np.zeros((h * w, 3))
-        acc_terms: dict[str, np.ndarray] = {}
-        dif2 = np.zeros((h * w, 3))
-        for s in range(n):
-            u, v = camera.sample_offsets(n, s, w * h)
-            o_np, d_np = camera.rays_through(sc, self.rules, u, v)
-            c, levels = self.trace(self._load(o_np), self._load(d_np))
-            c = self._to_numpy3(c)
-            acc += c
-            acc2 += c * c
-            for k, val in levels[0].terms.items():
-                t = self._to_numpy3(val)
-                acc_terms[k] = acc_terms.get(k, 0.0) + t
-                if k == "diffuse":
-                    dif2 += t * t
-            if progress:
-                progress(s + 1, n)
-        mean = acc / n
-        terms = {k: (v / n).reshape(h, w, 3) for k, v in acc_terms.items()}
-        aux = {"variance": (np.maximum(acc2 - n * mean * mean, 0.0) / (n - 1)).reshape(h, w, 3)}
-        if "diffuse" in acc_terms:
-            dm = acc_terms["diffuse"] / n
-            aux["variance_diffuse"] = (np.maximum(dif2 - n * dm * dm, 0.0) / (n - 1)).reshape(h, w, 3)
+        A64 = dr.llvm.Array3f64
+        sums: dict[str, Any] = {}
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            for s in range(n):
+                u, v = camera.sample_offsets(n, s, w * h)
+                c, levels = self.trace(*self._sample_rays(u, v))
+                add = {"color": A64(c), **{"term." + k: A64(val) for k, val in levels[0].terms.items()}}
+                add["color2"] = add["color"] * add["color"]
+                if "term.diffuse" in add:
+                    add["diffuse2"] = add["term.diffuse"] * add["term.diffuse"]
+                sums = add if s == 0 else {k: sums[k] + add[k] for k in add}
+                dr.eval(sums)  # one small kernel per sample; the graph never grows
+                if progress:
+                    progress(s + 1, n)
+        got = {k: v.reshape(h * w, 3) for k, v in self._interleave(w, h, sums).items()}
+        mean = got["color"] / n
+        terms = {k[5:]: (v / n).reshape(h, w, 3) for k, v in got.items() if k.startswith("term.")}
+        aux = {"variance": (np.maximum(got["color2"] - n * mean * mean, 0.0) / (n - 1)).reshape(h, w, 3)}
+        if "diffuse2" in got:
+            dm = got["term.diffuse"] / n
+            aux["variance_diffuse"] = (np.maximum(got["diffuse2"] - n * dm * dm, 0.0) / (n - 1)).reshape(h, w, 3)
         return mean.reshape(h, w, 3), terms, aux
+
+    def _sample_rays(self, u: np.ndarray, v: np.ndarray) -> tuple[Any, Any]:
+        """camera.rays_through(scene, rules, u, v) in Dr.Jit: float64, the same operations in the same
+        order (so the same bits), then rounded to the tracer's precision as ``_load`` would."""
+        sc = self.scene
+        F64, A64 = dr.llvm.Float64, dr.llvm.Array3f64
+        w, h = sc.camera.width, sc.camera.height
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            idx = dr.arange(dr.llvm.UInt32, w * h)
+            yi = idx // w
+            xi = idx - yi * w
+            px = (F64(xi) + F64(u)) / dr.opaque(F64, w) - 0.5
+            py = -(F64(yi) + F64(v)) / dr.opaque(F64, h) + 0.5
+            pz = dr.zeros(F64, w * h)
+            cz = -sc.camera.distance
+            dx, dy, dz = px - 0.0, py - 0.0, pz - cz
+            nrm = dr.sqrt(dx * dx + dy * dy + dz * dz)
+            d = A64(dx / nrm, dy / nrm, dz / nrm)
+            o = A64(0.0, 0.0, cz) + dr.zeros(A64, w * h) if self.rules.ray_origin == "camera" else A64(px, py, pz)
+            return self.T.Array3(o), self.T.Array3(d)
 
     def _load(self, a: np.ndarray) -> Any:
         a = np.ascontiguousarray(a.astype(self.T.np_dtype))

@@ -152,6 +152,25 @@ def test_tracer_rays_are_the_oracles_rays(rule, precision):
         assert np.allclose(tr._to_numpy3(d), d_np.astype(dt), rtol=0, atol=4e-7)
 
 
+@pytest.mark.parametrize("rule", [{}, {"ray_origin": "camera"}])
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+def test_sample_rays_are_camera_rays_through(rule, precision):
+    """samples > 1: the tracer builds each sample's rays in Dr.Jit (float64, then its precision);
+    camera.rays_through, which Mitsuba's and the harness's samples use, gives the same bits."""
+    from minirt import camera
+
+    scene = load_scene("scenes/exercise.toml").with_overrides(width=37, height=23, samples=9)
+    rules = resolve(scene, overrides=rule)
+    tr = Tracer(scene, rules, precision=precision)
+    dt = np.float64 if precision == "f64" else np.float32
+    for s in (0, 4, 8):
+        u, v = camera.sample_offsets(9, s, 37 * 23)
+        o, d = tr._sample_rays(u, v)
+        o_np, d_np = camera.rays_through(scene, rules, u, v)
+        assert tr._to_numpy3(o).astype(dt).tobytes() == o_np.astype(dt).tobytes()
+        assert tr._to_numpy3(d).astype(dt).tobytes() == d_np.astype(dt).tobytes()
+
+
 def test_every_backend_writes_identical_files_twice(tmp_path):
     """`render -b all` twice: every file (each backend's PNG, EXR, JSON and the contact sheet) byte-equal."""
 
