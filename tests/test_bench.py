@@ -52,6 +52,9 @@ def test_reference_and_numpy(quick):
     for prec in ("f64", "f32"):
         for kind in ("trace", "render"):
             _stats_ok(res["reference"][prec][kind])
+    smp = res["reference"]["samples"]
+    _stats_ok(smp["render"])
+    assert smp["spp"] == 16 and smp["width"] >= 4
     npy = res["numpy"]
     _stats_ok(npy)
     assert set(npy["speedup"]) == {"trace_f64", "render_f64", "trace_f32", "render_f32"}
