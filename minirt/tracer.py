@@ -11,7 +11,7 @@ next level. Colours are combined back to front, ``c = local + kr * c_child``, wh
 recursive form's arithmetic. Dr.Jit's FastMath is switched off while tracing: the NaN/inf guards
 below and the stable intersection forms rely on IEEE semantics.
 
-Numerics (see ``docs/numerics`` in the README and the notes in the code):
+Numerics (see "Numerics" in the README and the notes in the code):
 - Ball: f = o - C, b = f·d (d unit), discriminant r^2 - |f - b d|^2 computed as (r - |g|)(r + |g|)
   with g = f - b d, then q = -(b + sign(b) sqrt(disc)), roots c/q and q with c = (|f| - r)(|f| + r).
   This avoids both cancellations of the textbook form (small/far balls, near root of big balls).
@@ -219,7 +219,7 @@ class Tracer:
         return p, n
 
     def error_bound(self, shape_id, p) -> Any:
-        """Absolute error bound of a hit point, per shape (numerics notes: measured to give 0 self-hits).
+        """Absolute error bound of a hit point, per shape (measured to give 0 self-hits; tests/test_hard_cases.py).
 
         Ball: gamma(6) (r + |p|) -- re-projection costs about 5 roundings of magnitude r + |p|, one more
         for the normalisation. Plane: gamma(4) (|p| + |a|) -- the point-normal form's dot products.

@@ -1,6 +1,6 @@
 """POV-Ray 3.7 as an oracle: the exercise's scene exported to POV-Ray's scene language, rendered, read back.
 
-Conventions bridged (measured with Debian's povray 3.7.0.10; see /work/shared/notes/povray.md):
+Conventions bridged (each measured with Debian's povray 3.7.0.10):
 
 - Frame: POV-Ray is left-handed, x right, y up, camera looking along +z -- the exercise's own frame, so
   coordinates are written as they are (nothing mirrored).

@@ -1,9 +1,10 @@
-"""Hard cases for the reference tracer's numerics (the list at the end of /work/shared/notes/numerics.md).
+"""Hard cases for the reference tracer's numerics: far, huge and tiny balls, grazing and tangent rays,
+rays from inside, translated and scaled scenes, ties and extreme inputs.
 
 Each test names the case it guards in its docstring. Criteria:
 - t accuracy: backward error k = |Δt| / (ε (max(|o|, |C|) + r)) <= 10 against a 60-digit reference
-  computed with `decimal` from the exact float inputs the tracer received (the notes: stable forms stay
-  at k <= 10, the textbook form reaches 1e8). ε is the machine epsilon of the precision traced. Near a
+  computed with `decimal` from the exact float inputs the tracer received (measured: the stable
+  forms stay at k <= 10, the textbook form reaches 1e8). ε is the machine epsilon of the precision traced. Near a
   silhouette t is ill-conditioned (dt/dh = h / sqrt(r^2 - h^2) for a ray at distance h from the centre),
   so the denominator carries the factor 1 + h / sqrt(r^2 - h^2): an input perturbation of size k ε S moves
   t by that much, and a backward-stable solver is allowed it (found with a ray 1e-9 r from tangent: k = 29
@@ -193,7 +194,7 @@ def far_ball_rays(distance: float, radius: float, n: int, seed: int):
 @pytest.mark.parametrize("distance", [1e2, 1e8])
 def test_small_ball_far_away(distance, precision):
     """Small ball (r = 1) at distance 1e2 and 1e8: the textbook discriminant b'^2 - c cancels
-    (notes: 16 % wrong hit/miss at 1e8 in f64). Hit/miss must be right wherever it is decidable and
+    (measured: 16 % wrong hit/miss at 1e8 in f64). Hit/miss must be right wherever it is decidable and
     t accurate to backward error k <= 10. At 1e8 in float32 nothing is decidable (ε·|C| = 12 > r):
     only "no NaN, t accurate on agreed hits" is asked there."""
     o, d, center, r = far_ball_rays(distance, 1.0, 400, seed=1)
