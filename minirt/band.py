@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from minirt import camera
+from minirt.rules import Rules
 from minirt.scene import Ball, Scene
 
 
@@ -70,3 +72,16 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
     # of any shape). Renderers that ignore hits closer than a fixed depth (POV-Ray: 1e-4) disagree there.
     near = np.minimum.reduce(ts) if ts else np.full(n, np.inf)
     return {"silhouette": sil, "grazing": graze, "tie": tie, "origin": origin, "margin": margin, "near": near}
+
+
+def sample_band(scene: Scene, rules: Rules, samples: int, eps: float, min_depth: float = 0.0) -> np.ndarray:
+    """(H, W) bool: pixels where any of the ``samples`` stratified rays (camera.sample_offsets) has a
+    margin below ``eps`` or a candidate hit nearer than ``min_depth``."""
+    w, h = scene.camera.width, scene.camera.height
+    out = np.zeros(w * h, dtype=bool)
+    for s in range(samples):
+        o, d = camera.rays_through(scene, rules, *camera.sample_offsets(samples, s, w * h))
+        with np.errstate(invalid="ignore"):
+            m = margins(scene, o, d)
+        out |= (m["margin"] < eps) | (m["near"] < min_depth)
+    return out.reshape(h, w)

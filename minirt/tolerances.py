@@ -44,6 +44,13 @@ THRESHOLDS: dict[str, Threshold] = {
         "Fraction of compared pixels allowed at exactly 1 level: ties are rare (a value must lie within ~1e-6 of a "
         "tie, ~1e-4 of values for POV-Ray's half-precision internals); measured 3/65536 on the bundled scenes.",
     ),
+    "color8_tie_rel": Threshold(
+        2.0**-20,
+        "A channel whose reference value c has c*255 + 0.5 within 2^-20 c*255 of an integer sits on a rounding tie: "
+        "a 1-level difference there is not counted against color8_off_by_one_fraction. 2^-20 bounds 16 "
+        "single-precision roundings (POV-Ray's colour arithmetic, its average of up to 16 samples); flat regions "
+        "can sit exactly on a tie (a 0.1 channel is 25.5 levels).",
+    ),
     "diffuse_rel": Threshold(
         2e-4,
         "Mitsuba diffuse after its factors (pi r^2 / I) are divided out, relative to lc*dc: float32 shading "

@@ -51,6 +51,13 @@ Conventions bridged (each measured with Debian's povray 3.7.0.10):
   pass (one start-up per render), ``image8`` is None. The supersampled area is POV-Ray's pixel square,
   which the "corner" skew shifts by half a pixel; to compare with the reference's samples (which cover
   [x, x+1) x [y, y+1)) render both with rule pixel_sample "center". Without the option: one ray per pixel.
+- The exercise's own samples (``options={"samples": n}``, n > 1): a mesh_camera with n meshes, mesh s
+  holding sample s's rays (camera.sample_offsets, the reference's stratified pattern), one triangle
+  per pixel; POV-Ray shoots ray s of each pixel from mesh s and averages the n colours (distribution 0,
+  ``rays_per_pixel`` n). So its image is the reference's n-sample image, pixel by pixel, up to its
+  single-precision colour and the mesh's single-precision rays. Colour only (no geometry frames); the
+  8-bit PNG pass is kept. At most MAX_MESH_RAYS = n x W x H rays (scene text ~130 bytes each, parsed once
+  per pass); excludes ``antialias``.
 - Numeric limits: hits beyond 1e7 and nearer than 1e-4 to the ray's origin are dropped (the
   latter matters for the mesh camera's image-plane origins: the band includes rays with a candidate
   hit nearer than MIN_DEPTH_BAND); an exactly tangent ray misses a sphere; |n·d| < 1e-10
@@ -289,7 +296,7 @@ def precision(
     }
 
 
-def band_threshold(scene: Scene, rules: Rules) -> float:
+def band_threshold(scene: Scene, rules: Rules, samples: int = 1) -> float:
     """K·eps for minirt.band: rays whose relative margin is below it may legitimately flip in POV-Ray.
 
     - With 3 or more finite objects POV-Ray bounds them with single-precision boxes: a box face can sit
@@ -302,7 +309,7 @@ def band_threshold(scene: Scene, rules: Rules) -> float:
     eps is the largest of these over the scene's balls; K = 8 covers the few roundings chained in each.
     """
     eps = 1e-10
-    mesh = uses_mesh_camera(scene, rules)
+    mesh = uses_mesh_camera(scene, rules, samples)
     if mesh:
         eps = max(eps, MESH_RAY_ERROR)
     cam = scene.camera.position
@@ -320,19 +327,43 @@ def band_threshold(scene: Scene, rules: Rules) -> float:
 # Exporter: pure functions from (scene, rules) to text
 
 
-def uses_mesh_camera(scene: Scene, rules: Rules) -> bool:
-    """The pinhole camera reproduces the exercise's rays unless a shape sits between it and z = 0."""
-    return rules.ray_origin == "image-plane" and bool(between_camera_and_image_plane(scene))
+def uses_mesh_camera(scene: Scene, rules: Rules, samples: int = 1) -> bool:
+    """The pinhole camera reproduces the exercise's rays unless a shape sits between it and z = 0, or
+    the exercise's own samples are asked for (samples > 1: one camera mesh per sample)."""
+    return samples > 1 or (rules.ray_origin == "image-plane" and bool(between_camera_and_image_plane(scene)))
 
 
-MESH_NAME = "MinirtCameraMesh"  # the one identifier the exporter declares
+MESH_NAME = "MinirtCameraMesh"  # the identifier the exporter declares, with the sample's index appended
+MAX_MESH_RAYS = 2**21  # samples x pixels: ~130 bytes of scene text each, ~3.5 s of parsing per million
 MESH_TRIANGLE_SIZE = 0.5  # circumradius: large triangles keep the single-precision face normal accurate
 
 
-def _mesh_camera(scene: Scene, rules: Rules) -> str:
-    """A mesh_camera reproducing the exercise's primary rays: triangle k centred on ray k's origin on
-    z = 0, its face normal (POV-Ray: cross(P3 - P1, P2 - P1), normalised) along ray k's direction."""
-    o, d = camera.primary_rays(scene, rules)
+def _mesh_camera(scene: Scene, rules: Rules, samples: int = 1) -> str:
+    """A mesh_camera reproducing the exercise's rays: in mesh s, triangle k is centred on ray k's origin
+    and its face normal (POV-Ray: cross(P3 - P1, P2 - P1), normalised) runs along ray k's direction.
+    One mesh: the primary rays. ``samples`` meshes: sample s's rays (camera.sample_offsets, the
+    reference's stratified pattern); POV-Ray shoots ray s of each pixel from mesh s and averages."""
+    w, h = scene.camera.width, scene.camera.height
+    if samples * w * h > MAX_MESH_RAYS:
+        raise ValueError(
+            f"{samples} samples x {w}x{h} pixels = {samples * w * h} mesh-camera rays, more than {MAX_MESH_RAYS}: "
+            "use a smaller image or fewer samples"
+        )
+    if samples == 1:
+        return _camera_mesh(MESH_NAME + "0", *camera.primary_rays(scene, rules)) + _mesh_camera_statement(1)
+    decls = [
+        _camera_mesh(f"{MESH_NAME}{k}", *camera.rays_through(scene, rules, *camera.sample_offsets(samples, k, w * h)))
+        for k in range(samples)
+    ]
+    return "".join(decls) + _mesh_camera_statement(samples)
+
+
+def _mesh_camera_statement(samples: int) -> str:
+    meshes = " ".join(f"mesh {{ {MESH_NAME}{k} }}" for k in range(samples))
+    return f"camera {{ mesh_camera {{ {samples} 0 {meshes} }} }}"
+
+
+def _camera_mesh(name: str, o: np.ndarray, d: np.ndarray) -> str:
     a = np.where(np.abs(d[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
     e1 = np.cross(d, a)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
@@ -355,14 +386,13 @@ def _mesh_camera(scene: Scene, rules: Rules) -> str:
     verts = ",\n".join(["<%.9g,%.9g,%.9g>"] * (3 * n)) % tuple(v.tolist())  # one C-level pass: 7x np.char.mod
     faces = ",\n".join(["<%d,%d,%d>"] * n) % tuple(range(3 * n))
     return (
-        f"#declare {MESH_NAME} = mesh2 {{\nvertex_vectors {{ {3 * n},\n{verts}\n}}\n"
-        f"face_indices {{ {n},\n{faces}\n}}\n}}\ncamera {{ mesh_camera {{ 1 0 mesh {{ {MESH_NAME} }} }} }}"
+        f"#declare {name} = mesh2 {{\nvertex_vectors {{ {3 * n},\n{verts}\n}}\nface_indices {{ {n},\n{faces}\n}}\n}}\n"
     )
 
 
-def _camera(scene: Scene, rules: Rules) -> str:
-    if uses_mesh_camera(scene, rules):
-        return _mesh_camera(scene, rules)
+def _camera(scene: Scene, rules: Rules, samples: int = 1) -> str:
+    if uses_mesh_camera(scene, rules, samples):
+        return _mesh_camera(scene, rules, samples)
     w, h, d = scene.camera.width, scene.camera.height, _f(scene.camera.distance)
     # corner: half a pixel up-left of POV-Ray's centre rays
     direction = f"<-0.5/{w}, 0.5/{h}, {d}>" if rules.pixel_sample == "corner" else f"<0, 0, {d}>"
@@ -458,9 +488,11 @@ def scene_to_pov(
     rules: Rules,
     frames: list[Frame] | None = None,
     ranges: list[dict[str, tuple[float, float]]] | None = None,
+    samples: int = 1,
 ) -> str:
     """The scene as POV-Ray 3.7 text. ``frames``: the passes, one animation frame each (frame_number
-    1, 2, ...); default the colour frame(s) only. Only numbers and fixed keywords are written."""
+    1, 2, ...); default the colour frame(s) only. ``samples`` > 1: the exercise's stratified samples
+    through one camera mesh each. Only numbers and fixed keywords are written."""
     if frames is None:
         frames = color_frames(scene, rules)
     if ranges is None and any(f.kind == "geometry" for f in frames):
@@ -471,7 +503,7 @@ def scene_to_pov(
     lines = [
         "#version 3.7;",
         f"global_settings {{ assumed_gamma 1.0 ambient_light 1 max_trace_level {depth} adc_bailout 0 }}",
-        _camera(scene, rules),
+        _camera(scene, rules, samples),
     ]
     bodies = []
     for f in frames:
@@ -692,6 +724,14 @@ class PovrayOracle(Oracle):
         bad = self.cannot_follow(rules)
         if bad:
             return fail("skip", f"POV-Ray cannot follow rule(s): {', '.join(bad)}")
+        samples = opts.get("samples", 1)
+        if not (isinstance(samples, int) and not isinstance(samples, bool) and samples >= 1):
+            return fail("error", f"samples must be an integer >= 1, got {samples!r}")
+        if opts.get("antialias") is not None and samples > 1:
+            return fail("error", "antialias and samples exclude each other (POV-Ray's own grid, or the exercise's)")
+        if samples * w * h > MAX_MESH_RAYS:
+            return fail("skip", f"{samples} samples x {w}x{h} pixels = {samples * w * h} mesh-camera rays, "
+                                f"more than {MAX_MESH_RAYS}: use a smaller image or fewer samples")  # fmt: skip
         if opts.get("antialias") is not None and uses_mesh_camera(scene, rules):
             between = ", ".join(map(str, between_camera_and_image_plane(scene)))
             return fail("skip", f"object between camera and image plane (shape {between}) needs a mesh camera, "
@@ -712,6 +752,10 @@ class PovrayOracle(Oracle):
         threads = opts.get("threads")
         geometry = bool(opts.get("geometry", True))
         antialias = opts.get("antialias")
+        samples = opts.get("samples", 1)
+        if samples > 1:
+            # The exercise's samples: colour only (an average of positions is no position), like antialias.
+            geometry = False
         if antialias is not None:
             ok = isinstance(antialias, int) and not isinstance(antialias, bool) and 1 <= antialias <= MAX_ANTIALIAS
             if not ok:
@@ -725,14 +769,16 @@ class PovrayOracle(Oracle):
         gframes = geometry_frames() if geometry and scene.shapes else []
         frames = cframes + gframes
         ranges = encoding_ranges(scene, rules) if gframes else None
-        text = scene_to_pov(scene, rules, frames, ranges)
-        mesh = uses_mesh_camera(scene, rules)
+        text = scene_to_pov(scene, rules, frames, ranges, samples)
+        mesh = uses_mesh_camera(scene, rules, samples)
         meta.update(
             backend=NAME,
             version=self.version(),
             # one ray per pixel (-A): POV-Ray's antialiasing jitters its own grid, not the exercise's pattern
             settings={"width": w, "height": h, "max_depth": scene.max_depth, "timeout": timeout,
-                      "samples_requested": scene.samples, "samples_rendered": 1 if antialias is None else None,
+                      "samples_requested": scene.samples, "samples_rendered": samples if antialias is None else None,
+                      "sampling": ("the exercise's stratified samples, one camera mesh each" if samples > 1 else
+                                   "POV-Ray's jittered antialiasing grid" if antialias is not None else "one ray"),
                       "antialias": antialias,
                       "channel_mode": "per-channel" if len(cframes) == 3 else "rgb",
                       "frames": [f.label for f in frames], "max_trace_level": scene.max_depth + 1 if fx.reflection
@@ -806,9 +852,9 @@ class PovrayOracle(Oracle):
             miss = np.zeros((h, w), dtype=bool)
             geom = {"hit": miss, "shape_id": np.full((h, w), -1, np.int32), "t": np.full((h, w), np.inf),
                     "position": np.zeros((h, w, 3)), "normal": np.zeros((h, w, 3))}  # fmt: skip
-            if geometry:  # no shapes: nothing to encode, every ray misses
-                meta["precision"] = precision(scene, [], mesh)
-                meta["precision"].update(band_threshold=band_threshold(scene, rules), min_depth=MIN_DEPTH_BAND)
+            if geometry or samples > 1:  # no shapes (nothing to encode), or colour from the exercise's samples
+                meta["precision"] = precision(scene, [None] * len(scene.shapes), mesh)
+                meta["precision"].update(band_threshold=band_threshold(scene, rules, samples), min_depth=MIN_DEPTH_BAND)
         # POV-Ray's own 8-bit image (exact rounding; rounding the half-float colour flips .5 ties); antialiased
         # renders have none (color8() then rounds the half-float colour)
         return RenderResult(backend=NAME, width=w, height=h, color=color, image8=color8, meta=meta, **geom)

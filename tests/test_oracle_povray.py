@@ -281,7 +281,8 @@ def test_hostile_names_never_reach_the_pov_file(tmp_path, text):
     frames = povray.color_frames(sc, rules) + povray.geometry_frames()
     text = povray.scene_to_pov(sc, rules, frames)
     # the one declaration the exporter makes itself (the mesh camera's mesh), then nothing else may match
-    text = text.replace(f"#declare {povray.MESH_NAME} = mesh2", "", 1)
+    text, count = re.subn(rf"#declare {povray.MESH_NAME}0 = mesh2", "", text)
+    assert count == int(povray.uses_mesh_camera(sc, rules))
     for bad in ['"', "//", "/*", "*/", "#declare", "#fopen", "#write", "#include", "evil", "red", "passwd", "pwned"]:
         assert bad not in text, bad
     words = set(re.findall(r"[A-Za-z_]+", text))
@@ -376,3 +377,38 @@ def test_supported_rules_and_adapt():
     )
     assert set(ORACLE.cannot_follow(ex)) == {"near_root_only", "shadow_range", "two_sided", "clamp", "offset"}
     assert ORACLE.cannot_follow(R.PROFILES["conventional"]) == []
+
+
+@pytest.mark.parametrize("stem", ["soft", "rules"])
+def test_the_exercises_own_samples(stem):
+    """Option samples = n: POV-Ray shoots the reference's n stratified rays per pixel (one camera mesh
+    each) and averages them, so its colour matches the reference's n-sample render pixel by pixel:
+    8-bit within one level, and one level only on a rounding tie, except where a sample's ray lies in
+    the band (taken over every sample)."""
+    sc = _scene(stem).with_overrides(width=32, height=32, samples=9)
+    rules = _rules(sc, {})
+    res = ORACLE.render(sc, rules, {"samples": 9})
+    assert res.ok, res.reason
+    assert res.meta["settings"]["samples_rendered"] == 9 and res.meta["settings"]["camera"] == "mesh_camera"
+    assert len(res.meta["commands"]) == 2 and not res.hit.any()  # colour only: no geometry frames
+    ref = tracer.render(sc, rules)
+    p = res.meta["precision"]
+    inband = band.sample_band(sc, rules, 9, p["band_threshold"], p["min_depth"])
+    d = np.abs(res.image8.astype(int) - ref.color8().astype(int))
+    assert d[~inband].max() <= 1
+    x = np.clip(ref.color, 0, 1) * 255 + 0.5
+    tie = np.abs(x - np.rint(x)) <= 2.0**-20 * x
+    assert not ((d == 1) & ~tie)[~inband].any()
+    # and it is not the one-ray image: supersampling changed the silhouettes
+    one = ORACLE.render(sc.with_overrides(samples=1), rules)
+    assert (np.abs(one.image8.astype(int) - res.image8.astype(int)).max(axis=-1) > 8).sum() > 10
+
+
+def test_samples_option_is_checked():
+    sc = _scene("exercise").with_overrides(width=32, height=32)
+    rules = _rules(sc, {})
+    both = ORACLE.render(sc, rules, {"samples": 4, "antialias": 2})
+    assert both.status == "error" and "exclude each other" in both.reason
+    assert ORACLE.render(sc, rules, {"samples": 0}).status == "error"
+    huge = ORACLE.render(sc, rules, {"samples": povray.MAX_MESH_RAYS // (32 * 32) + 1})
+    assert huge.status == "skip" and "mesh-camera rays" in huge.reason
