@@ -475,8 +475,9 @@ def sweep(
     """What accuracy costs in time: each backend's accuracy knob against time and error.
 
     Reference: float32/float64 and 1-256 samples; Mitsuba: 1-1024 spp; POV-Ray: antialiasing off,
-    then +A0.0 +R1..4; Embree: icosphere subdivision 0-7. Writes sweep.csv, sweep.md, sweep.json
-    and log-log plots with the Pareto front and fitted slopes.
+    then +A0.0 +R1..4, and the exercise's own 1-64 samples (mesh camera); Embree: icosphere
+    subdivision 0-7. Writes sweep.csv, sweep.md, sweep.json and log-log plots with the Pareto front
+    and fitted slopes.
     """
     from minirt import backends
     from minirt.sweep import run_sweep

@@ -12,6 +12,8 @@ its knob, times it, and measures the error against that backend's *converged* an
 |           |               |                            | differs from the exercise by design (no ambient,     |
 |           |               |                            | 1/(pi r^2) falloff), so only it can be its own limit |
 | povray    | antialias     | off, +A0.0 +R1 ... +R4      | reference at 1024 spp under POV-Ray's rules          |
+| povray    | samples       | 1, 4, 16, 64 (the exercise's | the same, pixel corner: POV-Ray renders the          |
+|           |               | stratified samples)        | reference's own samples through its mesh camera      |
 | embree    | subdivisions  | 0 ... 7                    | the analytic geometry (reference f64, 1 ray/pixel,   |
 |           |               |                            | Embree's rules): t relative error, hit/id mismatches |
 
@@ -78,6 +80,7 @@ REFERENCE_PRECISIONS = ("f32", "f64")
 REFERENCE_SPP = (1, 4, 16, 64, 256)
 MITSUBA_SPP = (1, 4, 16, 64, 256, 1024)
 POVRAY_ANTIALIAS = (0, 1, 2, 3, 4)  # 0: antialiasing off (-A); R > 0: +A0.0 +R{R}
+POVRAY_SAMPLES = (1, 4, 16, 64)  # the exercise's stratified samples through POV-Ray's mesh camera
 EMBREE_SUBDIVISIONS = (0, 1, 2, 3, 4, 5, 6, 7)
 CONVERGED_REFERENCE_SPP = 1024
 CONVERGED_MITSUBA_SPP = 4096
@@ -98,6 +101,7 @@ class Knobs:
     reference_spp: tuple[int, ...] = REFERENCE_SPP
     mitsuba_spp: tuple[int, ...] = MITSUBA_SPP
     povray_antialias: tuple[int, ...] = POVRAY_ANTIALIAS
+    povray_samples: tuple[int, ...] = POVRAY_SAMPLES
     embree_subdivisions: tuple[int, ...] = EMBREE_SUBDIVISIONS
     converged_reference_spp: int = CONVERGED_REFERENCE_SPP
     converged_mitsuba_spp: int = CONVERGED_MITSUBA_SPP
@@ -112,6 +116,8 @@ SERIES: dict[str, dict[str, str]] = {
     "mitsuba/spp": {"metric": "rmse", "cost": "samples per pixel", "theory": "spp^-0.5 (independent sampler)"},
     "povray/antialias": {"metric": "rmse", "cost": "rays per pixel (R^2 + 1)",
                          "theory": "~(R^2+1)^-0.75 (jittered grid, edges) down to a floor (centre-weighted filter)"},
+    "povray/samples": {"metric": "rmse", "cost": "rays per pixel",
+                       "theory": "as reference/spp: the same stratified samples, at POV-Ray's cost per ray"},
     "embree/subdivisions": {"metric": "t_rel_mean", "cost": "triangles per ball (20 4^N)",
                             "theory": "faces^-1, i.e. 4^-N (radial gap of the inscribed icosphere)"},
 }  # fmt: skip
@@ -122,10 +128,11 @@ PALETTE = {
     "reference/precision": "#56B4E9",
     "mitsuba/spp": "#E69F00",
     "povray/antialias": "#009E73",
+    "povray/samples": "#CC79A7",
     "embree/subdivisions": "#D55E00",
 }
 MARKERS = {"reference/spp": "o", "reference/precision": "D", "mitsuba/spp": "s", "povray/antialias": "^",
-           "embree/subdivisions": "v"}  # fmt: skip
+           "povray/samples": "P", "embree/subdivisions": "v"}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -348,6 +355,16 @@ class _Sweep:
                 out.append(_Task("povray", "antialias", r, r * r + 1 if r else 1, label,
                                  lambda opts=opts: bk.render("povray", sc, pr, opts),
                                  lambda res: color_errors(res.color, conv().color)))  # fmt: skip
+            # The exercise's own samples (pixel corner, the rules' own pixel square): its converged answer is
+            # the reference under the same rules.
+            pc = bk.rules_for("povray", rules)
+            conv_c = lambda: self._conv(f"reference/{n}spp/povray-rules-corner", lambda: self.reference_at(pc, n), {  # noqa: E731
+                "backend": "reference", "precision": "f64", "spp": n, "rules": pc.as_dict()})  # fmt: skip
+            for m in k.povray_samples:
+                opts = {"geometry": False, "samples": m}
+                out.append(_Task("povray", "samples", m, m, f"povray {m} exercise samples",
+                                 lambda opts=opts: bk.render("povray", sc, pc, opts),
+                                 lambda res: color_errors(res.color, conv_c().color)))  # fmt: skip
         elif name == "embree":
             er = bk.rules_for("embree", rules)
             exact = lambda: self._conv("reference/f64/embree-rules", lambda: self.reference_at(er, 1), {  # noqa: E731

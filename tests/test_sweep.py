@@ -25,6 +25,7 @@ KNOBS = sweep.Knobs(
     reference_spp=(1, 4, 16, 64),
     mitsuba_spp=(1, 16),
     povray_antialias=(0, 2),
+    povray_samples=(1, 16),
     embree_subdivisions=(0, 1, 2, 3, 4),
     converged_reference_spp=1024,
     converged_mitsuba_spp=256,
@@ -141,6 +142,9 @@ def test_oracles_sweep_small(exercise, tmp_path):
     pov = _rows(res, "povray", "antialias")
     assert pov[0]["error"]["rmse"] > pov[2]["error"]["rmse"] > 0
     assert pov[2]["seconds_setup"] > 0.1  # POV-Ray's process start-up, reported apart
+    # the exercise's own samples through POV-Ray's mesh camera converge like the reference's samples
+    ps = _rows(res, "povray", "samples")
+    assert ps[1]["error"]["rmse"] > ps[16]["error"]["rmse"] > 0
 
 
 def test_povray_antialias_command_line(exercise):
