@@ -13,7 +13,8 @@ exact description) this module gives the relative margin of every such decision:
   crosses z = 0): whether it starts inside flips at |o - C| = r; margin | |o - C| - r | / r.
 
 ``margin`` is the minimum over these; ``near`` (absolute) is the distance to the nearest candidate hit,
-for renderers that ignore hits closer than a fixed depth. A disagreement on a ray with margin < k·e (k from the
+for renderers that ignore hits closer than a fixed depth; ``hit_nd`` is |n·d| of the plane holding
+that hit (inf for a ball), the conditioning of a plane's t. A disagreement on a ray with margin < k·e (k from the
 oracle's error analysis, chosen by the harness) is inside the band; elsewhere it is a real defect.
 """
 
@@ -35,6 +36,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
     origin = np.full(n, np.inf)
     graze = np.full(n, np.inf)
     ts = []
+    nds = []  # per candidate: |n·d| for a plane's hit, inf for a ball's roots
     for s in scene.shapes:
         if isinstance(s, Ball):
             f = o - np.asarray(s.center)
@@ -53,6 +55,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
                 r0, r1 = np.where(q != 0, c / q, 0.0), q
             for r in (np.minimum(r0, r1), np.maximum(r0, r1)):
                 ts.append(np.where((disc >= 0) & (r > 0), r, np.inf))
+                nds.append(np.full(n, np.inf))
         else:
             nn = np.asarray(s.normal)
             nd = d @ nn
@@ -60,6 +63,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = ((np.asarray(s.point) - o) @ nn) / nd
             ts.append(np.where(np.isfinite(t) & (t > 0), t, np.inf))
+            nds.append(np.abs(nd))
     tie = np.full(n, np.inf)
     if len(ts) >= 2:
         tt = np.sort(np.stack(ts, axis=1), axis=1)
@@ -71,7 +75,21 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
     # Not a relative margin, so not in `margin`: the distance to the nearest candidate hit (either root
     # of any shape). Renderers that ignore hits closer than a fixed depth (POV-Ray: 1e-4) disagree there.
     near = np.minimum.reduce(ts) if ts else np.full(n, np.inf)
-    return {"silhouette": sil, "grazing": graze, "tie": tie, "origin": origin, "margin": margin, "near": near}
+    # |n·d| of the plane whose hit is nearest (inf when a ball's is): a plane's t = n·(Q - o)/(n·d) turns a
+    # direction error e into a relative t error e/|n·d|, so oracles' t tolerances scale with 1/hit_nd.
+    hit_nd = np.full(n, np.inf)
+    if ts:
+        k = np.argmin(np.stack(ts, axis=1), axis=1)
+        hit_nd = np.where(np.isfinite(near), np.stack(nds, axis=1)[np.arange(n), k], np.inf)
+    return {
+        "silhouette": sil,
+        "grazing": graze,
+        "tie": tie,
+        "origin": origin,
+        "margin": margin,
+        "near": near,
+        "hit_nd": hit_nd,
+    }
 
 
 def sample_band(scene: Scene, rules: Rules, samples: int, eps: float, min_depth: float = 0.0) -> np.ndarray:

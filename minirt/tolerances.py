@@ -99,12 +99,20 @@ def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[st
         plane_abs = max([pl.get("abs_error", 0.0) for pl in result.meta.get("planes", {}).values()] or [0.0])
         # A shadow or hit decision moved by the rectangle's absolute error: relative to the smallest radius.
         band = m["margin"] < eps
-        t_abs = p["t_rel"] * t_ref + plane_abs
+        # A plane's t = n·(Q - o)/(n·d): the rectangle's absolute error and the float32 rounding of the ray's
+        # direction (dir_err) move t by (plane_abs + t dir_err)/|n·d| -- large where the ray grazes the plane.
+        inv_nd = 1.0 / m["hit_nd"]
+        dir_err = p.get("dir_err", 0.0)
+        t_abs = p["t_rel"] * t_ref + plane_abs + (plane_abs + dir_err * t_ref) * inv_nd
+        # near a ball's silhouette the float32 discriminant is ill-conditioned: the oracle's per-pixel bound
+        t_abs = t_abs + result.aux.get("t_silhouette_bound", 0.0)
         nd = np.full((h, w), p["normal_deg"])
         why = {
             "band": f"margin < band_k*band_eps = {eps:.3g}: {p.get('why', '')}",
-            "t": f"t_rel*t + plane_abs = {p['t_rel']:.3g}*t + {plane_abs:.3g} "
-            "(float32 roots; rectangles interpolate their corners)",
+            "t": f"t_rel*t + plane_abs + (plane_abs + dir_err*t)/|n·d| = {p['t_rel']:.3g}*t + {plane_abs:.3g} + "
+            f"({plane_abs:.3g} + {dir_err:.3g}*t)/|n·d| (float32 roots; rectangles interpolate their corners; "
+            "a plane's t is conditioned by 1/|n·d|, n·d of the hit plane, inf for balls) + per pixel "
+            "4 u32 |f|^2/(r sqrt(2m)) near a ball's silhouette (aux t_silhouette_bound)",
             "normal": f"{p['normal_deg']} deg (float32 normals)",
         }
         summary = {"band_eps": eps, "t_rel": p["t_rel"], "plane_abs": plane_abs, "normal_deg": p["normal_deg"]}
@@ -112,13 +120,14 @@ def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[st
         eps = p["band_threshold"]
         min_depth = p.get("min_depth", 0.0)
         band = (m["margin"] < eps) | (m["near"] < min_depth)
-        t_abs = np.full((h, w), p["t_abs"])
+        # plus a plane's conditioning: a direction error dir_err moves its t by t dir_err/|n·d|
+        t_abs = p["t_abs"] + p.get("dir_err", 0.0) * t_ref / m["hit_nd"]
         deg = math.degrees(math.asin(min(1.0, 2 * p["normal_abs"]))) + 1e-9
         nd = np.full((h, w), deg)
         why = {
             "band": f"margin < {eps:.3g}: single-precision bounding boxes and textbook sphere roots in POV-Ray; "
             f"or a candidate hit nearer than {min_depth:.3g} (POV-Ray ignores hits within 1e-4 of a ray's origin)",
-            "t": f"|dt| <= {p['t_abs']:.3g}: {p.get('derivation', '')}",
+            "t": f"|dt| <= {p['t_abs']:.3g} + {p.get('dir_err', 0.0):.3g}*t/|n·d| (planes): {p.get('derivation', '')}",
             "normal": f"{deg:.3g} deg: normals from decoded positions, |dn| <= {p['normal_abs']:.3g}",
         }
         summary = {"band_eps": eps, "t_abs": p["t_abs"], "normal_deg": deg}

@@ -57,6 +57,8 @@ Conventions bridged (each one is a place where Mitsuba and the exercise differ):
   reference's ``normal`` buffer).
 - Mirrors: ``conductor`` with the default material "none" is a perfect mirror whose weight is
   ``specular_reflectance`` = the material's reflection colour kr: c = local + kr * trace(reflected).
+- Mesh merging: Mitsuba's loader merges meshes that share a BSDF (two rectangles of one material) into
+  one shape; scenes are loaded with ``optimize=False`` so that every plane keeps its own shape.
 - Registry ids: in JIT variants ``si.shape`` (and the aov ``shape_index``) is a process-wide registry
   id. Shapes get ids "shape<k>" (k = index in the scene file); the registry ids of
   ``scene.shapes_dr()``, in the order of ``scene.shapes()``, are mapped back to k through those ids.
@@ -97,6 +99,8 @@ _PAD = 1e-3
 # hit/miss decision flips where D's error reaches D = 2 r^2 m, i.e. at m ~ 2 u32 |f|^2 / r^2.
 # Rectangles add an absolute error ~ 8 u32 (|c| + |S|) (see the module docstring).
 T_REL = 64 * U32  # ~3.8e-6: the part of the t error that does not depend on the silhouette margin
+# The rays are rounded to float32 for Mitsuba: each unit direction component errs by <= u32, |dd| <= sqrt(3) u32.
+DIR_ERR = math.sqrt(3) * U32
 NORMAL_DEG = 0.01  # sphere normals are normalize(p - c) of a float32 point: ~1e-6 rad; planes exact
 
 
@@ -118,6 +122,27 @@ def band_eps(scene: Scene, origins: np.ndarray) -> float:
 
 
 BAND_K = 16.0  # 4 roundings in D (|f|^2 term, b^2 term, subtraction, sqrt) with a factor 4 of safety
+
+
+def silhouette_t_bound(scene: Scene, o: np.ndarray, d: np.ndarray, shape_id: np.ndarray) -> np.ndarray:
+    """Per ray, the part of Mitsuba's t error that grows near a ball's silhouette (0 elsewhere).
+
+    Its float32 discriminant D = r^2 - h^2 (h the ray's distance from the centre) errs by ~4 u32 |f|^2,
+    and t = -b -+ sqrt(D) moves by dD / (2 sqrt(D)); with D = r^2 (1 - (h/r)^2) >= 2 r^2 m for the
+    relative margin m = |r - h|/r, |dt| <= 2 u32 |f|^2 / (r sqrt(2 m)). Twice that is returned (the
+    margin taken at the float32-rounded ray). Rays inside the band (m < K eps) are not judged at all.
+    """
+    out = np.zeros(len(o))
+    for k, s in enumerate(scene.shapes):
+        on = shape_id == k
+        if not isinstance(s, Ball) or not on.any():
+            continue
+        f = o[on] - np.asarray(s.center)
+        b = np.einsum("ij,ij->i", f, d[on])
+        hh = np.linalg.norm(f - b[:, None] * d[on], axis=1)
+        m = np.maximum(np.abs(s.radius - hh) / s.radius, 1e-30)
+        out[on] = 4 * U32 * np.einsum("ij,ij->i", f, f) / (s.radius * np.sqrt(2 * m))
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -507,7 +532,9 @@ class _Base:
     def load(self, rects: dict[int, PlaneRect], spp: int = 1) -> Any:
         t0 = time.perf_counter()
         xml = scene_to_xml(self.scene, self.rules, rects, spp=spp)
-        ms = self.mi.load_string(xml)
+        # optimize=False: Mitsuba merges meshes that share a BSDF (two rectangles of one material) into
+        # one shape with an empty id, and each plane's shape id would be lost.
+        ms = self.mi.load_string(xml, optimize=False)
         # registry id (or, in scalar variants, the position in scene.shapes()) -> index in the scene file
         lut: dict[int, int] = {}
         mshapes = ms.shapes()
@@ -549,6 +576,7 @@ class _Base:
             "unsupported_terms": _unsupported_terms(sc, mode),
             "precision": {
                 "t_rel": T_REL,
+                "dir_err": DIR_ERR,
                 "normal_deg": NORMAL_DEG,
                 "band_eps": band_eps(sc, camera.primary_rays(sc, self.rules)[0]),
                 "band_k": BAND_K,
@@ -607,6 +635,7 @@ class _RayRender(_Base):
         terms = {"diffuse": lvl0["local"].reshape(h, w, 3), "reflection": lvl0["refl"].reshape(h, w, 3)}
         r = np.where(geom["hit"], lvl0["dist"].reshape(h, w), 0.0)
         aux = {
+            "t_silhouette_bound": silhouette_t_bound(sc, o32, d32, geom["shape_id"].ravel()).reshape(h, w),
             "light_distance": r,
             "diffuse_to_exercise": math.pi * r * r,
             "diffuse_exercise": lvl0["local_x"].reshape(h, w, 3),
@@ -619,6 +648,7 @@ class _RayRender(_Base):
             "parameters": {"reflection_depth": depth, "shading": "diffuse" if lit else "none",
                            "reflective_shapes": reflective},
             "aux": {
+                "t_silhouette_bound": "the margin-dependent part of the t error bound on balls (silhouette_t_bound)",
                 "light_distance": "Mitsuba's emitter distance r at each primary hit (0 on a miss)",
                 "diffuse_to_exercise": "pi r^2: terms.diffuse * pi r^2 = n.s dc lc (emitter.intensity = lc, so "
                 "terms.diffuse * pi r^2 / intensity = n.s dc)",

@@ -62,6 +62,22 @@ EDGE_SCENES = {
     # a ball around the camera position: POV-Ray needs its mesh camera, the near root is behind every ray
     "ball_at_camera": ("24x24", _BALL + _BALL.replace("0.0, 0.0, 3.0", "0.0, 0.0, -2.0").replace("1.0", "0.5")),
     "plane_through_camera": ("24x24", _FLOOR.replace("0.0, 1.0, 0.0", "1.0, 0.0, 0.0").replace("-1.0", "0.0")),
+    # Found by fuzzing random scenes through every oracle:
+    # two planes of one material: Mitsuba's loader merged them into one shape without an id
+    "two_planes_one_material": (
+        "24x24",
+        _FLOOR + _FLOOR.replace("0.0, 1.0, 0.0", "1.0, 0.0, 0.0").replace("-1.0", "-1.5"),
+    ),
+    # a plane seen almost edge-on (|n·d| down to 4e-4): t is conditioned by 1/|n·d| in every oracle
+    "grazing_plane": (
+        "24x24",
+        _BALL + _FLOOR.replace("0.0, 1.0, 0.0", "-0.696, 0.666, -0.031").replace("-1.0", "-0.197"),
+    ),
+    # a big ball crossing the image plane, rays near its silhouette: Mitsuba's float32 discriminant
+    "ball_across_image_plane": (
+        "24x24",
+        _BALL.replace("0.0, 0.0, 3.0", "-0.994, 1.429, 0.359").replace("radius = 1.0", "radius = 1.386"),
+    ),
 }
 
 
