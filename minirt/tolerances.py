@@ -57,7 +57,10 @@ THRESHOLDS: dict[str, Threshold] = {
         "(~16 u32 = 1e-6) plus the float32 normal's angle error (<= 0.01 deg = 1.7e-4 rad) moving cos(theta).",
     ),
     "z_significance": Threshold(
-        0.01, "Per-pixel Z-test significance before correction, as in Mitsuba's own render tests."
+        0.01,
+        "Per-pixel significance before correction, as in Mitsuba's own render tests (there a Z-test; here Welch's t "
+        "with Welch-Satterthwaite degrees of freedom, since the variances are estimated from the samples: the two "
+        "agree for many samples, and at 4 samples the normal law fails correct renders).",
     ),
     "z_pass_fraction": Threshold(
         0.9975, "Fraction of pixel-channels that must pass the Sidak-corrected Z-test (Mitsuba's test_renders.py)."
