@@ -256,7 +256,9 @@ def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderRes
 
 
 def edge_classes(ref: RenderResult) -> dict[str, np.ndarray]:
-    """Pixels whose 3x3 neighbourhood crosses a silhouette, a shadow edge or a terminator."""
+    """Pixels whose 3x3 neighbourhood crosses a silhouette, a shadow edge or a terminator -- seen
+    directly, or further down the ray tree (in a reflection: the reference's aux ray_tree labels each
+    pixel by every decision its colour rests on)."""
     from scipy import ndimage
 
     def changes(labels: np.ndarray) -> np.ndarray:
@@ -269,7 +271,17 @@ def edge_classes(ref: RenderResult) -> dict[str, np.ndarray]:
         ref.terms.get("specular", np.zeros((ref.height, ref.width, 3))) > 0
     ).any(-1)
     light_edge = changes(lit.astype(np.int8)) & ~sil
-    return {"silhouette": sil, "shadow_or_terminator": light_edge}
+    out = {"silhouette": sil, "shadow_or_terminator": light_edge}
+    if "ray_tree" in ref.aux:
+        out["in_reflection"] = changes(ref.aux["ray_tree"]) & ~sil & ~light_edge
+    return out
+
+
+def _edges(classes: dict[str, np.ndarray], band_px: np.ndarray) -> np.ndarray:
+    out = band_px.copy()
+    for mask in classes.values():
+        out |= mask
+    return out
 
 
 def color_differences(a8: np.ndarray, b8: np.ndarray) -> dict[str, float]:
@@ -300,7 +312,7 @@ def check_shading(scene: Scene, ref: RenderResult, res: RenderResult, geom: Chec
         return Check("skip", reason=f"{res.backend} is a geometry-only oracle: it does not shade")
     classes = edge_classes(ref)
     band_px = geom.images.get("band", np.zeros_like(ref.hit))
-    edges = classes["silhouette"] | classes["shadow_or_terminator"] | band_px
+    edges = _edges(classes, band_px)
     if model == "exercise":
         return _shading_exercise(ref, res, classes, edges)
     return _shading_physical(scene, ref, res, classes, edges)
@@ -576,7 +588,7 @@ def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache
     ref = refs.get(rules)
     centre = refs.get(replace(rules, pixel_sample="center"), samples=1)
     classes = edge_classes(ref)
-    edges = classes["silhouette"] | classes["shadow_or_terminator"] | geom.images["band"]
+    edges = _edges(classes, geom.images["band"])
     return check_stochastic(scene, ref, res, classes, edges, centre)
 
 
@@ -592,7 +604,7 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache) -
     p = res.meta.get("precision") or {}
     band_px = band.sample_band(scene, rules, n, p.get("band_threshold", 0.0), p.get("min_depth", 0.0))
     classes = edge_classes(ref)
-    edges = classes["silhouette"] | classes["shadow_or_terminator"] | band_px
+    edges = _edges(classes, band_px)
     check = _shading_exercise(ref, res, classes, edges)
     check.figures = {"samples": n, "sample_band_pixels": int(band_px.sum()), **check.figures}
     return check

@@ -97,6 +97,7 @@ class Level:
     bg: Any  # the background contribution at this level
     terms: dict[str, Any] = field(default_factory=dict)
     record: dict[str, Any] = field(default_factory=dict)
+    code: Any = None  # shape id, shadow and light-side decisions of each ray, packed (see ray_tree)
     spawn: Any = None  # which rays spawned a reflected ray (None: none did)
     slot: Any = None  # for those, the index of that ray in the next level (exclusive prefix sum of spawn)
 
@@ -362,6 +363,15 @@ class Tracer:
             if self.prune:
                 spawn = hit & dr.any(kr != 0)
         lvl = Level(parent, o, d, shape_id, t, p, n, local, kr, bg, terms, rec)
+        # The discrete decisions this ray's colour jumps with: which shape, lit or not, and under clamp the
+        # side of the surface the light is on (the specular lobe is cut at s·n = 0 with (r·s)^8 > 0; the
+        # diffuse term and the cut at r·s = 0 are continuous). Packed as an integer.
+        code = self.T.Int(shape_id) * 4
+        if fx.diffuse or fx.specular:
+            code = code + dr.select(lit, 1, 0)
+            if fx.specular and self.rules.clamp:
+                code = code + dr.select(sn > 0, 2, 0)
+        lvl.code = code
         if record:
             rec.update(shading_normal=ns, reflected=r, error_bound=err)
         if spawn is not None:
@@ -369,7 +379,7 @@ class Tracer:
             lvl.record["next"] = (ro, r)
         return lvl, spawn
 
-    def trace(self, o, d, record: bool = False) -> tuple[Any, list[Level]]:
+    def trace(self, o, d, record: bool = False, tree: bool = False) -> tuple[Any, list[Level]]:
         """TraceRay for a batch: returns the colour of each ray and the wavefront levels.
 
         Memory traffic is what limits a wavefront, so each level writes only what is read later:
@@ -387,6 +397,8 @@ class Tracer:
                 # One fused kernel per level: everything later steps read is evaluated together, so
                 # nothing (intersection, shadow rays) is recomputed when it is read back.
                 outputs = [lvl.shape_id, lvl.local]
+                if tree:
+                    outputs.append(lvl.code)
                 if level == 0 or record:
                     outputs += [lvl.t, lvl.p, lvl.n, lvl.terms]
                 if spawn is None:
@@ -403,10 +415,16 @@ class Tracer:
             # A ray's reflected colour is gathered from the next level through its slot (0 where it
             # spawned none): fused into this level's kernel, where a scatter into zeros would cost a
             # memset and a kernel of its own per level.
-            child = None
+            child = child_tree = None
             for k in range(len(levels) - 1, -1, -1):
                 lvl = levels[k]
                 c = lvl.local
+                if tree:  # the decisions of the whole ray tree below this ray, hashed (collisions only hide)
+                    below = self.T.UInt(0)
+                    if child_tree is not None:
+                        below = dr.gather(self.T.UInt, child_tree, lvl.slot, active=lvl.spawn)
+                    lvl.record["tree"] = self.T.UInt(lvl.code) * 0x9E3779B1 ^ (below * 0x85EBCA6B + 0x27D4EB2F)
+                    child_tree = lvl.record["tree"]  # evaluated with this level's colour, in one kernel
                 if self.effects.reflection:
                     refl = self._vec((0.0, 0.0, 0.0))
                     if child is not None:
@@ -416,10 +434,11 @@ class Tracer:
                 if self.effects.background:
                     lvl.terms["background"] = lvl.bg
                     c = c + lvl.bg
+                extra = [lvl.record["tree"]] if tree else []
                 if k == 0 or record:
-                    dr.eval(c, lvl.terms)
+                    dr.eval(c, lvl.terms, *extra)
                 else:
-                    dr.eval(c)
+                    dr.eval(c, *extra)
                 child = c
             return child, levels
 
@@ -517,7 +536,7 @@ class Tracer:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         o, d = self.primary_rays()
-        color, levels = self.trace(o, d)
+        color, levels = self.trace(o, d, tree=True)
         lvl0 = levels[0]
         vectors = {"color": color, "position": lvl0.p, "normal": lvl0.n}
         out = self._read_out(w, h, lvl0.shape_id, lvl0.t, vectors | {"term." + k: v for k, v in lvl0.terms.items()})
@@ -527,9 +546,14 @@ class Tracer:
         timings["primary"] = time.perf_counter() - t0
         if progress:
             progress(1, max(1, sc.samples))
-        aux: dict[str, np.ndarray] = {}
+        # Pixels whose neighbours' ray trees differ lie near a decision (a silhouette or shadow edge seen
+        # in a reflection, too). The top 24 bits of the 32-bit hash: exact in a float32 EXR channel; two
+        # different neighbouring trees look alike with probability 2^-24.
+        tree24 = (np.asarray(lvl0.record["tree"]) >> 8).astype(np.float64).reshape(h, w)
+        aux: dict[str, np.ndarray] = {"ray_tree": tree24}
         if sc.samples > 1:
-            col, terms, aux = self._render_samples(progress)
+            col, terms, more = self._render_samples(progress)
+            aux.update(more)
         timings["total"] = time.perf_counter() - t0
         for k in TERMS:
             if k not in terms:
@@ -545,6 +569,9 @@ class Tracer:
             "effects": {"simulated": self.effects.simulated(), "skipped": self.effects.skipped(),
                         **self.effects.as_dict()},
             "timings": timings,
+            "aux": {"ray_tree": "per pixel, a 24-bit hash of the shapes hit and the shadow (and, under clamp, "
+                                "light-side) decisions of its whole ray tree; neighbours with different values "
+                                "straddle an edge, possibly seen in a reflection"},
         }  # fmt: skip
         return RenderResult(backend="reference", width=w, height=h, color=col, terms=terms, aux=aux, meta=meta, **geom)
 

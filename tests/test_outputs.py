@@ -84,8 +84,11 @@ def test_exr_holds_every_buffer(tmp_path):
     assert data.shape == (12, 16, len(names))
     expected = ["R", "G", "B", "hit", "id", "t", "P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z"]
     expected += [f"{t}.{c}" for t in TERMS for c in "RGB"]
+    expected += ["aux.ray_tree"]  # each pixel's ray-tree decisions, a 24-bit hash (edge classes)
     assert sorted(names) == sorted(expected)  # OpenEXR stores channels sorted by name
     ch = {n: data[..., i] for i, n in enumerate(names)}
+    assert np.array_equal(ch["aux.ray_tree"], r.aux["ray_tree"].astype(np.float32))
+    assert ch["aux.ray_tree"].max() < 2**24 and len(np.unique(ch["aux.ray_tree"])) > 4  # shapes x lit, reflected
     assert np.array_equal(ch["id"], r.shape_id.astype(np.float32))
     assert np.allclose(ch["t"], np.where(r.hit, r.t, 0), rtol=1e-7)
     total = sum(np.stack([ch[f"{t}.{c}"] for c in "RGB"], -1) for t in TERMS)
