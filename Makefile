@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := povray libllvm19 chromium
 
-.PHONY: setup system demo sample test lint format bench goldens clean
+.PHONY: setup system demo sample test lint format bench fuzz goldens clean
 
 setup: system $(STAMP)
 
@@ -32,16 +32,16 @@ sample: setup
 	$(BIN)/python -c 'from minirt.report import refresh_sample; refresh_sample()'
 
 test: setup
-	$(BIN)/ruff check minirt oracles tests benchmarks
-	$(BIN)/ruff format --check minirt oracles tests benchmarks
+	$(BIN)/ruff check minirt oracles tests benchmarks tools
+	$(BIN)/ruff format --check minirt oracles tests benchmarks tools
 	$(BIN)/python -m pytest
 
 lint:
-	$(BIN)/ruff check minirt oracles tests benchmarks
+	$(BIN)/ruff check minirt oracles tests benchmarks tools
 
 format:
-	$(BIN)/ruff format minirt oracles tests benchmarks
-	$(BIN)/ruff check --fix minirt oracles tests benchmarks
+	$(BIN)/ruff format minirt oracles tests benchmarks tools
+	$(BIN)/ruff check --fix minirt oracles tests benchmarks tools
 
 # Refresh the reference tracer's golden images on purpose (after an intended change to its output).
 goldens: setup
@@ -49,6 +49,10 @@ goldens: setup
 
 bench: setup
 	$(BIN)/python benchmarks/bench.py
+
+# Random scenes through every oracle: prints any that does not pass (SEED=, COUNT=, SIZE= to vary).
+fuzz: setup
+	$(BIN)/python tools/fuzz_scenes.py --seed $(or $(SEED),1) --count $(or $(COUNT),12) --size $(or $(SIZE),24)
 
 clean:
 	rm -rf $(VENV) renders out .pytest_cache
