@@ -117,3 +117,12 @@ def test_a_huge_rectangles_error_reaches_the_diffuse_tolerance():
     assert b.verdict == "pass", b.reason
     assert max(p["abs_error"] for p in b.result.meta["planes"].values()) > 0.01  # the case is still hard
     assert b.checks["shading"].figures["diffuse_rel_err_max"] > 2e-4  # beyond the plane-free tolerance
+
+
+@pytest.mark.slow
+def test_a_plane_never_shadows_itself_in_mitsuba():
+    """A fuzzed scene: the stock visibility test let a huge rectangle shadow its own points."""
+    sc = harness.check_scene(Path(__file__).parent / "scenes" / "fuzz_plane_self_shadow.toml", ["mitsuba"])
+    b = sc.backends["mitsuba"]
+    assert b.verdict == "pass", b.reason
+    assert b.checks["shading"].figures["lit_mismatch"] == 0
