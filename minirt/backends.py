@@ -94,6 +94,7 @@ def render(name: str, scene: Scene, rules: Rules, options: dict[str, Any] | None
                 precision=options.get("precision", "f64"),
                 prune=options.get("prune", True),
                 progress=progress,
+                diagnostics=bool(options.get("diagnostics", False)),
             )
         else:
             import oracles

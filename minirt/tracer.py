@@ -302,7 +302,25 @@ class Tracer:
             return hit & both
         return hit & (both | (c < 0) | ((c == 0) & (b < 0)))
 
-    def shade_level(self, o, d, parent, depth_left: int, record: bool) -> tuple[Level, Any]:
+    def shadow_margin(self, o, s, light_dist, hit) -> Any:
+        """Per shadow ray, the absolute distance from the nearest ball silhouette in front of it (before
+        the light under shadow_range "to-light"): how far its origin may move before the decision can
+        flip. Large (1e30) when no ball is in front; planes' decisions are the light's side, not this."""
+        F = self.T.Float
+        out = dr.full(F, 1e30, dr.width(s))
+        for ball in self.scene.shapes:
+            if not isinstance(ball, Ball):
+                continue
+            f = o - self._vec(ball.center)
+            b = dr.dot(f, s)
+            h = dr.norm(f - b * s)
+            front = -b > -ball.radius
+            if self.rules.shadow_range != "any":
+                front &= -b < light_dist + ball.radius
+            out = dr.select(front, dr.minimum(out, dr.abs(h - F(ball.radius))), out)
+        return dr.select(hit, out, F(1e30))
+
+    def shade_level(self, o, d, parent, depth_left: int, record: bool, margins: bool = False) -> tuple[Level, Any]:
         """Intersect one level's rays and shade them locally; return the level and the next rays' mask."""
         sc, fx = self.scene, self.effects
         zero = self._vec((0.0, 0.0, 0.0))
@@ -335,6 +353,8 @@ class Tracer:
                 so = self.offset_origin(p, ns, err, s)
                 blocked, shadow_ts = self.shadow_blocked(so, s, light_dist, record)
                 lit = hit & ~blocked
+                if margins:
+                    rec["shadow_margin"] = self.shadow_margin(so, s, light_dist, hit)
                 if record:
                     rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
             if fx.diffuse:
@@ -392,13 +412,15 @@ class Tracer:
             parent = None
             depth = self.effects.reflection_depth if self.effects.reflection else 0
             for level in range(depth + 1):
-                lvl, spawn = self.shade_level(o, d, parent, depth - level, record)
+                lvl, spawn = self.shade_level(o, d, parent, depth - level, record, margins=tree and level == 0)
                 levels.append(lvl)
                 # One fused kernel per level: everything later steps read is evaluated together, so
                 # nothing (intersection, shadow rays) is recomputed when it is read back.
                 outputs = [lvl.shape_id, lvl.local]
                 if tree:
                     outputs.append(lvl.code)
+                    if "shadow_margin" in lvl.record:
+                        outputs.append(lvl.record["shadow_margin"])
                 if level == 0 or record:
                     outputs += [lvl.t, lvl.p, lvl.n, lvl.terms]
                 if spawn is None:
@@ -530,13 +552,16 @@ class Tracer:
         )
         return o, d
 
-    def render(self, progress=None) -> RenderResult:
+    def render(self, progress=None, diagnostics: bool = False) -> RenderResult:
+        """The image and its buffers. ``diagnostics`` adds what the harness needs to classify pixels
+        (aux ray_tree: every decision of each pixel's ray tree, hashed; aux shadow_margin): ~20 % more
+        time, so a plain render skips them."""
         sc = self.scene
         w, h = sc.camera.width, sc.camera.height
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         o, d = self.primary_rays()
-        color, levels = self.trace(o, d, tree=True)
+        color, levels = self.trace(o, d, tree=diagnostics)
         lvl0 = levels[0]
         vectors = {"color": color, "position": lvl0.p, "normal": lvl0.n}
         out = self._read_out(w, h, lvl0.shape_id, lvl0.t, vectors | {"term." + k: v for k, v in lvl0.terms.items()})
@@ -549,8 +574,11 @@ class Tracer:
         # Pixels whose neighbours' ray trees differ lie near a decision (a silhouette or shadow edge seen
         # in a reflection, too). The top 24 bits of the 32-bit hash: exact in a float32 EXR channel; two
         # different neighbouring trees look alike with probability 2^-24.
-        tree24 = (np.asarray(lvl0.record["tree"]) >> 8).astype(np.float64).reshape(h, w)
-        aux: dict[str, np.ndarray] = {"ray_tree": tree24}
+        aux: dict[str, np.ndarray] = {}
+        if diagnostics:
+            aux["ray_tree"] = (np.asarray(lvl0.record["tree"]) >> 8).astype(np.float64).reshape(h, w)
+        if diagnostics and "shadow_margin" in lvl0.record:
+            aux["shadow_margin"] = np.asarray(lvl0.record["shadow_margin"]).astype(np.float64).reshape(h, w)
         if sc.samples > 1:
             col, terms, more = self._render_samples(progress)
             aux.update(more)
@@ -569,9 +597,7 @@ class Tracer:
             "effects": {"simulated": self.effects.simulated(), "skipped": self.effects.skipped(),
                         **self.effects.as_dict()},
             "timings": timings,
-            "aux": {"ray_tree": "per pixel, a 24-bit hash of the shapes hit and the shadow (and, under clamp, "
-                                "light-side) decisions of its whole ray tree; neighbours with different values "
-                                "straddle an edge, possibly seen in a reflection"},
+            "aux": DIAGNOSTICS if diagnostics else {},
         }  # fmt: skip
         return RenderResult(backend="reference", width=w, height=h, color=col, terms=terms, aux=aux, meta=meta, **geom)
 
@@ -635,6 +661,13 @@ class Tracer:
         return self.T.Array3(self.T.Float(a[:, 0]), self.T.Float(a[:, 1]), self.T.Float(a[:, 2]))
 
 
+DIAGNOSTICS = {
+    "ray_tree": "per pixel, a 24-bit hash of the shapes hit and the shadow (and, under clamp, light-side) decisions "
+    "of its whole ray tree; neighbours with different values straddle an edge, possibly seen in a reflection",
+    "shadow_margin": "per pixel, the distance from its shadow ray to the nearest ball silhouette in front of it "
+    "(1e30: none): how far the hit point may move before the shadow decision can flip",
+}
+
 F32_LIMIT = 1e18  # squares stay below float32's max (3.4e38); reciprocals above its min normal
 
 
@@ -660,6 +693,8 @@ def _versions() -> dict[str, str]:
     return {"minirt": __version__, "drjit": dr.__version__}
 
 
-def render(scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True, progress=None) -> RenderResult:
-    """Render a scene with the reference tracer."""
-    return Tracer(scene, rules, precision=precision, prune=prune).render(progress=progress)
+def render(
+    scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True, progress=None, diagnostics: bool = False
+) -> RenderResult:
+    """Render a scene with the reference tracer (``diagnostics``: also aux ray_tree and shadow_margin)."""
+    return Tracer(scene, rules, precision=precision, prune=prune).render(progress=progress, diagnostics=diagnostics)

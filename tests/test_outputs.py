@@ -84,11 +84,17 @@ def test_exr_holds_every_buffer(tmp_path):
     assert data.shape == (12, 16, len(names))
     expected = ["R", "G", "B", "hit", "id", "t", "P.X", "P.Y", "P.Z", "N.X", "N.Y", "N.Z"]
     expected += [f"{t}.{c}" for t in TERMS for c in "RGB"]
-    expected += ["aux.ray_tree"]  # each pixel's ray-tree decisions, a 24-bit hash (edge classes)
     assert sorted(names) == sorted(expected)  # OpenEXR stores channels sorted by name
     ch = {n: data[..., i] for i, n in enumerate(names)}
-    assert np.array_equal(ch["aux.ray_tree"], r.aux["ray_tree"].astype(np.float32))
-    assert ch["aux.ray_tree"].max() < 2**24 and len(np.unique(ch["aux.ray_tree"])) > 4  # shapes x lit, reflected
+    # the harness's diagnostics (render(diagnostics=True)) add two aux channels
+    rd = Tracer(scene, resolve(scene)).render(diagnostics=True)
+    assert np.array_equal(rd.color, r.color) and set(rd.aux) == {"ray_tree", "shadow_margin"}
+    paths = write_result(rd, tmp_path, "d")
+    data_d, names_d = read_image(paths["exr"])
+    assert sorted(names_d) == sorted([*expected, "aux.ray_tree", "aux.shadow_margin"])
+    tree = data_d[..., names_d.index("aux.ray_tree")]
+    assert tree.max() < 2**24 and len(np.unique(tree)) > 4  # shapes x lit x reflected: several trees
+    paths = write_result(r, tmp_path, "x")  # the plain render's files, checked below
     assert np.array_equal(ch["id"], r.shape_id.astype(np.float32))
     assert np.allclose(ch["t"], np.where(r.hit, r.t, 0), rtol=1e-7)
     total = sum(np.stack([ch[f"{t}.{c}"] for c in "RGB"], -1) for t in TERMS)
