@@ -769,14 +769,22 @@ class _RayRender(_Base):
             f = bsdf.eval(ctx, si, si.to_local(ds.d), valid)
             local = self._np3(f * em_w)
             if planes:
-                s2 = ms.ray_intersect(si.spawn_ray_to(ds.p))
-                hit2 = self._np(s2.is_valid()).astype(bool) & hit
-                reg2 = self._np(dr.reinterpret_array(mi.UInt32, s2.shape) if self.jit else 0).astype(np.int64)
-                if scalar:
-                    reg2 = np.array([self._scalar_index(ms, s2) if hit2[0] else -1])
-                sid2 = self.map_ids(np.broadcast_to(reg2, (n,)), hit2)
-                own_plane = np.isin(sid, planes) & (sid2 == sid)
-                local = np.where((hit2 & ~own_plane)[:, None], 0.0, local)
+
+                def first_hit(sray):
+                    s2 = ms.ray_intersect(sray)
+                    h2 = self._np(s2.is_valid()).astype(bool) & hit
+                    r2 = self._np(dr.reinterpret_array(mi.UInt32, s2.shape) if self.jit else 0).astype(np.int64)
+                    if scalar:
+                        r2 = np.array([self._scalar_index(ms, s2) if h2[0] else -1])
+                    return s2, h2, self.map_ids(np.broadcast_to(r2, (n,)), h2)
+
+                s2, hit2, sid2 = first_hit(si.spawn_ray_to(ds.p))
+                own = np.isin(sid, planes) & (sid2 == sid)
+                blocked = hit2 & ~own
+                if own.any():  # past the rectangle's hit on itself, the rest of the segment still counts
+                    _, hit3, sid3 = first_hit(s2.spawn_ray_to(ds.p))
+                    blocked |= own & hit3 & (sid3 != sid)
+                local = np.where(blocked[:, None], 0.0, local)
             dist = self._np(ds.dist)
             local = np.where(hit[:, None], local, 0.0)
             out["local"] = local
