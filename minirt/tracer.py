@@ -136,13 +136,16 @@ class Tracer:
         return self._by_id(shape_id, vals, self._vec((0.0, 0.0, 0.0)))
 
     # ---- Ball, Plane: intersect -------------------------------------------------------------
-    def intersect_ball(self, ball: Ball, o, d) -> Any:
-        F = self.T.Float
-        r = F(ball.radius)
+    def _ball_ray(self, ball: Ball, o, d) -> tuple[Any, Any, Any, Any]:
+        """What every ball test starts from: r, f = o - C, b = f·d and |f - b d|, the ray's distance
+        from the centre (d unit)."""
         f = o - self._vec(ball.center)
         b = dr.dot(f, d)
-        g = f - b * d
-        lg = dr.norm(g)
+        return self.T.Float(ball.radius), f, b, dr.norm(f - b * d)
+
+    def intersect_ball(self, ball: Ball, o, d) -> Any:
+        F = self.T.Float
+        r, f, b, lg = self._ball_ray(ball, o, d)
         disc = (r - lg) * (r + lg)  # r^2 - |f - (f·d) d|^2 without cancellation
         hit = disc >= 0
         sq = dr.sqrt(dr.maximum(disc, 0))
@@ -290,10 +293,7 @@ class Tracer:
         has the sign of -b (or is 0 only where both roots are 0), so c / q and q carry these signs; the
         two differ only if c / q underflows to 0, i.e. a hit closer than 1e-308 relative, which the
         scene's 1e-100 limits and the ray offsets exclude."""
-        r = self.T.Float(ball.radius)
-        f = o - self._vec(ball.center)
-        b = dr.dot(f, d)
-        lg = dr.norm(f - b * d)
+        r, f, b, lg = self._ball_ray(ball, o, d)
         hit = (r - lg) * (r + lg) >= 0
         lf = dr.norm(f)
         c = (lf - r) * (lf + r)
@@ -311,13 +311,11 @@ class Tracer:
         for ball in self.scene.shapes:
             if not isinstance(ball, Ball):
                 continue
-            f = o - self._vec(ball.center)
-            b = dr.dot(f, s)
-            h = dr.norm(f - b * s)
-            front = -b > -ball.radius
+            r, _, b, h = self._ball_ray(ball, o, s)
+            front = -b > -r
             if self.rules.shadow_range != "any":
-                front &= -b < light_dist + ball.radius
-            out = dr.select(front, dr.minimum(out, dr.abs(h - F(ball.radius))), out)
+                front &= -b < light_dist + r
+            out = dr.select(front, dr.minimum(out, dr.abs(h - r)), out)
         return dr.select(hit, out, F(1e30))
 
     def shade_level(self, o, d, parent, depth_left: int, record: bool, margins: bool = False) -> tuple[Level, Any]:
