@@ -342,17 +342,26 @@ MAX_MESH_RAYS = 2**21  # samples x pixels: ~130 bytes of scene text each, ~3.5 s
 MESH_TRIANGLE_SIZE = 0.5  # circumradius: large triangles keep the single-precision face normal accurate
 
 
+def too_many_mesh_rays(scene: Scene, samples: int) -> str | None:
+    """Why a mesh camera of ``samples`` meshes is refused for this image, or None."""
+    w, h = scene.camera.width, scene.camera.height
+    if samples * w * h <= MAX_MESH_RAYS:
+        return None
+    return (
+        f"{samples} samples x {w}x{h} pixels = {samples * w * h} mesh-camera rays, more than {MAX_MESH_RAYS}: "
+        "use a smaller image or fewer samples"
+    )
+
+
 def _mesh_camera(scene: Scene, rules: Rules, samples: int = 1) -> str:
     """A mesh_camera reproducing the exercise's rays: in mesh s, triangle k is centred on ray k's origin
     and its face normal (POV-Ray: cross(P3 - P1, P2 - P1), normalised) runs along ray k's direction.
     One mesh: the primary rays. ``samples`` meshes: sample s's rays (camera.sample_offsets, the
     reference's stratified pattern); POV-Ray shoots ray s of each pixel from mesh s and averages."""
     w, h = scene.camera.width, scene.camera.height
-    if samples * w * h > MAX_MESH_RAYS:
-        raise ValueError(
-            f"{samples} samples x {w}x{h} pixels = {samples * w * h} mesh-camera rays, more than {MAX_MESH_RAYS}: "
-            "use a smaller image or fewer samples"
-        )
+    too_many = too_many_mesh_rays(scene, samples)
+    if too_many:
+        raise ValueError(too_many)
     if samples == 1:
         return _camera_mesh(MESH_NAME + "0", *camera.primary_rays(scene, rules)) + _mesh_camera_statement(1)
     decls = [
@@ -733,9 +742,9 @@ class PovrayOracle(Oracle):
             return fail("error", f"samples must be an integer >= 1, got {samples!r}")
         if opts.get("antialias") is not None and samples > 1:
             return fail("error", "antialias and samples exclude each other (POV-Ray's own grid, or the exercise's)")
-        if samples * w * h > MAX_MESH_RAYS:
-            return fail("skip", f"{samples} samples x {w}x{h} pixels = {samples * w * h} mesh-camera rays, "
-                                f"more than {MAX_MESH_RAYS}: use a smaller image or fewer samples")  # fmt: skip
+        too_many = too_many_mesh_rays(scene, samples)
+        if too_many:
+            return fail("skip", too_many)
         if opts.get("antialias") is not None and uses_mesh_camera(scene, rules):
             between = ", ".join(map(str, between_camera_and_image_plane(scene)))
             return fail("skip", f"object between camera and image plane (shape {between}) needs a mesh camera, "
@@ -844,10 +853,10 @@ class PovrayOracle(Oracle):
         timings["parse"] = sum(p["timings"].get("parse", 0.0) for p in passes)
         timings["total"] = time.perf_counter() - t_start
         meta.update(passes=passes, commands=[p["command"] for p in passes], timings=timings)
+        if gframes or geometry or samples > 1:  # geometry asked for (even with no shapes), or the exercise's samples
+            meta["precision"] = precision(scene, ranges or [None] * len(scene.shapes), mesh)
+            meta["precision"].update(band_threshold=band_threshold(scene, rules, samples), min_depth=MIN_DEPTH_BAND)
         if gframes:
-            meta["precision"] = precision(scene, ranges, mesh)
-            meta["precision"]["band_threshold"] = band_threshold(scene, rules)
-            meta["precision"]["min_depth"] = MIN_DEPTH_BAND
             meta["encoding_ranges"] = ranges
             # pixels where the three frames' alpha and the id channel disagree on hit/miss (expected 0)
             meta["hit_consistency"] = geom.pop("hit_mismatch")
@@ -856,9 +865,6 @@ class PovrayOracle(Oracle):
             miss = np.zeros((h, w), dtype=bool)
             geom = {"hit": miss, "shape_id": np.full((h, w), -1, np.int32), "t": np.full((h, w), np.inf),
                     "position": np.zeros((h, w, 3)), "normal": np.zeros((h, w, 3))}  # fmt: skip
-            if geometry or samples > 1:  # no shapes (nothing to encode), or colour from the exercise's samples
-                meta["precision"] = precision(scene, [None] * len(scene.shapes), mesh)
-                meta["precision"].update(band_threshold=band_threshold(scene, rules, samples), min_depth=MIN_DEPTH_BAND)
         # POV-Ray's own 8-bit image (exact rounding; rounding the half-float colour flips .5 ties); antialiased
         # renders have none (color8() then rounds the half-float colour)
         return RenderResult(backend=NAME, width=w, height=h, color=color, image8=color8, meta=meta, **geom)
