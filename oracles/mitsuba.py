@@ -727,7 +727,7 @@ class _RayRender(_Base):
         return np.stack([self._np(v[i]) for i in range(3)], axis=1)
 
     def _shade_batch(self, ms, o, d, lit: bool, reflective: list[int], level: int) -> dict[str, Any]:
-        mi, dr = self.mi, self._dr()
+        mi = self.mi
         n = len(o)
         scalar = not self.jit
 
@@ -739,11 +739,7 @@ class _RayRender(_Base):
         )
         si = ms.ray_intersect(ray)
         valid = si.is_valid()
-        hit = self._np(valid).astype(bool)
-        reg = self._np(dr.reinterpret_array(mi.UInt32, si.shape) if self.jit else 0).astype(np.int64)
-        if scalar:
-            reg = np.array([self._scalar_index(ms, si) if hit[0] else -1])
-        sid = self.map_ids(np.broadcast_to(reg, (n,)), hit)
+        hit, sid = self._hits(ms, si, n)
         out: dict[str, Any] = {
             "o": o, "d": d, "sid": sid,
             "t": np.where(hit, self._np(si.t), np.inf),
@@ -769,20 +765,12 @@ class _RayRender(_Base):
             f = bsdf.eval(ctx, si, si.to_local(ds.d), valid)
             local = self._np3(f * em_w)
             if planes:
-
-                def first_hit(sray):
-                    s2 = ms.ray_intersect(sray)
-                    h2 = self._np(s2.is_valid()).astype(bool) & hit
-                    r2 = self._np(dr.reinterpret_array(mi.UInt32, s2.shape) if self.jit else 0).astype(np.int64)
-                    if scalar:
-                        r2 = np.array([self._scalar_index(ms, s2) if h2[0] else -1])
-                    return s2, h2, self.map_ids(np.broadcast_to(r2, (n,)), h2)
-
-                s2, hit2, sid2 = first_hit(si.spawn_ray_to(ds.p))
+                s2 = ms.ray_intersect(si.spawn_ray_to(ds.p))
+                hit2, sid2 = self._hits(ms, s2, n, hit)
                 own = np.isin(sid, planes) & (sid2 == sid)
                 blocked = hit2 & ~own
                 if own.any():  # past the rectangle's hit on itself, the rest of the segment still counts
-                    _, hit3, sid3 = first_hit(s2.spawn_ray_to(ds.p))
+                    hit3, sid3 = self._hits(ms, ms.ray_intersect(s2.spawn_ray_to(ds.p)), n, hit)
                     blocked |= own & hit3 & (sid3 != sid)
                 local = np.where(blocked[:, None], 0.0, local)
             dist = self._np(ds.dist)
@@ -811,6 +799,17 @@ class _RayRender(_Base):
                 spawn |= ok & np.any(out["kr"] != 0, axis=1)
             out.update(spawn=spawn, next_o=next_o, next_d=next_d)
         return out
+
+    def _hits(self, ms, si, n: int, among: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Which of n rays hit (within ``among``), and the scene index of the shape each hit."""
+        mi, dr = self.mi, self._dr()
+        hit = self._np(si.is_valid()).astype(bool)
+        if among is not None:
+            hit = hit & among
+        reg = self._np(dr.reinterpret_array(mi.UInt32, si.shape) if self.jit else 0).astype(np.int64)
+        if not self.jit:
+            reg = np.array([self._scalar_index(ms, si) if hit[0] else -1])
+        return hit, self.map_ids(np.broadcast_to(reg, (n,)), hit)
 
     def _scalar_index(self, ms, si) -> int:
         for i, s in enumerate(ms.shapes()):
