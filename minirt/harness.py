@@ -441,7 +441,7 @@ def z_test(a: np.ndarray, var_a: np.ndarray, n_a: int, b: np.ndarray, var_b: np.
     se = np.sqrt(ea + eb + floor)
     z = np.abs(a - b) / se
     with np.errstate(divide="ignore", invalid="ignore"):
-        den = (ea * ea / max(n_a - 1, 1) if n_a > 1 else 0.0) + (eb * eb / max(n_b - 1, 1) if n_b > 1 else 0.0)
+        den = (ea * ea / (n_a - 1) if n_a > 1 else 0.0) + (eb * eb / (n_b - 1) if n_b > 1 else 0.0)
         dof = np.where(den > 0, (ea + eb) ** 2 / den, np.inf)
     dof = np.clip(np.nan_to_num(dof, nan=np.inf), 1.0, 1e9)  # zero variance on both sides: the normal limit
     p = 2 * student_t.sf(z, dof)
