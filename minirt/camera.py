@@ -3,6 +3,8 @@
 Pixel (x, y), y = 0 the top row, sub-pixel position (u, v) in [0, 1)^2 measured from the pixel's
 top-left corner: image-plane point ``((x + u)/W - 0.5, -(y + v)/H + 0.5, 0)``. The exercise's own
 ray is (u, v) = (0, 0), the corner (rule ``pixel_sample = "corner"``); ``"center"`` is (0.5, 0.5).
+Rule ``pixel_shift = (dx, dy)`` (pixels) shifts the whole grid: ``((x + u + dx)/W - 0.5, -(y + v +
+dy)/H + 0.5, 0)``, computed as ``(x + u) + dx``, the addition only when the shift is non-zero.
 Direction: normalise(point - camera); origin: the image-plane point (rule ``ray_origin =
 "image-plane"``) or the camera (``"camera"``). Rays are returned row-major, (H*W, 3) float64.
 
@@ -34,8 +36,14 @@ def rays_through(scene: Scene, rules: Rules, u: np.ndarray | float, v: np.ndarra
     """Origins and unit directions of the rays through sub-pixel positions (u, v) of every pixel."""
     w, h = scene.camera.width, scene.camera.height
     x, y = pixel_grid(w, h)
-    px = (x + u) / w - 0.5
-    py = -(y + v) / h + 0.5
+    sx, sy = rules.pixel_shift
+    fx, fy = x + u, y + v
+    if sx != 0:  # rule pixel_shift: added only when non-zero, so (0, 0) is the unshifted arithmetic
+        fx = fx + float(sx)
+    if sy != 0:
+        fy = fy + float(sy)
+    px = fx / w - 0.5
+    py = -fy / h + 0.5
     pz = np.zeros_like(px)
     cz = -scene.camera.distance
     # direction = point - camera, camera at (0, 0, -d); written out so the rounding is the exercise's

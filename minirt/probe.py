@@ -1,7 +1,10 @@
 """One pixel, traced step by step by the reference tracer itself (not a re-implementation).
 
 The tracer runs on a batch of one ray with recording on; every level of the recursion reports its
-ray, each shape's intersection, the closest hit, the shadow ray and what blocked it, the terms.
+ray, each shape's intersection, the closest hit, the shadow ray and what blocked it, the terms (the
+specular one under the rules clamp and specular_exponent; secondary rays offset per offset and
+offset_along). ``sample`` is where the primary ray crosses the pixel grid (pixel_sample, pixel_shift);
+``color8`` is written under the output rules encoding and gamma.
 """
 
 from __future__ import annotations
@@ -81,9 +84,13 @@ def probe(scene: Scene, rules: Rules, x: int, y: int, precision: str = "f64") ->
         out_levels.append(entry)
     c = _v(color)
     lvl0 = out_levels[0]
+    uv = 0.0 if rules.pixel_sample == "corner" else 0.5
+    dx, dy = rules.pixel_shift
     return {
         "scene": scene.name,
         "pixel": [x, y],
+        # where the primary ray crosses the pixel grid: (x + u + dx, y + v + dy), rules pixel_sample, pixel_shift
+        "sample": [x + uv + dx, y + uv + dy],
         "rules": rules.as_dict(),
         "ray": lvl0["ray"],
         "shapes": lvl0["shapes"],
@@ -95,5 +102,14 @@ def probe(scene: Scene, rules: Rules, x: int, y: int, precision: str = "f64") ->
         "levels": out_levels,
         "color": c,
         "color_clamped": [min(max(v, 0.0), 1.0) for v in c],
-        "color8": [int(v) for v in to8(np.array(c))],
+        "color8": [int(v) for v in _color8(np.array(c), rules)],
     }
+
+
+def _color8(c: np.ndarray, rules: Rules) -> np.ndarray:
+    """The pixel's 8-bit value as the bitmap is written under the output rules encoding and gamma."""
+    if rules.encoding == "round" and rules.gamma == "linear":
+        return to8(c)
+    from minirt.bitmap import encode
+
+    return encode(c.reshape(1, 1, 3), rules.encoding, rules.gamma).reshape(3)

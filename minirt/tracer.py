@@ -36,6 +36,19 @@ from minirt.rules import Effects, Rules, effects
 from minirt.scene import Ball, Plane, Scene
 
 
+def _power(x, e: int) -> Any:
+    """x^e by square-and-multiply (e >= 1): the squares of x from the lowest bit up, multiplied into the
+    result where e has a bit set. For e = 8 exactly x2 = x x, x4 = x2 x2, x8 = x4 x4; for 16 one more square."""
+    result, base = None, x
+    while True:
+        if e & 1:
+            result = base if result is None else result * base
+        e >>= 1
+        if not e:
+            return result
+        base = base * base
+
+
 def gamma(n: int, u: float) -> float:
     """pbrt's gamma(n) = n u / (1 - n u): bound on the relative error of n chained roundings."""
     return n * u / (1 - n * u)
@@ -239,10 +252,13 @@ class Tracer:
         return self._by_id(shape_id, vals, self.T.Float(0))
 
     def offset_origin(self, p, n, err, direction) -> Any:
-        """Start of a secondary ray leaving p in `direction`."""
+        """Start of a secondary ray leaving p in `direction` (n: the shading normal)."""
         off = self.rules.offset
         if off != "error-bound":
+            if self.rules.offset_along == "ray":
+                return p + self.T.Float(off) * direction  # rule offset_along "ray": along the new ray
             return p + self.T.Float(off) * n  # the exercise's hint: "add a small fraction of normal"
+        # (offset_along applies to numeric offsets only; validation rejects "ray" with "error-bound".)
         # Offset along n by the error bound, on the side the new ray leaves to, then one more ulp
         # away from p in each component (pbrt-v4's OffsetRayOrigin).
         side = dr.select(dr.dot(n, direction) < 0, self.T.Float(-1.0), self.T.Float(1.0))
@@ -356,24 +372,26 @@ class Tracer:
                 if record:
                     rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
             if fx.diffuse:
-                fac = dr.maximum(sn, 0) if self.rules.clamp else sn
+                fac = dr.maximum(sn, 0) if self.rules.clamp is True else sn  # "specular": s·n raw
                 terms["diffuse"] = dr.select(lit, lc * self._material_term(shape_id, "diffuse") * fac, zero)
                 local = local + terms["diffuse"]
             if fx.specular:
                 rs = dr.dot(r, s)
-                rs2 = rs * rs
-                rs4 = rs2 * rs2
-                pw = rs4 * rs4  # (r·s)^8 by repeated squaring: exact same roundings everywhere
+                pw = _power(rs, self.rules.specular_exponent)  # (r·s)^e: for e = 8 rs2, rs4, rs4 * rs4
                 on = lit
-                if self.rules.clamp:
+                if self.rules.clamp is True:
                     on = lit & (sn > 0) & (rs > 0)
+                elif self.rules.clamp == "specular":
+                    on = lit & (rs > 0)
                 terms["specular"] = dr.select(on, lc * self._material_term(shape_id, "specular") * pw, zero)
                 local = local + terms["specular"]
         bgc = self._vec(sc.background)
         if self.rules.background == "on-hit":
             bg = dr.select(hit, bgc, zero) if fx.background else zero
-        else:
+        elif self.rules.background == "on-miss":
             bg = dr.select(hit, zero, bgc) if fx.background else zero
+        else:  # "none": never added
+            bg = zero
         kr = self._material_term(shape_id, "reflection") if fx.reflection else zero
         spawn = None
         if fx.reflection and depth_left > 0:
@@ -381,13 +399,14 @@ class Tracer:
             if self.prune:
                 spawn = hit & dr.any(kr != 0)
         lvl = Level(parent, o, d, shape_id, t, p, n, local, kr, bg, terms, rec)
-        # The discrete decisions this ray's colour jumps with: which shape, lit or not, and under clamp the
-        # side of the surface the light is on (the specular lobe is cut at s·n = 0 with (r·s)^8 > 0; the
-        # diffuse term and the cut at r·s = 0 are continuous). Packed as an integer.
+        # The discrete decisions this ray's colour jumps with: which shape, lit or not, and under clamp = true
+        # the side of the surface the light is on (the specular lobe is cut at s·n = 0 with (r·s)^e > 0; the
+        # diffuse term and the cut at r·s = 0 are continuous, so clamp = "specular" adds none). Packed as an
+        # integer.
         code = self.T.Int(shape_id) * 4
         if fx.diffuse or fx.specular:
             code = code + dr.select(lit, 1, 0)
-            if fx.specular and self.rules.clamp:
+            if fx.specular and self.rules.clamp is True:
                 code = code + dr.select(sn > 0, 2, 0)
         lvl.code = code
         if record:
@@ -538,8 +557,14 @@ class Tracer:
         xi = idx - yi * w
         # dr.opaque: Dr.Jit turns division by a literal into a multiplication by its reciprocal
         # (one more rounding), even with FastMath off.
-        px = (F(xi) + u) / dr.opaque(F, w) - 0.5
-        py = -(F(yi) + v) / dr.opaque(F, h) + 0.5
+        sx, sy = self.rules.pixel_shift
+        fx, fy = F(xi) + u, F(yi) + v
+        if sx != 0:  # rule pixel_shift: added only when non-zero, so (0, 0) is the unshifted arithmetic
+            fx = fx + float(sx)
+        if sy != 0:
+            fy = fy + float(sy)
+        px = fx / dr.opaque(F, w) - 0.5
+        py = -fy / dr.opaque(F, h) + 0.5
         pz = dr.zeros(F, w * h)
         cz = -sc.camera.distance
         dx, dy, dz = px - 0.0, py - 0.0, pz - cz

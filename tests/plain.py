@@ -109,6 +109,8 @@ class Plain:
 
     def start(self, shape, p, n, direction):
         if self.rules.offset != "error-bound":
+            if self.rules.offset_along == "ray":
+                return add(p, mul(direction, self.rules.offset))
             return add(p, mul(n, self.rules.offset))
         lp = norm(p)
         err = gamma(6) * (shape.radius + lp) if isinstance(shape, Ball) else gamma(4) * (lp + abs(shape.distance))
@@ -154,11 +156,15 @@ class Plain:
         if not blocked:
             sn = dot(s, n)
             rs = dot(r, s)
-            if ru.clamp:
+            e = ru.specular_exponent
+            if ru.clamp is True:
                 diff = max(sn, 0.0)
-                spec = rs**8 if (sn > 0 and rs > 0) else 0.0
+                spec = rs**e if (sn > 0 and rs > 0) else 0.0
+            elif ru.clamp == "specular":
+                diff = sn
+                spec = rs**e if rs > 0 else 0.0
             else:
-                diff, spec = sn, rs**8
+                diff, spec = sn, rs**e
             color = add(color, mul(cmul(sc.light.color, m.diffuse), diff))
             color = add(color, mul(cmul(sc.light.color, m.specular), spec))
         if depth > 0:

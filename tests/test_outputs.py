@@ -12,7 +12,7 @@ import pytest
 from minirt.imageio import read_image, read_image_u8
 from minirt.probe import probe
 from minirt.result import TERMS
-from minirt.rules import CHOICES, PROFILES, flipped, resolve
+from minirt.rules import PROFILES, TRACE_RULES, flipped, resolve
 from minirt.scene import load_scene
 from minirt.tracer import Tracer
 
@@ -28,7 +28,7 @@ def _same(a, b):
 @pytest.mark.parametrize("profile", list(PROFILES))
 def test_pruning_is_bit_identical(scene_path, profile):
     scene = load_scene(scene_path).with_overrides(width=40, height=40)
-    for rules in [PROFILES[profile], *(flipped(PROFILES[profile], r) for r in CHOICES)]:
+    for rules in [PROFILES[profile], *(flipped(PROFILES[profile], r) for r in TRACE_RULES)]:
         _same(Tracer(scene, rules, prune=True).render(), Tracer(scene, rules, prune=False).render())
 
 
