@@ -31,11 +31,12 @@ Conventions bridged (each measured with Debian's povray 3.7.0.10):
   (the default 1/255 prunes faint reflections).
 - Shading: POV-Ray multiplies ambient by the pigment, so a material (ambient AC, diffuse DC, specular
   SC, reflection RC) becomes ``pigment { rgb DC } finish { ambient rgb (AC+BG)/DC diffuse 1 phong SC
-  phong_size 8 reflection { rgb RC } }`` -- or, exactly and without a division, ``pigment { rgb 1 }``
-  with ``diffuse DC`` when DC is grey. BG is folded into ambient for rule background "on-hit"; for
-  "on-miss" it is a ``background``. ``phong`` is a scalar: when a specular colour is not grey, or a
-  non-grey diffuse colour has a zero channel under a non-zero ambient, the scene is rendered once per
-  colour channel with grey values and the channels combined.
+  phong_size E reflection { rgb RC } }`` (E the rule specular_exponent, 8 by default) -- or, exactly and
+  without a division, ``pigment { rgb 1 }`` with ``diffuse DC`` when DC is grey. BG is folded into
+  ambient for rule background "on-hit"; for "on-miss" it is a ``background``; for "none" neither.
+  ``phong`` is a scalar: when a specular colour is not grey, or a non-grey diffuse colour has a zero
+  channel under a non-zero ambient, the scene is rendered once per colour channel with grey values and
+  the channels combined.
 - Output: ``assumed_gamma 1.0`` and File_Gamma 1.0 (linear values). The 8-bit PNG (+FN8) rounds
   floor(c*255 + 0.5) exactly as the exercise does; the float colour is POV-Ray's EXR, which is HALF
   float only (relative precision 2^-11; its own rounding flips 8-bit levels at .5 ties, hence both).
@@ -427,7 +428,7 @@ def _material(m: Material, scene: Scene, rules: Rules, fx: Effects, channel: int
         fin.append(f"diffuse {_f(m.diffuse[channel]) if fx.diffuse else '0'}")
         spec, refl = m.specular[channel], m.reflection[channel]
         if fx.specular and spec != 0:
-            fin.append(f"phong {_f(spec)} phong_size 8")
+            fin.append(f"phong {_f(spec)} phong_size {int(rules.specular_exponent)}")
         if fx.reflection and refl != 0:
             fin.append(f"reflection {{ rgb {_f(refl)} }}")
     else:
@@ -442,7 +443,7 @@ def _material(m: Material, scene: Scene, rules: Rules, fx: Effects, channel: int
             fin.append(f"ambient rgb {_v(amb)}")
             fin.append("diffuse 1")
         if fx.specular and m.specular[0] != 0:
-            fin.append(f"phong {_f(m.specular[0])} phong_size 8")
+            fin.append(f"phong {_f(m.specular[0])} phong_size {int(rules.specular_exponent)}")
         if fx.reflection and any(c != 0 for c in m.reflection):
             fin.append(f"reflection {{ rgb {_v(m.reflection)} }}")
     return f"pigment {{ {pigment} }} finish {{ {' '.join(fin)} }}"
@@ -694,14 +695,19 @@ class PovrayOracle(Oracle):
     name: ClassVar[str] = NAME
     shades: ClassVar[bool] = True
     supported: ClassVar[dict[str, tuple[Any, ...]]] = {
-        "background": ("on-hit", "on-miss"),  # folded into ambient, or a background statement
+        # folded into ambient, or a background statement; "none": neither
+        "background": ("on-hit", "on-miss", "none"),
         "near_root_only": (False,),  # it sees the inside of balls
         "shadow_range": ("to-light",),  # only objects before the light block
         "two_sided": (True,),  # normals flipped to face the viewer
         "clamp": (True,),  # light skipped when n·l < 1e-10, phong only when r·l > 0
         "offset": ("error-bound",),  # its own epsilons (1e-3 for shadow rays): the closest rule
+        "offset_along": ("normal",),  # (its epsilons are distances along the ray; "ray" needs a number)
         "ray_origin": ("image-plane", "camera"),  # image-plane: skip when something is in between
         "pixel_sample": ("corner", "center"),  # skewed or plain direction vector
+        # The skewed direction vector is written for the unshifted grid only (the mesh camera would follow).
+        "pixel_shift": ((0.0, 0.0),),
+        # specular_exponent: any, as phong_size (POV-Ray's phong is (r·l)^phong_size, only where r·l > 0).
     }
 
     def available(self) -> tuple[bool, str]:
