@@ -1,4 +1,4 @@
-"""Golden images of the reference tracer's own output (64x64, both profiles, every bundled scene).
+"""Golden images of the reference tracer's own output (64x64, every profile, every bundled scene).
 
 A golden that differs fails with the command that refreshes the goldens on purpose:
     make goldens

@@ -416,3 +416,22 @@ def test_oracle_tables_are_valid():
             assert _valid(o.adapt(rules), profile) == [], (cls.name, profile)
             for name in CHOICES:
                 assert _valid(o.adapt(flipped(rules, name)), profile) == [], (cls.name, profile, name)
+
+
+@pytest.mark.parametrize("shift", [(2.0, -1.0), (0.5, 0.5)])
+def test_mitsuba_sensor_follows_pixel_shift(shift):
+    """Mitsuba's own sensor (not minirt.camera's rays) takes the shift through its principal point."""
+    from oracles.mitsuba import MitsubaOracle
+
+    o = MitsubaOracle()
+    ok, why = o.available()
+    if not ok:
+        pytest.skip(why)
+    scene = load_scene("scenes/three_balls.toml").with_overrides(width=48, height=48, samples=1)
+    rules = o.adapt(replace(PROFILES["conventional"], pixel_shift=shift))
+    ref = Tracer(scene, rules).render()
+    unshifted = Tracer(scene, replace(rules, pixel_shift=(0.0, 0.0))).render()
+    got = o.render(scene, rules, {"mode": "sensor"})
+    assert got.status == "ok", got.reason
+    assert (got.hit != ref.hit).sum() == 0
+    assert (got.hit != unshifted.hit).sum() > 0  # the check can see a shift
