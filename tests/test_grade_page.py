@@ -238,3 +238,21 @@ def test_page_in_a_browser(single, tmp_path):
 
 def test_class_index_in_a_browser(klass, tmp_path):
     check_in_browser(klass.index, tmp_path, klass.html)
+
+
+def test_float_transposed_image(tmp_path):
+    """An EXR stored transposed: the image is shown as stored (H x W), the rest in the scene's layout."""
+    scene_file = ROOT / "scenes" / "rules.toml"
+    sc = load_scene(scene_file).with_overrides(width=W, height=H)
+    color = render(sc, R.resolve(sc).traced()).color
+    image = tmp_path / "t.exr"
+    write_image(image, np.swapaxes(np.clip(color, 0.0, 1.0), 0, 1).astype(np.float32))
+    g = grade(scene_file, image)
+    assert g.diagnosis.changed == {"transpose": "true"}
+    page = write_grade_page(g, tmp_path / "out")
+    html = unescape(page.read_text())
+    assert "transposed" in html and "float image" in html and "this layout does not fit" in html
+    assert 'width="240" height="320"' in html and 'width="320" height="240"' in html
+    for s in srcs(html):
+        assert (page.parent / s).is_file(), s
+    assert read_image_u8(page.parent / "assets" / "index-rule0-transpose.png").shape[:2] == (H, W)
