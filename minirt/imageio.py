@@ -124,14 +124,20 @@ def exr_channels(result: RenderResult) -> tuple[np.ndarray, list[str]]:
     return np.stack(planes, axis=-1), names
 
 
-def write_result(result: RenderResult, out_dir: str | Path, stem: str, timings: bool = False) -> dict[str, Path]:
-    """Write `stem.png` (the 8-bit bitmap), `stem.exr` (every buffer) and `stem.json` (metadata; with
-    ``timings`` also the run's timings, which makes it differ from run to run)."""
+def write_result(
+    result: RenderResult, out_dir: str | Path, stem: str, timings: bool = False, rules: Any = None
+) -> dict[str, Path]:
+    """Write `stem.png` (the 8-bit bitmap, written as ``rules``' output rules say: encoding, gamma,
+    layout; minirt.bitmap), `stem.exr` (every buffer, in the scene's layout) and `stem.json` (metadata;
+    with ``timings`` also the run's timings, which makes it differ from run to run)."""
+    from minirt import bitmap
+
     out_dir = Path(out_dir)
     paths: dict[str, Path] = {}
     if result.color is not None:
         paths["png"] = out_dir / f"{stem}.png"
-        write_image(paths["png"], result.color8())
+        plain = rules is None or bitmap.is_default(rules)
+        write_image(paths["png"], result.color8() if plain else bitmap.bitmap(result.color, rules))
     if result.hit is not None or result.color is not None:
         data, names = exr_channels(result)
         paths["exr"] = out_dir / f"{stem}.exr"
@@ -179,3 +185,53 @@ def _jsonable(o: Any) -> Any:
     if hasattr(o, "as_dict"):
         return o.as_dict()
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+# Formats a graded image may come in (OpenImageIO reads each; the extension picks the reader).
+STUDENT_EXTENSIONS = (".png", ".bmp", ".ppm", ".pgm", ".pnm", ".tga", ".tif", ".tiff", ".exr")
+
+
+def read_student_image(path: str | Path) -> tuple[np.ndarray, bool]:
+    """An image another tracer wrote, as (rows, columns, 3): uint8 levels for 8-bit files, float32
+    for float and 16-bit files (the bool says which). Grey images are repeated into R, G and B; an
+    alpha channel is ignored. Any problem is one MinirtError line naming the file."""
+    path = Path(path)
+    if not path.exists():
+        raise MinirtError(f"{path}: no such image file")
+    if path.is_dir():
+        raise MinirtError(f"{path}: is a folder, expected an image file")
+    if path.suffix.lower() not in STUDENT_EXTENSIONS:
+        raise MinirtError(
+            f"{path}: unsupported image type {path.suffix or '(none)'} (use {', '.join(STUDENT_EXTENSIONS)})"
+        )
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise MinirtError(f"{path}: cannot read image: {_one_line(oiio.geterror())}")
+    try:
+        spec = inp.spec()
+        if spec.width < 1 or spec.height < 1 or spec.nchannels < 1:
+            raise MinirtError(f"{path}: empty image")
+        is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE) or spec.format.size() > 1
+        fmt = oiio.FLOAT if is_float else oiio.UINT8
+        data = inp.read_image(0, 0, 0, spec.nchannels, fmt)
+        if data is None:
+            raise MinirtError(f"{path}: cannot read image: {_one_line(inp.geterror())}")
+        a = np.asarray(data)
+        if a.size != spec.width * spec.height * spec.nchannels:
+            raise MinirtError(
+                f"{path}: the file is truncated ({a.size} of {spec.width * spec.height * spec.nchannels} values)"
+            )
+        a = a.reshape(spec.height, spec.width, spec.nchannels)
+    finally:
+        inp.close()
+    if err := oiio.geterror():  # a reader that filled in what a truncated file lacked says so here
+        raise MinirtError(f"{path}: cannot read image: {_one_line(err)}")
+    colour = a[..., :3] if a.shape[-1] >= 3 else np.repeat(a[..., :1], 3, axis=-1)
+    colour = np.ascontiguousarray(colour)
+    if is_float and not np.isfinite(colour).all():
+        raise MinirtError(f"{path}: the image holds NaN or infinite values")
+    return colour, is_float
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split()) or "unknown error"
