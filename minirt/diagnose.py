@@ -1,0 +1,691 @@
+"""Diagnosis: which rule settings explain an image?
+
+Given a scene and an image that some tracer made of it (a student's, or an oracle's colour buffer),
+search the space of model rules (minirt.rules) for the setting whose render reproduces the image, and
+say how many pixels each differing rule explains. ``grade`` uses it for outside images; ``check``
+uses it for an oracle's remaining difference. It sits beside the harness: it consumes renders of the
+reference tracer and rule sets, and never changes the tracer.
+
+How an image is compared with a render (``Target.mismatch``)
+-------------------------------------------------------------
+- An 8-bit image: the render's colour is written as the candidate's output rules say (gamma,
+  encoding, layout; minirt.bitmap) and a pixel matches when every channel is within one level: a
+  student's float32 arithmetic or another rounding order moves a value across a quantisation step,
+  never by two levels (relative error ~1e-6 of a value <= 255 is ~3e-4 of a level).
+- A float image (EXR, float TIFF, 16-bit): both are clamped to [0, 1], put through the gamma rule,
+  and a pixel matches when every channel is within ``FLOAT_TOL``.
+- Ill-conditioned pixels never count: pixels whose decision (hit or miss, closest shape, shadow) is
+  within a float32 tracer's rounding of flipping in the candidate's own render (``ill_conditioned``).
+  Comparing two candidates, a pixel ill-conditioned in either is left out of both scores, so such a
+  pixel never decides between them.
+
+The search (``diagnose``)
+-------------------------
+Greedy descent in rule space from the scene's own rules: each step renders every single-rule change
+(every value of ``rules.values(name)``) and every profile, scores them all on the pixels that decide
+between them, and takes the change that removes the most mismatching pixels; it stops when nothing
+improves. Output rules (encoding, gamma, layout) cost no render: they re-encode the same colour. The
+specular exponent, an integer, is then refined by a ternary search between the neighbouring values
+of the list. Renders are cached per (scene, size, traced rules) in a ``VariantCache`` that a class
+run shares across students, so each variant is traced once however many images are graded.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from minirt import bitmap
+from minirt import rules as rules_mod
+from minirt.rules import Rules
+from minirt.scene import Ball, Scene
+
+# A float32 tracer's ray directions, roots and hit points carry relative errors of order gamma(n) =
+# n·2^-24 for the n ≈ 10-30 chained roundings of a ray's set-up and intersection; 2^6 u = 3.8e-6
+# covers n up to 64. A decision whose relative margin is below it may go either way in such a tracer.
+EPS_REL = 2.0**-24 * 64
+# Float images: half an 8-bit level (1/510 = 2.0e-3) is where the 8-bit image of the same values
+# could first differ by a level; 2^-10 = 9.8e-4 sits below it and ~150x above a float32 tracer's
+# colour error (~100 roundings of 2^-24 on values <= 1, 6e-6).
+FLOAT_TOL = 2.0**-10
+# Images up to this many pixels render every candidate in full (and keep it for the next image).
+FULL_RENDER_PIXELS = 512 * 512
+# Levels an 8-bit channel may differ by: one (a value on the other side of a rounding step).
+LEVEL_TOL = 1
+
+
+@dataclass
+class Variant:
+    """One candidate's render, on every pixel or on a subset (``idx``, row-major pixel indices)."""
+
+    rules: Rules  # traced rules only (output rules at their defaults)
+    color: np.ndarray  # (H, W, 3) float64, or (N, 3) on a subset
+    shadow_ill: np.ndarray  # (H, W) or (N,) bool: shadow rays within rounding of a ball's silhouette
+    idx: np.ndarray | None = None  # None: every pixel
+    f32_flips: np.ndarray | None = None  # (H, W) bool, on demand (full renders only)
+
+    @property
+    def nbytes(self) -> int:
+        return self.color.nbytes + self.shadow_ill.nbytes
+
+
+class VariantCache:
+    """Renders of one or more scenes under many rule sets: full renders kept up to ``max_bytes`` (least
+    recently used first out), shared by every image graded in one run; subset renders are the search's
+    own and not kept. Tracing, not compiling, is what the cache saves: Dr.Jit keeps compiled kernels."""
+
+    def __init__(self, max_bytes: int = 3 << 30):
+        self.max_bytes = max_bytes
+        self._items: OrderedDict[tuple, Variant] = OrderedDict()
+        self._rays: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self.renders = 0  # rays traced, in units of whole images
+        self.hits = 0
+
+    @staticmethod
+    def _key(scene: Scene, rules: Rules) -> tuple:
+        return (scene.digest, scene.source, scene.camera.width, scene.camera.height, rules.traced())
+
+    def get(self, scene: Scene, rules: Rules, f32: bool = False) -> Variant:
+        key = self._key(scene, rules)
+        v = self._items.get(key)
+        if v is None:
+            v = self._trace(scene, rules.traced(), None)
+            self._items[key] = v
+            self._trim()
+        else:
+            self.hits += 1
+            self._items.move_to_end(key)
+        if f32 and v.f32_flips is None:
+            v.f32_flips = _f32_flips(scene, v)
+            self.renders += 1
+        return v
+
+    def subset(self, scene: Scene, rules: Rules, idx: np.ndarray, keep: bool = False) -> Variant:
+        """The candidate's colour on the pixels ``idx``: from a full render when one is cached, or when
+        ``keep`` (a candidate other images will ask for too) or the image is small (a render's fixed
+        cost, tracing Dr.Jit's graph in Python, ~20-30 ms, outweighs its rays up to ~512²: render it all
+        and keep it); else only those pixels' rays, not kept."""
+        key = self._key(scene, rules)
+        n = scene.camera.width * scene.camera.height
+        if key not in self._items and (keep or n <= FULL_RENDER_PIXELS):
+            self.get(scene, rules)
+        v = self._items.get(key)
+        if v is not None:
+            self.hits += 1
+            return Variant(v.rules, v.color.reshape(-1, 3)[idx], v.shadow_ill.reshape(-1)[idx], idx)
+        return self._trace(scene, rules.traced(), idx)
+
+    def rays(self, scene: Scene, rules: Rules) -> tuple[np.ndarray, np.ndarray]:
+        """The primary rays (NumPy; the tracer's own bits), cached per camera rules."""
+        from minirt import camera
+
+        key = (scene.digest, scene.source, scene.camera.width, scene.camera.height, _ray_key(rules))
+        if key not in self._rays:
+            self._rays[key] = camera.primary_rays(scene, rules)
+        return self._rays[key]
+
+    def band(self, scene: Scene, rules: Rules, idx: np.ndarray) -> np.ndarray:
+        """(N,) bool: primary rays of pixels ``idx`` whose hit/miss, closest-shape or inside/outside
+        decision is within EPS_REL of flipping (minirt.band). Computed once per pixel and camera
+        rules, only for the pixels asked about: the search asks only where two candidates differ."""
+        from minirt import band
+
+        key = (scene.digest, scene.source, scene.camera.width, scene.camera.height, _ray_key(rules))
+        n = scene.camera.width * scene.camera.height
+        known, flag = self._bands.setdefault(key, (np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)))
+        todo = idx[~known[idx]]
+        if todo.size:
+            o, d = self.rays(scene, rules)
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                m = band.margins(scene, o[todo], d[todo])
+            flag[todo] = m["margin"] < EPS_REL
+            known[todo] = True
+        return flag[idx]
+
+    def _trace(self, scene: Scene, rules: Rules, idx: np.ndarray | None) -> Variant:
+        import drjit as dr
+
+        from minirt.tracer import Tracer
+
+        n = scene.camera.width * scene.camera.height
+        self.renders += 1 if idx is None else idx.size / n
+        tr = Tracer(scene, rules)
+        if idx is None:
+            o, d = tr.primary_rays()
+        else:
+            o_all, d_all = self.rays(scene, rules)
+            o, d = tr._load(o_all[idx]), tr._load(d_all[idx])
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            color, levels = tr.trace(o, d, tree=True)
+        c = tr._to_numpy3(color)
+        m = levels[0].record.get("shadow_margin")
+        sill = np.zeros(c.shape[0], dtype=bool) if m is None else np.asarray(m) < EPS_REL * _scale(scene)
+        if idx is None:
+            h, w = scene.camera.height, scene.camera.width
+            return Variant(rules, c.reshape(h, w, 3), sill.reshape(h, w))
+        return Variant(rules, c, sill, idx)
+
+    def _trim(self) -> None:
+        total = sum(v.nbytes for v in self._items.values())
+        while total > self.max_bytes and len(self._items) > 1:
+            _, v = self._items.popitem(last=False)
+            total -= v.nbytes
+
+
+def _ray_key(rules: Rules) -> tuple:
+    return (rules.ray_origin, rules.pixel_sample, tuple(rules.pixel_shift))
+
+
+def _scale(scene: Scene) -> float:
+    """The scene's working size: where its balls, light and camera are (planes are unbounded)."""
+    s = [1.0, scene.camera.distance, *map(abs, scene.light.position)]
+    for b in scene.shapes:
+        if isinstance(b, Ball):
+            s.append(max(map(abs, b.center)) + b.radius)
+    return max(s)
+
+
+def _f32_flips(scene: Scene, v: Variant) -> np.ndarray:
+    """Pixels where a float32 render of the same rules differs by more than a level: decisions that
+    rounding flips anywhere in the ray tree (reflections, planes' shadows, self-shadowing offsets)."""
+    from minirt.errors import MinirtError
+    from minirt.tracer import render
+
+    try:
+        r32 = render(scene, v.rules, precision="f32")
+    except MinirtError:  # beyond float32's range: no float32 tracer could draw it; nothing to add
+        return np.zeros(v.color.shape[:2], dtype=bool)
+    a, b = bitmap.encode(v.color), bitmap.encode(r32.color)
+    return (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Target:
+    """The image to explain, as stored (any layout), 8-bit levels or floats, three channels."""
+
+    pixels: np.ndarray  # (rows, columns, 3) uint8 or float32
+    is_float: bool
+    name: str = ""
+    _layouts: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.pixels.shape[0], self.pixels.shape[1]
+
+    def in_layout(self, rules: Rules) -> np.ndarray:
+        """The image brought back to the scene's layout under the candidate's layout rules (int16
+        levels, or float32 clamped to [0, 1]); computed once per layout."""
+        key = (rules.rows, rules.channels, rules.transpose)
+        if key not in self._layouts:
+            img = bitmap.undo_layout(self.pixels, **bitmap.layout_of(rules))
+            self._layouts[key] = np.clip(img, 0.0, 1.0) if self.is_float else img.astype(np.int16)
+        return self._layouts[key]
+
+    def difference(self, color: np.ndarray, rules: Rules, idx: np.ndarray | None = None) -> np.ndarray | None:
+        """Per pixel, the largest channel difference (levels, or float units) between the image and the
+        colour written under ``rules``' output rules; None when the layout does not fit the size.
+        ``color`` is (H, W, 3), or (N, 3) for the pixels ``idx``."""
+        img = self.in_layout(rules)
+        h, w = (color.shape[0], color.shape[1]) if idx is None else (None, None)
+        if idx is None and img.shape[:2] != (h, w):
+            return None
+        if idx is not None:
+            if img.shape[:2] != self._model_shape:
+                return None
+            img = img.reshape(-1, 3)[idx]
+        if self.is_float:
+            return np.abs(img - bitmap.transfer(color, rules.gamma)).max(-1)
+        enc = bitmap.encode(color, rules.encoding, rules.gamma)
+        return np.abs(enc.astype(np.int16) - img).max(-1)
+
+    _model_shape: tuple[int, int] = (0, 0)
+
+    def score(self, d: np.ndarray, keep: np.ndarray | None = None) -> tuple[int, int]:
+        """(pixels beyond tolerance, pixels exactly one level off), among ``keep``. The second breaks
+        ties: encodings differ by at most one level, so only exact matches tell them apart, and a
+        float32 tracer lands a level off only where a value sits on a rounding step (rare)."""
+        if keep is not None:
+            d = d[keep]
+        if self.is_float:
+            return int((d > FLOAT_TOL).sum()), 0
+        return int((d > LEVEL_TOL).sum()), int((d == 1).sum())
+
+    def off(self, d: np.ndarray) -> np.ndarray:
+        """Pixels that are not an exact match: any level off (8-bit), beyond FLOAT_TOL (float)."""
+        return d > FLOAT_TOL if self.is_float else d >= 1
+
+    def beyond(self, d: np.ndarray) -> np.ndarray:
+        """Pixels beyond tolerance: more than one level (8-bit), more than FLOAT_TOL (float)."""
+        return d > (FLOAT_TOL if self.is_float else LEVEL_TOL)
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Explained:
+    rule: str
+    value: str
+    pixels: int
+    mask: np.ndarray = field(repr=False)
+
+
+@dataclass
+class Diagnosis:
+    """What the search found. Counts leave ill-conditioned pixels out."""
+
+    given: Rules
+    best: Rules
+    pixels: int
+    as_given_mask: np.ndarray  # pixels beyond tolerance under the scene's own rules
+    best_mask: np.ndarray  # those still beyond tolerance under the best rules
+    ill: np.ndarray  # ill-conditioned pixels among those that differ (left out)
+    explained: list[Explained]
+    indistinguishable: list[dict[str, Any]]
+    given_color: np.ndarray
+    best_color: np.ndarray
+    steps: list[dict[str, Any]]
+    renders: float
+
+    @property
+    def changed(self) -> dict[str, str]:
+        return {n: rules_mod.format_rule_value(n, getattr(self.best, n)) for n in self.given.differs(self.best)}
+
+    @property
+    def as_given_pixels(self) -> int:
+        return int(self.as_given_mask.sum())
+
+    @property
+    def mismatch_pixels(self) -> int:
+        return int(self.best_mask.sum())
+
+
+def _valid(r: Rules) -> bool:
+    """A rule set the tracer accepts (the one cross-rule constraint: offset_along = "ray" needs a number)."""
+    return not rules_mod.validate_model_table("exercise", r.as_dict())
+
+
+def _moves(current: Rules, names: tuple[str, ...]) -> list[Rules]:
+    out = []
+    for name in names:
+        for v in rules_mod.values(name):
+            if v != getattr(current, name):
+                cand = replace(current, **{name: v})
+                if _valid(cand):
+                    out.append(cand)
+    return out
+
+
+def _profile_moves(current: Rules) -> list[Rules]:
+    """Whole profiles (their traced rules, the current output rules): a tracer written to another
+    edition of the exercise differs in many rules at once, more than single steps find in order."""
+    out = []
+    for p in rules_mod.PROFILES.values():
+        cand = replace(current, **{n: getattr(p, n) for n in rules_mod.TRACE_RULES})
+        if cand != current and _valid(cand):
+            out.append(cand)
+    return out
+
+
+# Candidates are first scored on a subset of pixels: every pixel the current rules get wrong, and a
+# fixed stride of the ones they get right (SAMPLE of them, at least), whose breakages are scaled up.
+# The best candidate is then rendered in full and accepted only if it really gains; a candidate that
+# breaks a thin feature the stride missed is caught there.
+SAMPLE = 4096
+VERIFY = 3  # candidates verified in full per step before the search gives up
+
+
+class _Search:
+    def __init__(self, scene: Scene, target: Target, cache: VariantCache):
+        self.scene, self.target, self.cache = scene, target, cache
+        self.steps: list[dict[str, Any]] = []
+        target._model_shape = (scene.camera.height, scene.camera.width)
+
+    def full(self, rules: Rules) -> tuple[np.ndarray | None, Variant]:
+        v = self.cache.get(self.scene, rules)
+        return self.target.difference(v.color, rules), v
+
+    def ill_at(self, rules: Rules, v: Variant, at: np.ndarray) -> np.ndarray:
+        """Ill-conditioned flags of a variant (its shadow flags and its rays' band) at pixels ``at``;
+        for a subset variant, ``at`` indexes its subset."""
+        if v.idx is None:
+            return v.shadow_ill.reshape(-1)[at] | self.cache.band(self.scene, rules, at)
+        return v.shadow_ill[at] | self.cache.band(self.scene, rules, v.idx[at])
+
+    def compare(self, a: Rules, b: Rules) -> tuple[int, int] | None:
+        """Exact gain of b over a on every pixel: (beyond tolerance, one level off) that b fixes minus
+        those it breaks. A pixel ill-conditioned in either never counts: it is looked at only where the
+        two differ, as elsewhere it adds the same to both."""
+        (da, va), (db, vb) = self.full(a), self.full(b)
+        if da is None or db is None:
+            return None if db is None else (1 << 40, 0)
+        differ = np.flatnonzero((self._cls(da) != self._cls(db)).reshape(-1))
+        keep = ~(self.ill_at(a, va, differ) | self.ill_at(b, vb, differ))
+        sa = self.target.score(da.reshape(-1)[differ], keep)
+        sb = self.target.score(db.reshape(-1)[differ], keep)
+        return sa[0] - sb[0], sa[1] - sb[1]
+
+    def _cls(self, d: np.ndarray) -> np.ndarray:
+        """Per pixel: 0 exact, 1 one level off, 2 beyond tolerance."""
+        return np.where(self.target.beyond(d), 2, np.where(self.target.off(d), 1, 0)).astype(np.int8)
+
+    def run(self, start: Rules) -> Rules:
+        current = self._best_output(start)
+        while True:
+            current = self._descend(start, current)
+            refined = self._refine_exponent(current)
+            if refined == current:
+                return current
+            current = refined  # an exponent between the grid's values: other rules may now read differently
+
+    def _descend(self, start: Rules, current: Rules) -> Rules:
+        while True:
+            dc, vc = self.full(current)
+            if dc is None:
+                return current
+            cls = self._cls(dc).reshape(-1)
+            wrong = np.flatnonzero(cls > 0)
+            if wrong.size == 0:
+                return current
+            right = np.flatnonzero(cls == 0)
+            # a stride of each (weights scale the counts back up): a thin feature the stride misses is
+            # caught when the chosen candidate is verified on every pixel
+            wrong_s = wrong[:: max(1, wrong.size // (4 * SAMPLE))]
+            right_s = right[:: max(1, right.size // SAMPLE)]
+            w_weight = wrong.size / wrong_s.size
+            weight = right.size / max(1, right_s.size)
+            wrong = wrong_s
+            idx = np.concatenate([wrong, right_s])
+            n_w = wrong.size
+            before = cls[idx]
+            cands = _moves(current, rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES) + _profile_moves(current)
+            scored = []
+            for k, c in enumerate(cands):
+                # one step from the scene's own rules: every image of this scene asks for it, keep it
+                first = len(start.differs(c)) == 1
+                v = vc if c.traced() == current.traced() else self.cache.subset(self.scene, c, idx, keep=first)
+                color = v.color.reshape(-1, 3)[idx] if v.idx is None else v.color
+                d = self.target.difference(color, c, idx)
+                if d is None:
+                    continue
+                after = self._cls(d)
+                # ill-conditioned pixels count for neither; they matter only where the two differ
+                keep = np.ones(idx.size, dtype=bool)
+                ch = np.flatnonzero(before != after)
+                at = ch if v is not vc else idx[ch]
+                keep[ch] = ~(self.ill_at(current, vc, idx[ch]) | self.ill_at(c, v, at))
+                w_, r_ = slice(0, n_w), slice(n_w, None)
+
+                def count(sl, b, a, keep=keep, before=before, after=after):
+                    return int(((before[sl] == b) & (after[sl] == a) & keep[sl]).sum())
+
+                fixed2 = (count(w_, 2, 0) + count(w_, 2, 1)) * w_weight
+                fixed1 = count(w_, 1, 0) * w_weight
+                worse = count(w_, 1, 2) * w_weight  # one level off made worse: one more beyond, one fewer off
+                part = count(w_, 2, 1) * w_weight  # beyond made one level off: one more off
+                broke2 = count(r_, 0, 2) * weight
+                broke1 = count(r_, 0, 1) * weight
+                est = (fixed2 - worse - broke2, fixed1 - broke1 + worse - part)
+                if est > (0, 0):
+                    # most pixels first (beyond tolerance, then one level off); then the fewest rules
+                    # changed from the start; then a fixed order
+                    scored.append(((-est[0], -est[1]), len(start.differs(c)), k, c))
+            scored.sort(key=lambda s: s[:3])
+            for _, _, _, c in scored[:VERIFY]:
+                g = self.compare(current, c)
+                if g is not None and g > (0, 0):
+                    self.steps.append({"rules": current.differs(c), "gain": g[0], "gain_one_level": g[1]})
+                    current = self._best_output(c)
+                    break
+            else:
+                return current
+
+    def _best_output(self, rules: Rules) -> Rules:
+        """The output rules (no render needed) that fit the image best for these traced rules: every
+        encoding and gamma is encoded once and compared with the image in every layout, on a stride of
+        at most 16 SAMPLE pixels (single output-rule moves are verified in full later by the descent)."""
+        v = self.cache.get(self.scene, rules)
+        n = v.color.shape[0] * v.color.shape[1]
+        at = np.arange(0, n, max(1, n // (16 * SAMPLE)))
+        color, sill = v.color.reshape(-1, 3)[at], v.shadow_ill.reshape(-1)[at]
+        encs = rules_mod.values("encoding") if not self.target.is_float else (rules.encoding,)
+        best, best_key = rules, None
+        for enc in encs:
+            for gam in rules_mod.values("gamma"):
+                coded = _coded(color, replace(rules, encoding=enc, gamma=gam), self.target.is_float)
+                for tr in (False, True):
+                    for rows in rules_mod.values("rows"):
+                        for ch in rules_mod.values("channels"):
+                            cand = replace(rules, encoding=enc, gamma=gam, transpose=tr, rows=rows, channels=ch)
+                            img = self.target.in_layout(cand)
+                            if img.shape[:2] != self.target._model_shape:
+                                continue
+                            d = np.abs(coded - img.reshape(-1, 3)[at]).max(-1)
+                            key = (*self.target.score(d, ~sill), len(rules.differs(cand)))
+                            if best_key is None or key < best_key:
+                                best, best_key = cand, key
+        return best
+
+    def _score(self, rules: Rules) -> tuple[float, float]:
+        d, _ = self.full(rules)
+        return (math.inf, math.inf) if d is None else self.target.score(d)
+
+    def _refine_exponent(self, rules: Rules) -> Rules:
+        """The exponent is an integer: the listed values are a coarse grid; search the integers between
+        the best one's neighbours (the mismatch count is unimodal in the exponent in practice)."""
+        e = rules.specular_exponent
+        if self._score(rules) == (0, 0) or not rules_mod.effects(self.scene, rules).specular:
+            return rules
+        grid = sorted(rules_mod.values("specular_exponent"))
+        lo = max([g for g in grid if g < e], default=1)
+        hi = min([g for g in grid if g > e], default=2 * e)
+
+        def f(x: int) -> tuple[float, float]:
+            return self._score(replace(rules, specular_exponent=x))
+
+        while hi - lo > 2:
+            m1, m2 = lo + (hi - lo) // 3, hi - (hi - lo) // 3
+            if f(m1) <= f(m2):
+                hi = m2
+            else:
+                lo = m1
+        best = min(range(lo, hi + 1), key=lambda x: (f(x), abs(x - e)))
+        cand = replace(rules, specular_exponent=best)
+        g = self.compare(rules, cand) if best != e else None
+        if g is not None and g > (0, 0):
+            self.steps.append({"rules": ["specular_exponent"], "gain": g[0], "gain_one_level": g[1]})
+            return cand
+        return rules
+
+    def final_mask(self, rules: Rules, f32_of: list[Rules]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(beyond-tolerance mask, off-by-any mask, ill mask) of ``rules`` on every pixel, leaving out
+        pixels ill-conditioned in it (band, shadows, float32 flips) or in the renders ``f32_of``."""
+        shape = self.target._model_shape
+        d, v = self.full(rules)
+        if d is None:
+            full = np.ones(shape, dtype=bool)
+            return full, full, np.zeros(shape, dtype=bool)
+        off = self.target.off(d)
+        ill = np.zeros(shape, dtype=bool)
+        where = np.flatnonzero(off.reshape(-1))
+        ill.reshape(-1)[where] = self.ill_at(rules, v, where)
+        for r in f32_of:
+            ill |= self.cache.get(self.scene, r, f32=True).f32_flips & off
+        return self.target.beyond(d) & ~ill, off & ~ill, ill
+
+
+def diagnose(scene: Scene, given: Rules, target: Target, cache: VariantCache | None = None) -> Diagnosis:
+    """Search rule space for the setting that best reproduces ``target`` (see the module's docstring)."""
+    cache = cache or VariantCache()
+    before = cache.renders
+    search = _Search(scene, target, cache)
+    best = search.run(given)
+    pair = [given, best]
+    mg, _, ill_g = search.final_mask(given, pair)
+    mb, off_b, ill_b = search.final_mask(best, pair)
+    shape = search.target._model_shape
+    explained = []
+    for name in given.differs(best):
+        back = replace(best, **{name: getattr(given, name)})
+        if not _valid(back):
+            back = replace(best, **{n: getattr(given, n) for n in _coupled(name)})
+        _, off_back, _ = search.final_mask(back, [])
+        gained = off_back & ~off_b & ~ill_b
+        explained.append(
+            Explained(name, rules_mod.format_rule_value(name, getattr(best, name)), int(gained.sum()), gained)
+        )
+    explained.sort(key=lambda e: (-e.pixels, e.rule))
+    return Diagnosis(
+        given=given,
+        best=best,
+        pixels=shape[0] * shape[1],
+        as_given_mask=mg,
+        best_mask=mb,
+        ill=ill_g | ill_b,
+        explained=explained,
+        indistinguishable=indistinguishable(scene, best, cache, target),
+        given_color=cache.get(scene, given).color,
+        best_color=cache.get(scene, best).color,
+        steps=search.steps,
+        renders=round(cache.renders - before, 2),
+    )
+
+
+def _coupled(name: str) -> tuple[str, ...]:
+    """Rules that are only valid together (reverting one alone would be an invalid rule set)."""
+    if name in ("offset", "offset_along"):
+        return ("offset", "offset_along")
+    return (name,)
+
+
+def indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Target) -> list[dict[str, Any]]:
+    """Single-rule changes of ``best`` that this scene cannot tell apart from it: written the same way,
+    their image equals best's on every pixel that is not ill-conditioned. Each with a bundled grading
+    scene that does tell them apart (None when none does). A change that differs on a stride of pixels
+    is told apart without a full render."""
+    vb = cache.get(scene, best)
+    h, w = vb.color.shape[:2]
+    stride = np.arange(0, h * w, max(1, (h * w) // (4 * SAMPLE)))
+    coded = _coded(vb.color.reshape(-1, 3), best, target.is_float)
+    out = []
+    for cand in _moves(best, rules_mod.TRACE_RULES):
+        (name,) = best.differs(cand)
+        if _distinct(scene, best, cand, coded, stride, cache, target.is_float) == 0:
+            value = getattr(cand, name)
+            out.append(
+                {
+                    "rule": name,
+                    "value": rules_mod.format_rule_value(name, value),
+                    "as": rules_mod.format_rule_value(name, getattr(best, name)),
+                    "scene_that_tells": tells_apart(name, getattr(best, name), value, cache),
+                }
+            )
+            if out[-1]["scene_that_tells"] is None:
+                out[-1]["why"] = why_same(name, getattr(best, name), value)
+            if out[-1]["scene_that_tells"] is None:
+                out[-1]["why"] = why_same(name, getattr(best, name), value)
+    return out
+
+
+def _coded(color: np.ndarray, rules: Rules, is_float: bool) -> np.ndarray:
+    if is_float:
+        return bitmap.transfer(color, rules.gamma)
+    return bitmap.encode(color, rules.encoding, rules.gamma).astype(np.int16)
+
+
+def _distinct(
+    scene: Scene, a: Rules, b: Rules, coded_a: np.ndarray, stride: np.ndarray, cache: VariantCache, is_float: bool
+) -> int:
+    """Pixels (not ill-conditioned in either) where b's image, written as a's output rules say, differs
+    from a's (``coded_a``, flat): 0 means the two cannot be told apart. Only a count below the stride's
+    says 0 is rendered in full."""
+    tol = FLOAT_TOL if is_float else 0
+    vs = cache.subset(scene, b, stride)
+    d = np.abs(_coded(vs.color, a, is_float) - coded_a[stride]).max(-1) > tol
+    if d.any():
+        where = stride[d]
+        va = cache.get(scene, a)
+        ill = (
+            va.shadow_ill.reshape(-1)[where]
+            | vs.shadow_ill[d]
+            | cache.band(scene, a, where)
+            | cache.band(scene, b, where)
+        )
+        if (~ill).any():
+            return int((~ill).sum())
+    vb = cache.get(scene, b)
+    d = np.abs(_coded(vb.color.reshape(-1, 3), a, is_float) - coded_a).max(-1) > tol
+    where = np.flatnonzero(d)
+    va = cache.get(scene, a)
+    ill = va.shadow_ill.reshape(-1)[where] | vb.shadow_ill.reshape(-1)[where]
+    ill |= cache.band(scene, a, where) | cache.band(scene, b, where)
+    return int((~ill).sum())
+
+
+# The bundled scenes that tell every pair of rule values apart (tests/test_diagnose.py proves it):
+# rules.toml alone separates all but one pair; the others add margin.
+GRADING_SET = ("rules", "three_balls", "exercise")
+
+# Pairs of values that give the same image whenever the other rules are the exercise's: with the offset
+# along the normal and "anything on the shadow ray blocks", a point facing away from the light always
+# shadows itself (its shadow ray re-enters its own surface), so clamping the diffuse term, or cutting the
+# highlight at s·n <= 0, never shows. Under the 2014 edition's rules (offset along the ray) they differ.
+SAME_UNDER_EXERCISE = {("clamp", frozenset({True, "specular"})): "eth2014"}
+
+
+def tells_apart(name: str, a: Any, b: Any, cache: VariantCache | None = None, min_pixels: int = 50) -> str | None:
+    """The first bundled grading scene in which rule ``name`` = a and = b differ on >= min_pixels pixels
+    (8-bit, as stored, ill-conditioned pixels left out), under the scene's own rules."""
+    for stem in GRADING_SET:
+        if distinct_pixels(stem, name, a, b, cache) >= min_pixels:
+            return stem
+    return None
+
+
+def why_same(name: str, a: Any, b: Any) -> str:
+    """Why no bundled scene tells two values apart (for the indistinguishable list)."""
+    if (name, frozenset({a, b})) in SAME_UNDER_EXERCISE:
+        return (
+            "the same image whenever secondary rays are offset along the normal and anything on the shadow ray "
+            "blocks: a point facing away from the light always shadows itself"
+        )
+    return "no bundled grading scene tells them apart"
+
+
+def distinct_pixels(
+    stem: str, name: str, a: Any, b: Any, cache: VariantCache | None = None, profile: str | None = None
+) -> int:
+    """Pixels of bundled scene ``stem`` (its own rules, or ``profile``'s; one ray per pixel) whose 8-bit
+    image differs between rule ``name`` = a and = b (0 when the scene is not installed)."""
+    from minirt.errors import SceneError
+    from minirt.scenes import bundled_scene
+
+    cache = cache or VariantCache()
+    try:
+        sc = bundled_scene(stem).with_overrides(samples=1)
+    except SceneError:  # a bundled scene missing from this install: ask the others
+        return 0
+    base = rules_mod.resolve(sc, profile)
+    ra, rb = _make_valid(replace(base, **{name: a})), _make_valid(replace(base, **{name: b}))
+    va, vb = cache.get(sc, ra), cache.get(sc, rb)
+    ia, ib = bitmap.bitmap(va.color, ra), bitmap.bitmap(vb.color, rb)
+    if ia.shape != ib.shape:
+        return ia.shape[0] * ia.shape[1]
+    differ = (ia != ib).any(-1)
+    if ra.transpose != rb.transpose or ra.rows != rb.rows or ra.channels != rb.channels:
+        return int(differ.sum())  # the layouts differ: compared as stored, nothing to leave out
+    where = np.flatnonzero(bitmap.undo_layout(differ[..., None], **bitmap.layout_of(ra))[..., 0].reshape(-1))
+    ill = va.shadow_ill.reshape(-1)[where] | vb.shadow_ill.reshape(-1)[where]
+    ill |= cache.band(sc, ra, where) | cache.band(sc, rb, where)
+    return int((~ill).sum())
+
+
+def _make_valid(r: Rules) -> Rules:
+    """offset_along = "ray" with the error-bound offset is no rule set: use the 2014 edition's 1e-3."""
+    if not _valid(r) and r.offset == "error-bound":
+        return replace(r, offset=1e-3)
+    return r
