@@ -154,7 +154,7 @@ def render(
                 bar.update(task, completed=1, total=1)
             results.append(res)
             if res.ok:
-                paths = write_result(res, dest, f"{scene.name}.{name}", timings=timings)
+                paths = write_result(res, dest, f"{scene.name}.{name}", timings=timings, rules=rules)
                 _report_render(res, paths)
             else:
                 err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {res.reason}")
@@ -531,6 +531,171 @@ def report(
     index = write_report(result, out_dir, command=command, sweep=sweep_data, sweep_dir=sweep_dir)
     out.print(f"{result.verdict.upper()}: wrote {index}")
     raise typer.Exit(result.exit_code())
+
+
+# ---------------------------------------------------------------------------------------------
+@app.command()
+def grade(
+    scene_path: Annotated[
+        str | None,
+        typer.Argument(
+            metavar="SCENE", help="The scene the image shows: a file or a bundled scene's name.", show_default=False
+        ),
+    ] = None,
+    image: Annotated[
+        Path | None,
+        typer.Argument(
+            metavar="IMAGE", help="The other tracer's image: PNG, BMP, PPM/PGM, TGA, TIFF or EXR.", show_default=False
+        ),
+    ] = None,
+    json_out: Annotated[
+        str | None, typer.Option("--json", metavar="FILE", help="Write the grade as JSON (- for standard output).")
+    ] = None,
+    out_dir: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Write an HTML page with the pictures (DIR/index.html).")
+    ] = None,
+    class_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--class", metavar="DIR", help="Grade a whole class: DIR/<student>/<scene stem>.png (any supported type)."
+        ),
+    ] = None,
+    scenes_dir: Annotated[
+        Path | None,
+        typer.Option("--scenes", metavar="DIR", help="With --class: the scenes (default: the bundled scenes)."),
+    ] = None,
+    size: Annotated[str | None, typer.Option("--size", help="The scene rendered at WIDTHxHEIGHT.")] = None,
+    profile: ProfileOpt = None,
+    rule: RuleOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Grade another tracer's image of a scene: is it the exercise's model, and if not, which rule
+    settings explain it (searched over every rule; `minirt render SCENE --rule ...` with them reproduces
+    the image).
+
+    Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
+    (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,
+    one row per student and scene (missing or unreadable images are rows with verdict "error"); exit 0
+    when the class was graded.
+    """
+    if class_dir is not None:
+        if scene_path is not None or image is not None:
+            raise MinirtError("--class grades DIR/<student>/<scene>.png: give no SCENE or IMAGE with it")
+        _grade_class(class_dir, scenes_dir, out_dir or Path("grades"), json_out, size, profile, rule, quiet)
+        return
+    if scene_path is None or image is None:
+        raise MinirtError(
+            "grade needs SCENE and IMAGE (or --class DIR), e.g. minirt grade scenes/rules.toml student.png"
+        )
+    if scenes_dir is not None:
+        raise MinirtError("--scenes goes with --class")
+    from minirt import grade as grading
+    from minirt.scenes import find_scene
+
+    if json_out not in (None, "-"):
+        _out_file(Path(json_out), "--json")
+    if out_dir is not None:
+        _out_dir(out_dir)
+    path = find_scene(scene_path)
+    wh = _parse_size(size)
+    scene, rules = _load(path, *(wh or (None, None)), None, profile, rule)
+    with _progress(not quiet) as bar:
+        task = bar.add_task("grading", total=None) if bar else None
+        g = grading.grade_image(scene, str(path), image, rules, size_override=wh)
+        if bar:
+            bar.update(task, completed=1, total=1)
+    if json_out is not None:
+        _emit_json(json_out, g.as_dict())
+    page = None
+    if out_dir is not None:
+        from minirt.grade_report import write_grade_page
+
+        page = write_grade_page(g, out_dir)
+    if json_out != "-":
+        _print_grade(g, page)
+    raise typer.Exit(g.exit_code)
+
+
+def _emit_json(dest: str, data: dict[str, Any]) -> None:
+    if dest == "-":
+        sys.stdout.write(json.dumps(data, indent=2, sort_keys=True) + "\n")
+        return
+    from minirt.imageio import write_json
+
+    write_json(Path(dest), data)
+
+
+def _print_grade(g, page: Path | None) -> None:
+    from minirt import grade as grading
+
+    style = {"match": "green", "differs": "yellow", "error": "red"}[g.verdict]
+    err.print(f"[bold {style}]{g.verdict.upper()}[/]", end=" ")
+    err.print(f"{g.scene.name}: {g.summary()}", markup=False)
+    for note in g.notes:
+        err.print(f"  note: {note}", markup=False)
+    d = g.diagnosis
+    for e in d.explained:
+        s = grading.sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule))
+        err.print(f"  {e.rule}={e.value} ({e.pixels} pixels): {s}", markup=False)
+    for i in d.indistinguishable:
+        tell = (
+            f"scene {i['scene_that_tells']} tells them apart"
+            if i["scene_that_tells"]
+            else "no bundled scene tells them apart"
+        )
+        err.print(f"  cannot tell {i['rule']}={i['value']} from {i['as']} in this scene ({tell})", markup=False)
+    if d.changed:
+        err.print(f"  reproduce: {g.reproduce()}", markup=False)
+    if page is not None:
+        out.print(f"wrote {page}", markup=False)
+
+
+def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet) -> None:
+    from minirt import diagnose as dg
+    from minirt import grade as grading
+    from minirt.grade_report import write_class_page
+    from minirt.imageio import write_json
+    from minirt.scenes import BUNDLED
+
+    people = grading.students(class_dir)
+    folder = scenes_dir or BUNDLED
+    if not folder.is_dir():
+        raise MinirtError(f"--scenes {folder}: no such folder")
+    files = sorted(folder.glob("*.toml"))
+    submitted = {p.stem for s in people for p in s.iterdir() if p.is_file()}
+    files = [f for f in files if f.stem in submitted]
+    if not files:
+        raise MinirtError(f"--class {class_dir}: no image is named after a scene in {folder} (e.g. exercise.png)")
+    if json_out not in (None, "-"):
+        _out_file(Path(json_out), "--json")
+    _out_dir(out_dir)
+    wh = _parse_size(size)
+    loaded = [(f, *_load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
+    cache = dg.VariantCache()
+    rows = []
+    total = len(people) * len(loaded)
+    with _progress(not quiet) as bar:
+        task = bar.add_task("grading", total=total) if bar else None
+        for s in people:
+            for f, scene, rules in loaded:
+                if bar:
+                    bar.update(task, description=f"{s.name[:16]:<16} {f.stem[:12]:<12}")
+                rows.append(grading.grade_one_row(s, scene, str(f), rules, cache))
+                if bar:
+                    bar.advance(task)
+    summary = grading.class_dict(rows, [f.stem for f in files])
+    index = write_class_page(rows, summary, out_dir, quiet=quiet)
+    summary["grades"] = [r.as_dict() for r in rows]  # with the pages' links
+    grading.write_csv(out_dir / "grades.csv", rows)
+    write_json(out_dir / "grades.json", summary)
+    if json_out is not None:
+        _emit_json(json_out, summary)
+    v = summary["verdicts"]
+    out.print(
+        f"graded {len(people)} students x {len(files)} scenes: {v['match']} match, {v['differs']} differ, "
+        f"{v['error']} error; wrote {index}",
+        markup=False,
+    )
 
 
 # ---------------------------------------------------------------------------------------------
