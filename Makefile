@@ -20,12 +20,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	@touch $(STAMP)
 
-# The main job: every backend on the exercise scene, then the comparison report of all bundled scenes.
-# A FAIL verdict (exit 1) still leaves a report to read; bad input or a backend error (exit 2) stops.
+# The main job: every backend on the exercise scene, the comparison report of all bundled scenes, then
+# the headline feature: grade a sample "student" image (a render with wrong rules, shipped in scenes/samples).
+# A FAIL or DIFFERS verdict (exit 1) still leaves a page to read; bad input or a backend error (exit 2) stops.
 demo: setup
 	$(BIN)/minirt render scenes/exercise.toml --backend all --out renders/exercise
 	$(BIN)/minirt report --out reports || test $$? -eq 1
 	@echo "open reports/index.html"
+	$(BIN)/minirt grade scenes/rules.toml scenes/samples/rules.student.png --out grades/sample || test $$? -eq 1
+	@echo "open grades/sample/index.html (the sample student's grade)"
 
 # Refresh the committed sample report (bundled scenes at 64x64, every backend).
 sample: setup
@@ -55,4 +58,4 @@ fuzz: setup
 	$(BIN)/python tools/fuzz_scenes.py --seed $(or $(SEED),1) --count $(or $(COUNT),12) --size $(or $(SIZE),24)
 
 clean:
-	rm -rf $(VENV) renders out .pytest_cache
+	rm -rf $(VENV) renders out grades .pytest_cache

@@ -309,9 +309,27 @@ def _valid(r: Rules) -> bool:
     return not rules_mod.validate_model_table("exercise", r.as_dict())
 
 
-def _moves(current: Rules, names: tuple[str, ...]) -> list[Rules]:
+def _moot(scene: Scene, rules: Rules) -> set[str]:
+    """Rules that provably change no pixel of this scene (minirt.rules.effects): the exponent and the
+    clamp without lit terms, the background when it is black, offsets without secondary rays."""
+    fx = rules_mod.effects(scene, rules)
+    out = set()
+    if not fx.specular:
+        out.add("specular_exponent")
+    if not (fx.diffuse or fx.specular):
+        out.add("clamp")
+    if not any(scene.background):
+        out.add("background")
+    if not (fx.shadows or fx.reflection):
+        out |= {"offset", "offset_along"}
+    return out
+
+
+def _moves(current: Rules, names: tuple[str, ...], moot: set[str] = frozenset()) -> list[Rules]:
     out = []
     for name in names:
+        if name in moot:
+            continue
         for v in rules_mod.values(name):
             if v != getattr(current, name):
                 cand = replace(current, **{name: v})
@@ -402,7 +420,8 @@ class _Search:
             idx = np.concatenate([wrong, right_s])
             n_w = wrong.size
             before = cls[idx]
-            cands = _moves(current, rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES) + _profile_moves(current)
+            moot = _moot(self.scene, current)
+            cands = _moves(current, rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES, moot) + _profile_moves(current)
             scored = []
             for k, c in enumerate(cands):
                 # one step from the scene's own rules: every image of this scene asks for it, keep it
@@ -447,10 +466,10 @@ class _Search:
     def _best_output(self, rules: Rules) -> Rules:
         """The output rules (no render needed) that fit the image best for these traced rules: every
         encoding and gamma is encoded once and compared with the image in every layout, on a stride of
-        at most 16 SAMPLE pixels (single output-rule moves are verified in full later by the descent)."""
+        about 4 SAMPLE pixels (single output-rule moves are verified in full later by the descent)."""
         v = self.cache.get(self.scene, rules)
         n = v.color.shape[0] * v.color.shape[1]
-        at = np.arange(0, n, max(1, n // (16 * SAMPLE)))
+        at = np.arange(0, n, max(1, n // (4 * SAMPLE)))
         color, sill = v.color.reshape(-1, 3)[at], v.shadow_ill.reshape(-1)[at]
         encs = rules_mod.values("encoding") if not self.target.is_float else (rules.encoding,)
         best, best_key = rules, None
@@ -572,9 +591,10 @@ def indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Ta
     stride = np.arange(0, h * w, max(1, (h * w) // (4 * SAMPLE)))
     coded = _coded(vb.color.reshape(-1, 3), best, target.is_float)
     out = []
+    moot = _moot(scene, best)
     for cand in _moves(best, rules_mod.TRACE_RULES):
         (name,) = best.differs(cand)
-        if _distinct(scene, best, cand, coded, stride, cache, target.is_float) == 0:
+        if name in moot or _distinct(scene, best, cand, coded, stride, cache, target.is_float) == 0:
             value = getattr(cand, name)
             out.append(
                 {
