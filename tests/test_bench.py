@@ -99,3 +99,23 @@ def test_targets(quick):
     for t in res["targets"]:
         assert _positive(t["measured"]) and t["verdict"] in ("PASS", "MISS", "n/a")
         assert t["verdict"] == "n/a"  # --quick sizes are not the targets' conditions
+
+
+@pytest.mark.slow
+def test_grade_benchmark_quick(tmp_path):
+    """benchmarks/bench_grade.py --quick: every section present, times positive, every class image graded
+    and every diagnosis reproducing its image (the quick class is 3 students x 6 scenes at 48x48)."""
+    out = tmp_path / "grade.json"
+    p = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_grade.py"), "--quick", "--out", str(out)],
+        cwd=ROOT, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr[-2000:]
+    r = json.loads(out.read_text())
+    assert all(_positive(t) for t in r["single"]["cold_s"] + r["single"]["warm_kernels_s"])
+    assert r["single"]["found"] == r["single"]["injected"]
+    assert _positive(r["class_cache"]["second_s"]) and r["class_cache"]["second_found"]
+    k = r["class"]
+    assert k["images"] == 18 and k["verdicts"]["error"] == 0
+    assert k["reproduced_fully"] == 18, k
+    assert "| class 3×6 at 48² |" in p.stdout
