@@ -357,6 +357,15 @@ SAMPLE = 4096
 VERIFY = 3  # candidates verified in full per step before the search gives up
 
 
+@dataclass
+class _Subset:
+    idx: np.ndarray  # pixels: the wrong ones' stride, then the right ones'
+    n_wrong: int
+    w_weight: float
+    r_weight: float
+    before: np.ndarray | None = None  # the current rules' class of each
+
+
 class _Search:
     def __init__(self, scene: Scene, target: Target, cache: VariantCache):
         self.scene, self.target, self.cache = scene, target, cache
@@ -382,25 +391,74 @@ class _Search:
         if da is None or db is None:
             return None if db is None else (1 << 40, 0)
         differ = np.flatnonzero((self._cls(da) != self._cls(db)).reshape(-1))
-        keep = ~(self.ill_at(a, va, differ) | self.ill_at(b, vb, differ))
+        keep = ~(self.ill_at(a, va, differ) | self.ill_at(b, vb, differ) | self.flips(a)[differ])
         sa = self.target.score(da.reshape(-1)[differ], keep)
         sb = self.target.score(db.reshape(-1)[differ], keep)
         return sa[0] - sb[0], sa[1] - sb[1]
+
+    def flips(self, rules: Rules) -> np.ndarray:
+        """(H·W,) pixels a float32 render of these rules draws otherwise: a float32 tracer's rounding, not
+        a rule, decides them (self-shadowing acne under a fixed offset, reflected edges). The current
+        rules' flips are left out while searching, so a student's float32 acne never reads as a rule."""
+        return self.cache.get(self.scene, rules, f32=True).f32_flips.reshape(-1)
 
     def _cls(self, d: np.ndarray) -> np.ndarray:
         """Per pixel: 0 exact, 1 one level off, 2 beyond tolerance."""
         return np.where(self.target.beyond(d), 2, np.where(self.target.off(d), 1, 0)).astype(np.int8)
 
     def run(self, start: Rules) -> Rules:
-        current = self._best_output(start)
+        """Descend; where pixels stay unexplained, descend again from the start with each rule the
+        answer changed forbidden in the first step, and keep what explains most. A greedy step can take
+        a rule that imitates the right one (a high exponent dims the wrong-side highlight that clamping
+        removes) and then stall; the restart lets the right one go first."""
+        self.start = start
+        first = self._best_output(start)
+        self.steps = []
+        best = self._converge(start, first)
+        path = self.steps
+        tried: set[str] = set()
+        while self._residual(best):
+            names = [n for n in best.differs(start) if n in rules_mod.TRACE_RULES and n not in tried]
+            if not names:
+                break
+            tried.update(names)
+            improved = False
+            for name in names:
+                self.steps = []
+                alt = self._converge(start, first, tabu=name)
+                g = self.compare(best, alt) if alt != best else None
+                if g is not None and g > (0, 0):
+                    best, path, improved = alt, self.steps, True
+            if not improved:
+                break
+        self.steps = path
+        return best
+
+    def _residual(self, rules: Rules) -> int:
+        """Pixels beyond tolerance under ``rules`` that are not ill-conditioned (nor float32 flips)."""
+        d, v = self.full(rules)
+        if d is None:
+            return self.target._model_shape[0] * self.target._model_shape[1]
+        where = np.flatnonzero(self.target.beyond(d).reshape(-1))
+        return int((~(self.ill_at(rules, v, where) | self.flips(rules)[where])).sum())
+
+    def _converge(self, start: Rules, current: Rules, tabu: str | None = None) -> Rules:
         while True:
-            current = self._descend(start, current)
+            current = self._descend(start, current, tabu)
+            tabu = None
             refined = self._refine_exponent(current)
             if refined == current:
                 return current
             current = refined  # an exponent between the grid's values: other rules may now read differently
 
-    def _descend(self, start: Rules, current: Rules) -> Rules:
+    def _descend(self, start: Rules, current: Rules, tabu: str | None = None) -> Rules:
+        """Greedy steps from ``current`` until no single change (or profile) removes mismatching pixels.
+
+        Each step: (1) every candidate is scored on a subset of pixels (a stride of the wrong ones and
+        of the right ones, counts scaled back up), traced on those pixels only -- unless it is one step
+        from the scene's own rules (rendered in full once, shared by every image of the scene) or
+        changes only output rules (no render). (2) The best VERIFY are rendered in full and the first
+        that really gains is taken."""
         while True:
             dc, vc = self.full(current)
             if dc is None:
@@ -410,58 +468,103 @@ class _Search:
             if wrong.size == 0:
                 return current
             right = np.flatnonzero(cls == 0)
-            # a stride of each (weights scale the counts back up): a thin feature the stride misses is
-            # caught when the chosen candidate is verified on every pixel
             wrong_s = wrong[:: max(1, wrong.size // (4 * SAMPLE))]
             right_s = right[:: max(1, right.size // SAMPLE)]
-            w_weight = wrong.size / wrong_s.size
-            weight = right.size / max(1, right_s.size)
-            wrong = wrong_s
-            idx = np.concatenate([wrong, right_s])
-            n_w = wrong.size
-            before = cls[idx]
+            sub = _Subset(
+                idx=np.concatenate([wrong_s, right_s]),
+                n_wrong=wrong_s.size,
+                w_weight=wrong.size / wrong_s.size,
+                r_weight=right.size / max(1, right_s.size),
+            )
+            sub.before = cls[sub.idx]
+            flips = self.flips(current)
             moot = _moot(self.scene, current)
-            cands = _moves(current, rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES, moot) + _profile_moves(current)
-            scored = []
-            for k, c in enumerate(cands):
-                # one step from the scene's own rules: every image of this scene asks for it, keep it
-                first = len(start.differs(c)) == 1
-                v = vc if c.traced() == current.traced() else self.cache.subset(self.scene, c, idx, keep=first)
-                color = v.color.reshape(-1, 3)[idx] if v.idx is None else v.color
-                d = self.target.difference(color, c, idx)
-                if d is None:
-                    continue
-                after = self._cls(d)
-                # ill-conditioned pixels count for neither; they matter only where the two differ
-                keep = np.ones(idx.size, dtype=bool)
-                ch = np.flatnonzero(before != after)
-                at = ch if v is not vc else idx[ch]
-                keep[ch] = ~(self.ill_at(current, vc, idx[ch]) | self.ill_at(c, v, at))
-                w_, r_ = slice(0, n_w), slice(n_w, None)
-
-                def count(sl, b, a, keep=keep, before=before, after=after):
-                    return int(((before[sl] == b) & (after[sl] == a) & keep[sl]).sum())
-
-                fixed2 = (count(w_, 2, 0) + count(w_, 2, 1)) * w_weight
-                fixed1 = count(w_, 1, 0) * w_weight
-                worse = count(w_, 1, 2) * w_weight  # one level off made worse: one more beyond, one fewer off
-                part = count(w_, 2, 1) * w_weight  # beyond made one level off: one more off
-                broke2 = count(r_, 0, 2) * weight
-                broke1 = count(r_, 0, 1) * weight
-                est = (fixed2 - worse - broke2, fixed1 - broke1 + worse - part)
-                if est > (0, 0):
-                    # most pixels first (beyond tolerance, then one level off); then the fewest rules
-                    # changed from the start; then a fixed order
-                    scored.append(((-est[0], -est[1]), len(start.differs(c)), k, c))
-            scored.sort(key=lambda s: s[:3])
-            for _, _, _, c in scored[:VERIFY]:
-                g = self.compare(current, c)
-                if g is not None and g > (0, 0):
-                    self.steps.append({"rules": current.differs(c), "gain": g[0], "gain_one_level": g[1]})
-                    current = self._best_output(c)
-                    break
-            else:
+            singles = _moves(current, rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES, moot) + _profile_moves(current)
+            if tabu:
+                singles = [c for c in singles if tabu not in current.differs(c)]
+                tabu = None
+            better = self._step(start, current, vc, sub, flips, singles)
+            if better is None:
                 return current
+            current = better
+
+    def _step(self, start: Rules, current: Rules, vc: Variant, sub: _Subset, flips, cands: list[Rules]):
+        """The candidate that really gains most, or None (see ``_descend``)."""
+        scored = []
+        for k, c in enumerate(cands):
+            est = self._estimate(start, current, vc, c, sub.idx)
+            traced = est is None
+            if traced:
+                est = self._traced(start, current, vc, c, sub.idx)
+            e = self._gain_on(sub, current, vc, c, *est, flips)
+            if e is not None and e > (0, 0):
+                scored.append([(-e[0], -e[1]), len(start.differs(c)), k, c, traced])
+        scored.sort(key=lambda s: s[:3])
+        for _, _, _, c, _ in scored[:VERIFY]:
+            g = self.compare(current, c)
+            if g is not None and g > (0, 0):
+                self.steps.append({"rules": current.differs(c), "gain": g[0], "gain_one_level": g[1]})
+                return self._best_output(c)
+        return None
+
+    def _one_step(self, start: Rules, name: str, value: Any) -> Variant | None:
+        """The full render of the scene's own rules with one rule changed (shared across images)."""
+        r = start if value == getattr(start, name) else replace(start, **{name: value})
+        return self.cache.get(self.scene, r) if _valid(r) else None
+
+    def _estimate(
+        self, start: Rules, current: Rules, vc: Variant, c: Rules, idx: np.ndarray
+    ) -> tuple[np.ndarray, Variant, np.ndarray] | None:
+        """(colour at idx, the variant whose ill-conditioned flags stand for the candidate's, positions
+        in it) when it needs no tracing: an output-rule change (the same colour) or a change that makes
+        the candidate a one-step render from the scene's own rules (shared by every image of the
+        scene). None otherwise: composing one-step differences was tried and misleads where rules
+        interact (clamping and the exponent act on the same highlight)."""
+        changed = [n for n in current.differs(c) if n in rules_mod.TRACE_RULES]
+        if not changed:
+            return vc.color.reshape(-1, 3)[idx], vc, idx
+        if len(changed) == 1:
+            (name,) = changed
+            old = self._one_step(start, name, getattr(current, name))
+            if old is not None and current.traced() == old.rules:
+                new = self._one_step(start, name, getattr(c, name))
+                if new is not None:
+                    return new.color.reshape(-1, 3)[idx], new, idx
+        return None
+
+    def _traced(self, start: Rules, current: Rules, vc: Variant, c: Rules, idx: np.ndarray):
+        if c.traced() == current.traced():
+            return vc.color.reshape(-1, 3)[idx], vc, idx
+        # one step from the scene's own rules: every image of this scene asks for it, keep it
+        v = self.cache.subset(self.scene, c, idx, keep=len(start.differs(c)) == 1)
+        return v.color, v, np.arange(idx.size)
+
+    def _gain_on(
+        self, sub: _Subset, current: Rules, vc: Variant, c: Rules, color, v: Variant, at: np.ndarray, flips
+    ) -> tuple[float, float] | None:
+        """The candidate's estimated gain over the current rules on the subset: (pixels beyond tolerance,
+        pixels one level off) it fixes minus those it breaks, the stride's counts scaled back up."""
+        d = self.target.difference(color, c, sub.idx)
+        if d is None:
+            return None
+        before, after = sub.before, self._cls(d)
+        # ill-conditioned pixels count for neither; they matter only where the two differ
+        keep = np.ones(sub.idx.size, dtype=bool)
+        ch = np.flatnonzero(before != after)
+        where = sub.idx[ch]
+        keep[ch] = ~(self.ill_at(current, vc, where) | self.ill_at(c, v, at[ch]) | flips[where])
+        w_, r_ = slice(0, sub.n_wrong), slice(sub.n_wrong, None)
+
+        def count(sl, b, a):
+            return int(((before[sl] == b) & (after[sl] == a) & keep[sl]).sum())
+
+        fixed2 = (count(w_, 2, 0) + count(w_, 2, 1)) * sub.w_weight
+        fixed1 = count(w_, 1, 0) * sub.w_weight
+        worse = count(w_, 1, 2) * sub.w_weight  # one level off made worse: one more beyond, one fewer off
+        part = count(w_, 2, 1) * sub.w_weight  # beyond made one level off: one more off
+        broke2 = count(r_, 0, 2) * sub.r_weight
+        broke1 = count(r_, 0, 1) * sub.r_weight
+        return fixed2 - worse - broke2, fixed1 - broke1 + worse - part
 
     def _best_output(self, rules: Rules) -> Rules:
         """The output rules (no render needed) that fit the image best for these traced rules: every
@@ -494,25 +597,39 @@ class _Search:
         return (math.inf, math.inf) if d is None else self.target.score(d)
 
     def _refine_exponent(self, rules: Rules) -> Rules:
-        """The exponent is an integer: the listed values are a coarse grid; search the integers between
-        the best one's neighbours (the mismatch count is unimodal in the exponent in practice)."""
+        """The exponent is an integer and the listed values a coarse grid: when the search moved it,
+        look between half and twice the value found. The count of mismatching pixels is flat away from
+        the right exponent (a highlight is wrong or right), so the search follows the summed level
+        difference on a stride of pixels, which falls towards it -- separately for odd and even
+        exponents (unclamped, an odd power of a negative r·s is negative: a different curve)."""
         e = rules.specular_exponent
-        if self._score(rules) == (0, 0) or not rules_mod.effects(self.scene, rules).specular:
+        if e == self.start.specular_exponent or not rules_mod.effects(self.scene, rules).specular:
+            return rules  # the grid did not move the exponent: no sign it lies between grid values
+        if not self._residual(rules):
             return rules
-        grid = sorted(rules_mod.values("specular_exponent"))
-        lo = max([g for g in grid if g < e], default=1)
-        hi = min([g for g in grid if g > e], default=2 * e)
+        n = self.target._model_shape[0] * self.target._model_shape[1]
+        at = np.arange(0, n, max(1, n // (4 * SAMPLE)))
+        memo: dict[int, float] = {}
 
-        def f(x: int) -> tuple[float, float]:
-            return self._score(replace(rules, specular_exponent=x))
+        def l1(x: int) -> float:
+            if x not in memo:
+                r = replace(rules, specular_exponent=x)
+                v = self.cache.subset(self.scene, r, at)
+                memo[x] = float(self.target.difference(v.color, r, at)[~v.shadow_ill].sum())
+            return memo[x]
 
-        while hi - lo > 2:
-            m1, m2 = lo + (hi - lo) // 3, hi - (hi - lo) // 3
-            if f(m1) <= f(m2):
-                hi = m2
-            else:
-                lo = m1
-        best = min(range(lo, hi + 1), key=lambda x: (f(x), abs(x - e)))
+        found = []
+        for parity in (0, 1):
+            xs = [x for x in range(max(1, e // 2), 2 * e + 1) if x % 2 == parity]
+            lo, hi = 0, len(xs) - 1
+            while hi - lo > 2:
+                m1, m2 = lo + (hi - lo) // 3, hi - (hi - lo) // 3
+                if l1(xs[m1]) <= l1(xs[m2]):
+                    hi = m2
+                else:
+                    lo = m1
+            found.append(min(xs[lo : hi + 1], key=lambda x: (l1(x), abs(x - e))))
+        best = min(found, key=lambda x: (l1(x), abs(x - e)))
         cand = replace(rules, specular_exponent=best)
         g = self.compare(rules, cand) if best != e else None
         if g is not None and g > (0, 0):
