@@ -204,6 +204,28 @@ def read_student_image(path: str | Path) -> tuple[np.ndarray, bool]:
         raise MinirtError(
             f"{path}: unsupported image type {path.suffix or '(none)'} (use {', '.join(STUDENT_EXTENSIONS)})"
         )
+    with _quiet_stderr():  # libpng and friends print their own complaint; ours is the one line
+        return _read_student_image(path)
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Silence what C libraries write to file descriptor 2 (Python's own stderr is untouched)."""
+    try:
+        sys_err = os.dup(2)
+    except OSError:
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(sys_err, 2)
+        os.close(sys_err)
+
+
+def _read_student_image(path: Path) -> tuple[np.ndarray, bool]:
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise MinirtError(f"{path}: cannot read image: {_one_line(oiio.geterror())}")
