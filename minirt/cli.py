@@ -200,21 +200,51 @@ def _render_table(results) -> None:
 # ---------------------------------------------------------------------------------------------
 @app.command()
 def probe(
-    scene_path: SceneArg,
+    scene_path: Annotated[
+        str,
+        typer.Argument(
+            metavar="SCENE", help="A scene file or a bundled scene's name, e.g. exercise.", show_default=False
+        ),
+    ],
     x: Annotated[int, typer.Argument(help="Pixel column (0 = left).", show_default=False)],
     y: Annotated[int, typer.Argument(help="Pixel row (0 = top).", show_default=False)],
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
+    image: Annotated[
+        Path | None,
+        typer.Option(
+            "--image", metavar="IMAGE", help="Another tracer's image of the scene: show its value at the pixel too."
+        ),
+    ] = None,
     width: WidthOpt = None,
     height: HeightOpt = None,
     precision: Annotated[Precision, typer.Option("--precision")] = Precision.f64,
     profile: ProfileOpt = None,
     rule: RuleOpt = None,
 ) -> None:
-    """Trace one pixel step by step: ray, every shape's intersection, shadow ray, terms, reflections."""
-    from minirt.probe import probe as run_probe
+    """Trace one pixel step by step: ray, every shape's intersection, shadow ray, terms, reflections.
 
-    scene, rules = _load(scene_path, width, height, None, profile, rule)
+    With --image, the other tracer's value at that pixel beside the reference's (read as `grade` reads it).
+    """
+    from minirt.probe import image_pixel
+    from minirt.probe import probe as run_probe
+    from minirt.scenes import find_scene
+
+    scene, rules = _load(find_scene(scene_path), width, height, None, profile, rule)
+    target = notes = None
+    if image is not None:
+        from minirt.grade import check_size, load_target
+
+        target = load_target(image)
+        try:
+            notes = check_size(scene, target, str(image))
+        except MinirtError as e:  # grade's message, with probe's options for the size
+            rows, cols = target.shape
+            raise MinirtError(
+                str(e).replace(f"grade with --size {cols}x{rows}", f"probe with --width {cols} --height {rows}")
+            ) from None
     p = run_probe(scene, rules, x, y, precision.value)
+    if target is not None:
+        p["image"] = image_pixel(scene, p, target, rules, notes)
     if as_json:
         out.print_json(json.dumps(p))
         return
@@ -256,6 +286,18 @@ def _print_probe(p: dict[str, Any]) -> None:
         for k, v in lvl["terms"].items():
             out.print(f"{ind}  {k:<10} {_fmt(v)}")
     out.print(f"colour {_fmt(p['color'])} -> clamped {_fmt(p['color_clamped'])} -> 8-bit {tuple(p['color8'])}")
+    im = p.get("image")
+    if im:
+        for note in im["notes"]:
+            out.print(f"note: {note}", markup=False)
+        if im["format"] == "float":
+            yours, ref = _fmt(im["value"]), _fmt(im["reference"])
+            diff = "the same" if im["difference"] == 0 else f"differs by {im['difference']:.6g}"
+        else:
+            yours, ref = str(tuple(im["value"])), str(tuple(im["reference"]))
+            n = im["difference"]
+            diff = "the same" if n == 0 else f"differs by {n} level{'s' if n != 1 else ''}"
+        out.print(f"your image: {yours} [{im['format']}]  reference: {ref} -> {diff}", markup=False)
 
 
 # ---------------------------------------------------------------------------------------------

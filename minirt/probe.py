@@ -113,3 +113,48 @@ def _color8(c: np.ndarray, rules: Rules) -> np.ndarray:
     from minirt.bitmap import encode
 
     return encode(c.reshape(1, 1, 3), rules.encoding, rules.gamma).reshape(3)
+
+
+def image_pixel(
+    scene: Scene, p: dict[str, Any], target: Any, rules: Rules, notes: list[str] | None = None
+) -> dict[str, Any]:
+    """Another tracer's value at the probed pixel beside the reference's (``p``, from ``probe``).
+
+    ``target`` is a ``minirt.diagnose.Target`` (``minirt.grade.load_target``) whose size
+    ``minirt.grade.check_size`` has accepted. It is brought back to the scene's layout under the
+    layout rules of ``rules`` -- or, when it is stored transposed and the rules do not say so (the
+    note ``check_size`` gives), read transposed. An 8-bit image is compared with the reference's
+    8-bit value written under the output rules (``color8``), a float image with the clamped colour
+    through the gamma rule; ``difference`` is the largest channel's (levels, or float units)."""
+    from dataclasses import replace
+
+    from minirt.bitmap import transfer
+
+    x, y = p["pixel"]
+    shape = (scene.camera.height, scene.camera.width)
+    img = target.in_layout(rules)
+    transposed = False
+    if img.shape[:2] != shape:
+        img = target.in_layout(replace(rules, transpose=not rules.transpose))
+        transposed = True
+    if img.shape[:2] != shape:  # check_size rules this out; say so plainly if a caller skipped it
+        raise MinirtError(
+            f"{target.name}: the image is {target.shape[1]}x{target.shape[0]}, the scene {shape[1]}x{shape[0]}"
+        )
+    if target.is_float:
+        value = [float(v) for v in img[y, x]]
+        ref: list[Any] = [float(v) for v in transfer(np.array(p["color"]), rules.gamma)]
+    else:
+        value = [int(v) for v in img[y, x]]
+        ref = [int(v) for v in p["color8"]]
+    diff = max(abs(a - b) for a, b in zip(value, ref, strict=True))
+    return {
+        "file": target.name,
+        "format": "float" if target.is_float else "8-bit",
+        "value": value,
+        "reference": ref,
+        "difference": diff,
+        "unit": "float" if target.is_float else "levels",
+        "read_transposed": transposed,
+        "notes": list(notes or []),
+    }
