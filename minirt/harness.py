@@ -16,8 +16,12 @@ For each scene and oracle:
    (Mitsuba's sensor); and, from an oracle that can shoot the reference's own stratified samples
    (POV-Ray's mesh camera), the averaged image compared per pixel like a one-ray render, with the
    band taken over every sample's ray.
-5. Rules: the difference between the exercise-profile image and the oracle's rules is attributed
-   to each rule singly (pixels changed, and a mask per rule).
+5. Rules, two ways. Rule effects: per rule the oracle cannot follow, the pixels of the scene-rules
+   reference image that flipping that rule alone changes (a mask per rule) -- what the rule does in
+   the reference, not what the oracle did. Rule diagnosis (oracles that shade the exercise's model,
+   SHADING_MODEL "exercise"): minirt.diagnose searches rule space from the scene's rules for the
+   settings whose reference render reproduces the oracle's 8-bit image, and reports them, the
+   pixels each explains and the pixels (beyond one 8-bit level) that nothing explains.
 Verdicts: PASS, WARN, FAIL, ERROR (the backend broke), SKIP (does not apply, with the reason).
 """
 
@@ -70,17 +74,78 @@ class Check:
 
 
 @dataclass
+class RuleDiagnosis:
+    """Which rule settings explain an oracle's colour image (minirt.diagnose, searched from the scene's
+    rules). Counts are pixels beyond one 8-bit level, ill-conditioned pixels left out."""
+
+    ran: bool = False
+    reason: str = ""  # why it did not run, or why no search was needed
+    rules_explaining: dict[str, str] = field(default_factory=dict)  # the diagnosis's changed rules
+    explained: dict[str, int] = field(default_factory=dict)  # per rule, the pixels it explains
+    mismatch_pixels: int = 0  # still unexplained under rules_explaining
+    as_given_pixels: int = 0  # differing from the reference under the scene's rules
+    ill_conditioned_pixels: int = 0
+    pixels: int = 0
+    declared: dict[str, str] = field(default_factory=dict)  # rules the oracle says it follows, where they differ
+    renders: float = 0.0
+    seconds: float = 0.0
+    unexplained_mask: np.ndarray | None = None
+    explained_masks: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def undeclared(self) -> dict[str, str]:
+        """Settings that explain the image but that the oracle does not declare: a finding about the oracle."""
+        return {k: v for k, v in self.rules_explaining.items() if self.declared.get(k) != v}
+
+    @property
+    def not_needed(self) -> dict[str, str]:
+        """Declared settings the diagnosis did not need: they change nothing this image shows (e.g. the offset
+        under clamping, where a point facing away from the light is dark whether it shadows itself or not)."""
+        return {k: v for k, v in self.declared.items() if k not in self.rules_explaining}
+
+    def as_dict(self) -> dict[str, Any]:
+        if not self.ran:
+            return {"ran": False, "reason": self.reason}
+        d: dict[str, Any] = {
+            "ran": True,
+            "rules_explaining": self.rules_explaining,
+            "explained": self.explained,
+            "mismatch_pixels": self.mismatch_pixels,
+            "as_given_pixels": self.as_given_pixels,
+            "ill_conditioned_pixels": self.ill_conditioned_pixels,
+            "pixels": self.pixels,
+            "tolerance": "1 level per channel (8-bit)",
+            "declared": self.declared,
+            "undeclared": self.undeclared,
+            "not_needed": self.not_needed,
+            "renders": self.renders,
+            "seconds": round(self.seconds, 3),
+        }
+        if self.reason:
+            d["reason"] = self.reason
+        return d
+
+
+@dataclass
 class BackendCheck:
     backend: str
     verdict: str
     reason: str = ""
     checks: dict[str, Check] = field(default_factory=dict)
+    # Rule effects (JSON "rule_effects"): per rule the oracle cannot follow, the pixels of the scene-rules
+    # reference that flipping that rule alone changes, and their masks (``attribute_rules``).
     rules: dict[str, int] = field(default_factory=dict)
     rule_masks: dict[str, np.ndarray] = field(default_factory=dict)
     rules_followed: dict[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
     result: RenderResult | None = None
     reference: RenderResult | None = None
+    # Rule diagnosis (JSON "rule_diagnosis"): the settings that explain the oracle's own image.
+    rule_diagnosis: RuleDiagnosis = field(default_factory=lambda: RuleDiagnosis(reason="not run"))
+
+    @property
+    def rule_effects(self) -> dict[str, int]:
+        return self.rules
 
     def as_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"verdict": self.verdict}
@@ -88,7 +153,8 @@ class BackendCheck:
             d["reason"] = self.reason
         for name, c in self.checks.items():
             d[name] = c.as_dict()
-        d["rules"] = self.rules
+        d["rule_effects"] = self.rules
+        d["rule_diagnosis"] = self.rule_diagnosis.as_dict()
         d["rules_followed"] = self.rules_followed
         d["seconds"] = round(self.seconds, 3)
         if self.result is not None:
@@ -557,7 +623,8 @@ class _ReferenceCache:
 def attribute_rules(
     refs: _ReferenceCache, rules: Rules, followed: Rules
 ) -> tuple[dict[str, int], dict[str, np.ndarray]]:
-    """Pixels of the scene-rules image that each rule the oracle cannot follow changes, singly."""
+    """Rule effects: pixels of the scene-rules image that each rule the oracle cannot follow changes,
+    singly (what the rule does in the reference; ``diagnose_oracle`` says what explains the oracle)."""
     base = refs.get(rules)
     counts, masks = {}, {}
     for name in rules.differs(followed):
@@ -567,8 +634,64 @@ def attribute_rules(
     return counts, masks
 
 
+# One render cache for the diagnoses of a check run (a process runs one check; harness.run and the
+# sample report pass their own). Bounded: the diagnosis keeps full renders, least recently used out.
+VARIANT_CACHE_BYTES = 1 << 30
+_variants: Any = None
+
+
+def shared_variants():
+    """The process's VariantCache for check's diagnoses, made on first use."""
+    global _variants
+    if _variants is None:
+        from minirt.diagnose import VariantCache
+
+        _variants = VariantCache(VARIANT_CACHE_BYTES)
+    return _variants
+
+
+def diagnose_oracle(scene: Scene, rules: Rules, followed: Rules, res: RenderResult, variants=None) -> RuleDiagnosis:
+    """Which rule settings explain the oracle's 8-bit colour image, searched from the scene's rules.
+
+    The search starts from the scene's traced rules with the output rules at their defaults -- the
+    oracle's image is ``color8()``, written as floor(c·255 + 0.5) in the scene's layout whatever the
+    scene's own output rules say -- on one ray per pixel, the rays the oracle cast. Where the oracle's
+    image is the scene's rules' image within one level on every pixel, nothing needs explaining and
+    no search runs (one render)."""
+    from minirt import bitmap
+    from minirt import diagnose as dg
+    from minirt import rules as rules_mod
+
+    t0 = time.perf_counter()
+    variants = variants if variants is not None else shared_variants()
+    one = scene.with_overrides(samples=1)
+    given = rules.traced()
+    declared = {n: rules_mod.format_rule_value(n, getattr(followed, n)) for n in rules.differs(followed)}
+    img = res.color8()
+    h, w = scene.camera.height, scene.camera.width
+    out = RuleDiagnosis(ran=True, declared=declared, pixels=h * w)
+    before = variants.renders
+    base = variants.get(one, given)
+    d8 = np.abs(bitmap.encode(base.color).astype(np.int16) - img.astype(np.int16)).max(-1)
+    if not (d8 > dg.LEVEL_TOL).any():
+        out.reason = "no search needed: the image is the scene's rules' within one 8-bit level on every pixel"
+        out.unexplained_mask = np.zeros((h, w), dtype=bool)
+    else:
+        d = dg.diagnose(one, given, dg.Target(img, False, name=res.backend), variants)
+        out.rules_explaining = d.changed
+        out.explained = {e.rule: e.pixels for e in d.explained}
+        out.explained_masks = {e.rule: e.mask for e in d.explained}
+        out.mismatch_pixels = d.mismatch_pixels
+        out.as_given_pixels = d.as_given_pixels
+        out.ill_conditioned_pixels = int(d.ill.sum())
+        out.unexplained_mask = d.best_mask
+    out.renders = round(variants.renders - before, 2)
+    out.seconds = time.perf_counter() - t0
+    return out
+
+
 def check_backend(
-    scene: Scene, rules: Rules, name: str, refs: _ReferenceCache, options: dict | None = None
+    scene: Scene, rules: Rules, name: str, refs: _ReferenceCache, options: dict | None = None, variants=None
 ) -> BackendCheck:
     t0 = time.perf_counter()
     followed = backends.rules_for(name, rules) if backends.info(name).available else rules
@@ -598,6 +721,14 @@ def check_backend(
             f"{k}: {c.reason}" for k, c in bc.checks.items() if c.verdict in ("fail", "warn", "error")
         )
     bc.rules, bc.rule_masks = attribute_rules(refs, rules, followed)
+    model = SHADING_MODEL.get(name, "exercise" if res.color is not None else None)
+    if model != "exercise" or res.color is None:
+        why = "does not shade" if model is None or res.color is None else f"shades a {model} model, not the exercise's"
+        bc.rule_diagnosis = RuleDiagnosis(reason=f"{name} {why}: no rule setting can explain its colour")
+    elif pre.verdict == "fail":
+        bc.rule_diagnosis = RuleDiagnosis(reason=f"{name}'s image failed pre-flight")
+    else:
+        bc.rule_diagnosis = diagnose_oracle(scene, rules, followed, res, variants)
     bc.seconds = time.perf_counter() - t0
     return bc
 
@@ -631,8 +762,11 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache) -
     return check
 
 
-def check_scene(path: str | Path, names: list[str], size: tuple[int, int] | None = None, progress=None) -> SceneCheck:
-    """Check one scene file against the given backends (the reference itself is always rendered)."""
+def check_scene(
+    path: str | Path, names: list[str], size: tuple[int, int] | None = None, progress=None, variants=None
+) -> SceneCheck:
+    """Check one scene file against the given backends (the reference itself is always rendered).
+    ``variants``: the run's minirt.diagnose.VariantCache (default: the process's, ``shared_variants``)."""
     scene = load_scene(path)
     if size:
         scene = scene.with_overrides(width=size[0], height=size[1])
@@ -644,13 +778,16 @@ def check_scene(path: str | Path, names: list[str], size: tuple[int, int] | None
     for i, name in enumerate(oracle_names):
         if progress:
             progress(scene.name, name, i, len(oracle_names))
-        sc.backends[name] = check_backend(scene, rules, name, refs)
+        sc.backends[name] = check_backend(scene, rules, name, refs, variants=variants)
     sc.verdict = worst([b.verdict for b in sc.backends.values()]) if sc.backends else "pass"
     return sc
 
 
 def run(paths: list[Path], names: list[str], size: tuple[int, int] | None = None, progress=None) -> CheckResult:
-    scenes = [check_scene(p, names, size, progress) for p in paths]
+    from minirt.diagnose import VariantCache
+
+    variants = VariantCache(VARIANT_CACHE_BYTES)
+    scenes = [check_scene(p, names, size, progress, variants) for p in paths]
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
 
 

@@ -14,10 +14,11 @@
 
 The page follows Blender's render_report.py: failures and errors first; per scene the backends'
 pictures side by side at one scale, per oracle new | reference (hover or toggle swaps them in
-place) | mismatch overlay | difference heat maps, the rule attribution masks, every figure and
-threshold with its reason, and the command that reproduces the report. Everything that comes from
-a scene file (names, descriptions, reasons) is escaped by Jinja2's autoescape; the CSP blocks any
-script that is not the page's own even if something slipped through.
+place) | mismatch overlay | difference heat maps, the rule diagnosis (which rule settings explain
+the oracle's image) and the rule effects (what each rule it cannot follow changes in the reference,
+with masks), every figure and threshold with its reason, and the command that reproduces the report.
+Everything that comes from a scene file (names, descriptions, reasons) is escaped by Jinja2's
+autoescape; the CSP blocks any script that is not the page's own even if something slipped through.
 
 The date is only in the page and the JSON: images carry no timestamp, so the same check gives
 bit-identical assets.
@@ -84,6 +85,9 @@ DEFECT_COUNTS = {
     "diffuse_over_tolerance",
     "lit_mismatch",
 }
+
+# How the page names a backend in a sentence.
+DISPLAY_NAMES = {"povray": "POV-Ray", "mitsuba": "Mitsuba", "embree": "Embree", "reference": "The reference"}
 
 TILE = 192  # target display size of the longest image side, CSS pixels
 
@@ -300,7 +304,8 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
         "overlay": None,
         "heatmaps": [],
         "zero_maps": [],
-        "rules": [],
+        "rule_effects": [],
+        "diagnosis": _diagnosis_view(stem, bc, assets, base8),
         "checks": [_check_view(k, c) for k, c in bc.checks.items()],
         "open": bc.verdict in ("fail", "error", "warn"),
     }
@@ -347,7 +352,37 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
         src = None
         if base8 is not None and mask is not None and mask.shape == base8.shape[:2]:
             src = assets.image8(f"s{si:02d}-rule-{_slug(rule, f'r{k}')}.png", _mask_image(base8, mask))
-        v["rules"].append({"name": rule, "count": count, "src": src})
+        v["rule_effects"].append({"name": rule, "count": count, "src": src})
+    return v
+
+
+def _diagnosis_view(stem: str, bc: BackendCheck, assets: _Assets, base8: np.ndarray | None) -> dict[str, Any]:
+    """The rule diagnosis as one sentence ("POV-Ray's image is explained by: …"), the pixels each setting
+    explains, how it compares with the rules the oracle declares, and the unexplained pixels' mask."""
+    d = bc.rule_diagnosis
+    who = DISPLAY_NAMES.get(bc.backend, bc.backend)
+    v: dict[str, Any] = {"ran": d.ran, "line": "", "explained": [], "undeclared": [], "not_needed": [], "src": None}
+    if not d.ran:
+        v["line"] = f"No rule diagnosis: {d.reason}."
+        return v
+    if d.rules_explaining:
+        order = sorted(d.rules_explaining, key=lambda k: (-d.explained.get(k, 0), k))
+        settings = ", ".join(f"{k}={d.rules_explaining[k]}" for k in order)
+        n = d.mismatch_pixels
+        v["line"] = f"{who}'s image is explained by: {settings} ({n} pixel{'s' if n != 1 else ''} unexplained)"
+        v["explained"] = [(k, d.rules_explaining[k], d.explained.get(k, 0)) for k in order]
+    elif d.as_given_pixels:
+        v["line"] = (
+            f"No rule setting explains {who}'s image: {d.as_given_pixels} pixels differ from the scene's rules' "
+            "image by more than one level"
+        )
+    else:
+        v["line"] = f"{who}'s image is the scene's rules' image: nothing to explain (every pixel within one level)"
+    v["undeclared"] = [f"{k}={x}" for k, x in d.undeclared.items()]
+    v["not_needed"] = [f"{k}={x}" for k, x in d.not_needed.items()]
+    m = d.unexplained_mask
+    if d.mismatch_pixels and base8 is not None and m is not None and m.shape == base8.shape[:2]:
+        v["src"] = assets.image8(f"{stem}-unexplained.png", _mask_image(base8, m))
     return v
 
 

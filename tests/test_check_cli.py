@@ -39,9 +39,10 @@ def test_check_json_and_junit(tmp_path):
     geo_keys |= {"depth_rel_err_max", "depth_rel_err_p99", "normal_deg_max"}
     assert geo_keys <= set(m["geometry"])
     assert m["geometry"]["pixels"] == 48 * 48
-    assert {"verdict", "shading", "rules", "seconds"} <= set(m)
+    assert {"verdict", "shading", "rule_effects", "rule_diagnosis", "seconds"} <= set(m)
     # the exercise's background rule alone changes pixels Mitsuba cannot reproduce
-    assert m["rules"]["background"] > 0
+    assert m["rule_effects"]["background"] > 0
+    assert m["rule_diagnosis"]["ran"] is False  # Mitsuba's colour is a physical model
     assert "mask_outside_band" in d["thresholds"] and d["thresholds"]["mask_outside_band"]["why"]
     suites = ET.parse(x).getroot()
     assert suites.find("testsuite").get("name") == "exercise"
