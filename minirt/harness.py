@@ -80,8 +80,12 @@ class RuleDiagnosis:
 
     ran: bool = False
     reason: str = ""  # why it did not run, or why no search was needed
-    rules_explaining: dict[str, str] = field(default_factory=dict)  # the diagnosis's changed rules
-    explained: dict[str, int] = field(default_factory=dict)  # per rule, the pixels it explains
+    # The diagnosis's changed rules that explain pixels (taken back singly, at least one pixel is lost) ...
+    rules_explaining: dict[str, str] = field(default_factory=dict)
+    explained: dict[str, int] = field(default_factory=dict)  # ... and per rule, the pixels it explains
+    # ... and those the best setting changed too (a whole profile is one step) that explain none: this image
+    # cannot tell them from the scene's (a background rule over a black background, say).
+    cannot_tell: dict[str, str] = field(default_factory=dict)
     mismatch_pixels: int = 0  # still unexplained under rules_explaining
     as_given_pixels: int = 0  # differing from the reference under the scene's rules
     ill_conditioned_pixels: int = 0
@@ -110,6 +114,7 @@ class RuleDiagnosis:
             "ran": True,
             "rules_explaining": self.rules_explaining,
             "explained": self.explained,
+            "cannot_tell": self.cannot_tell,
             "mismatch_pixels": self.mismatch_pixels,
             "as_given_pixels": self.as_given_pixels,
             "ill_conditioned_pixels": self.ill_conditioned_pixels,
@@ -678,9 +683,11 @@ def diagnose_oracle(scene: Scene, rules: Rules, followed: Rules, res: RenderResu
         out.unexplained_mask = np.zeros((h, w), dtype=bool)
     else:
         d = dg.diagnose(one, given, dg.Target(img, False, name=res.backend), variants)
-        out.rules_explaining = d.changed
-        out.explained = {e.rule: e.pixels for e in d.explained}
-        out.explained_masks = {e.rule: e.mask for e in d.explained}
+        pixels = {e.rule: e.pixels for e in d.explained}
+        out.rules_explaining = {k: v for k, v in d.changed.items() if pixels.get(k, 0) > 0}
+        out.cannot_tell = {k: v for k, v in d.changed.items() if pixels.get(k, 0) == 0}
+        out.explained = {k: pixels[k] for k in out.rules_explaining}
+        out.explained_masks = {e.rule: e.mask for e in d.explained if e.rule in out.rules_explaining}
         out.mismatch_pixels = d.mismatch_pixels
         out.as_given_pixels = d.as_given_pixels
         out.ill_conditioned_pixels = int(d.ill.sum())

@@ -361,7 +361,8 @@ def _diagnosis_view(stem: str, bc: BackendCheck, assets: _Assets, base8: np.ndar
     explains, how it compares with the rules the oracle declares, and the unexplained pixels' mask."""
     d = bc.rule_diagnosis
     who = DISPLAY_NAMES.get(bc.backend, bc.backend)
-    v: dict[str, Any] = {"ran": d.ran, "line": "", "explained": [], "undeclared": [], "not_needed": [], "src": None}
+    v: dict[str, Any] = {"ran": d.ran, "line": "", "explained": [], "undeclared": [], "not_needed": [],
+                         "cannot_tell": [f"{k}={x}" for k, x in d.cannot_tell.items()], "src": None}  # fmt: skip
     if not d.ran:
         v["line"] = f"No rule diagnosis: {d.reason}."
         return v

@@ -111,3 +111,14 @@ def test_no_search_when_the_oracle_draws_the_scene_rules(tmp_path):
     d = sc.backends["povray"].rule_diagnosis
     assert d.ran and not d.rules_explaining and d.mismatch_pixels == 0 and d.as_given_pixels == 0
     assert "no search needed" in d.reason and d.renders <= 1
+
+
+def test_settings_no_pixel_shows_are_not_findings():
+    """shadows.toml (black background) shows only shadow_range and clamp: a whole-profile step may carry
+    rules this image cannot tell (the background rule over black); they are set apart, never undeclared."""
+    sc = harness.check_scene(ROOT / "scenes" / "shadows.toml", ["povray"], SIZE)
+    d = sc.backends["povray"].rule_diagnosis
+    assert d.ran and d.rules_explaining.get("shadow_range") == "to-light"
+    assert not d.undeclared and "background" not in d.rules_explaining
+    assert all(n > 0 for n in d.explained.values()) and set(d.explained) == set(d.rules_explaining)
+    assert not set(d.cannot_tell) & set(d.rules_explaining)
