@@ -630,7 +630,11 @@ def refresh_sample(out: Path = Path("reports/sample"), size: int = 64, backends:
     root = Path(__file__).resolve().parent.parent
     paths = sorted((root / "scenes").glob("*.toml"))
     names = bk.parse_backends(backends)
+    from minirt.diagnose import VariantCache
+
     here = Path.cwd().resolve() == root  # relative paths on the page when run from the repository root
-    scenes = [harness.check_scene(p.relative_to(root) if here else p, names, (size, size)) for p in paths]
+    variants = VariantCache(harness.VARIANT_CACHE_BYTES)  # one for the run's rule diagnoses
+    scenes = [harness.check_scene(p.relative_to(root) if here else p, names, (size, size), variants=variants)
+              for p in paths]  # fmt: skip
     result = CheckResult(verdict=harness.worst([s.verdict for s in scenes]), scenes=scenes)
     return write_report(result, out, command=SAMPLE_COMMAND)
