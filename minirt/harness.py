@@ -682,7 +682,7 @@ def diagnose_oracle(scene: Scene, rules: Rules, followed: Rules, res: RenderResu
         out.reason = "no search needed: the image is the scene's rules' within one 8-bit level on every pixel"
         out.unexplained_mask = np.zeros((h, w), dtype=bool)
     else:
-        d = dg.diagnose(one, given, dg.Target(img, False, name=res.backend), variants)
+        d = dg.diagnose(one, given, dg.Target(img, False, name=res.backend), variants, alternatives=False)
         pixels = {e.rule: e.pixels for e in d.explained}
         out.rules_explaining = {k: v for k, v in d.changed.items() if pixels.get(k, 0) > 0}
         out.cannot_tell = {k: v for k, v in d.changed.items() if pixels.get(k, 0) == 0}

@@ -32,7 +32,7 @@ import numpy as np
 from minirt import camera
 from minirt.engine import require_llvm
 from minirt.result import TERMS, RenderResult
-from minirt.rules import Effects, Rules, effects
+from minirt.rules import SPECULAR_EXPONENT_MAX, Effects, Rules, effects
 from minirt.scene import Ball, Plane, Scene
 
 
@@ -47,6 +47,19 @@ def _power(x, e: int) -> Any:
         if not e:
             return result
         base = base * base
+
+
+def _power_runtime(x, e, bits: int) -> Any:
+    """x^e for an exponent held in a Dr.Jit variable (opaque: one kernel serves every exponent), by the
+    same square-and-multiply as ``_power``: the result starts at 1 (1·y is exact) and takes each square
+    where e has a bit set, so for every e the same roundings, the same bits. The squares above e's top
+    bit are computed and never used."""
+    result, base = dr.full(type(x), 1.0, dr.width(x)), x
+    for k in range(bits):
+        result = dr.select(((e >> k) & 1) != 0, result * base, result)
+        if k + 1 < bits:
+            base = base * base
+    return result
 
 
 def gamma(n: int, u: float) -> float:
@@ -122,9 +135,15 @@ class Tracer:
     it exists so a test can show that pruning leaves every output bit-identical.
     """
 
-    def __init__(self, scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True):
+    def __init__(
+        self, scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True, runtime_exponent: bool = False
+    ):
+        """``runtime_exponent``: the specular exponent is a value the kernel reads, not a constant compiled
+        into it, so renders that differ only in the exponent share one kernel (a search over exponents
+        compiles once); the same bits either way (tested)."""
         require_llvm()
         self.scene, self.rules, self.precision, self.prune = scene, rules, precision, prune
+        self.runtime_exponent = runtime_exponent
         self.T = _Types.of(precision)
         if precision == "f32":
             _check_float32_range(scene)
@@ -377,7 +396,11 @@ class Tracer:
                 local = local + terms["diffuse"]
             if fx.specular:
                 rs = dr.dot(r, s)
-                pw = _power(rs, self.rules.specular_exponent)  # (r·s)^e: for e = 8 rs2, rs4, rs4 * rs4
+                e = self.rules.specular_exponent
+                if self.runtime_exponent:
+                    pw = _power_runtime(rs, dr.opaque(self.T.UInt, e), SPECULAR_EXPONENT_MAX.bit_length())
+                else:
+                    pw = _power(rs, e)  # (r·s)^e: for e = 8 rs2, rs4, rs4 * rs4
                 on = lit
                 if self.rules.clamp is True:
                     on = lit & (sn > 0) & (rs > 0)

@@ -435,3 +435,17 @@ def test_mitsuba_sensor_follows_pixel_shift(shift):
     assert got.status == "ok", got.reason
     assert (got.hit != ref.hit).sum() == 0
     assert (got.hit != unshifted.hit).sum() > 0  # the check can see a shift
+
+
+@pytest.mark.parametrize("profile", ["exercise", "eth2014"])
+def test_runtime_exponent_same_bits(profile):
+    """The diagnosis's renders read the exponent at run time (one kernel for every exponent): the same
+    bits as the exponent compiled in, for exponents with one bit, several bits, and the largest."""
+    from minirt.tracer import Tracer
+
+    scene = load_scene("scenes/rules.toml").with_overrides(width=32, height=32, samples=1)
+    for e in (1, 5, 8, 12, 16, 777, 1024):
+        rules = replace(PROFILES[profile], specular_exponent=e)
+        a = Tracer(scene, rules).render().color
+        b = Tracer(scene, rules, runtime_exponent=True).render().color
+        assert np.array_equal(a.view(np.uint64), b.view(np.uint64)), e
