@@ -45,7 +45,7 @@ SENTENCES: dict[str, Callable[[Any, Any], str]] = {
         }[yours]
         + {
             "on-hit": "the exercise's pseudo-code adds it at every hit (the last line of TraceRay) "
-        "and leaves misses black.",
+            "and leaves misses black.",
             "on-miss": "here a ray that misses returns the background and hits get none of it.",
             "none": "here the background is never added.",
         }[ex]
