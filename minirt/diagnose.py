@@ -67,6 +67,7 @@ class Variant:
     shadow_ill: np.ndarray  # (H, W) or (N,) bool: shadow rays within rounding of a ball's silhouette
     idx: np.ndarray | None = None  # None: every pixel
     f32_flips: np.ndarray | None = None  # (H, W) bool, on demand (full renders only)
+    f32_color: np.ndarray | None = None  # (H, W, 3): the same rules in float32, with f32_flips
 
     @property
     def nbytes(self) -> int:
@@ -101,7 +102,7 @@ class VariantCache:
             self.hits += 1
             self._items.move_to_end(key)
         if f32 and v.f32_flips is None:
-            v.f32_flips = _f32_flips(scene, v)
+            v.f32_color, v.f32_flips = _f32_render(scene, v)
             self.renders += 1
         return v
 
@@ -147,14 +148,23 @@ class VariantCache:
             known[todo] = True
         return flag[idx]
 
-    def _trace(self, scene: Scene, rules: Rules, idx: np.ndarray | None) -> Variant:
+    def subset32(self, scene: Scene, rules: Rules, idx: np.ndarray) -> Variant | None:
+        """The candidate traced in float32 on the pixels ``idx`` (None beyond float32's range)."""
+        from minirt.errors import MinirtError
+
+        try:
+            return self._trace(scene, rules.traced(), idx, "f32")
+        except MinirtError:
+            return None
+
+    def _trace(self, scene: Scene, rules: Rules, idx: np.ndarray | None, precision: str = "f64") -> Variant:
         import drjit as dr
 
         from minirt.tracer import Tracer
 
         n = scene.camera.width * scene.camera.height
         self.renders += 1 if idx is None else idx.size / n
-        tr = Tracer(scene, rules, runtime_exponent=True)
+        tr = Tracer(scene, rules, precision=precision, runtime_exponent=True)
         if idx is None:
             o, d = tr.primary_rays()
         else:
@@ -190,18 +200,19 @@ def _scale(scene: Scene) -> float:
     return max(s)
 
 
-def _f32_flips(scene: Scene, v: Variant) -> np.ndarray:
-    """Pixels where a float32 render of the same rules differs by more than a level: decisions that
-    rounding flips anywhere in the ray tree (reflections, planes' shadows, self-shadowing offsets)."""
+def _f32_render(scene: Scene, v: Variant) -> tuple[np.ndarray | None, np.ndarray]:
+    """The same rules traced in float32, and the pixels where that image differs by more than a level:
+    decisions that rounding flips anywhere in the ray tree (reflections, planes' shadows, self-shadowing
+    offsets). A float32 tracer may draw either image at those pixels."""
     from minirt.errors import MinirtError
     from minirt.tracer import render
 
     try:
         r32 = render(scene, v.rules, precision="f32")
     except MinirtError:  # beyond float32's range: no float32 tracer could draw it; nothing to add
-        return np.zeros(v.color.shape[:2], dtype=bool)
+        return None, np.zeros(v.color.shape[:2], dtype=bool)
     a, b = bitmap.encode(v.color), bitmap.encode(r32.color)
-    return (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
+    return r32.color, (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -385,11 +396,20 @@ class _Search:
             return v.shadow_ill.reshape(-1)[at] | self.cache.band(self.scene, rules, at)
         return v.shadow_ill[at] | self.cache.band(self.scene, rules, v.idx[at])
 
+    def either(self, rules: Rules) -> tuple[np.ndarray | None, Variant]:
+        """Like ``full``, but a pixel matches if it matches the rules' float64 or float32 image: a float32
+        tracer following these rules may draw either where rounding decides (its self-shadowing acne)."""
+        d, v = self.full(rules)
+        self.cache.get(self.scene, rules, f32=True)
+        if d is not None and v.f32_color is not None:
+            d = np.minimum(d, self.target.difference(v.f32_color, rules))
+        return d, v
+
     def compare(self, a: Rules, b: Rules) -> tuple[int, int] | None:
         """Exact gain of b over a on every pixel: (beyond tolerance, one level off) that b fixes minus
-        those it breaks. A pixel ill-conditioned in either never counts: it is looked at only where the
-        two differ, as elsewhere it adds the same to both."""
-        (da, va), (db, vb) = self.full(a), self.full(b)
+        those it breaks, each matched by its float64 or float32 image. A pixel ill-conditioned in either
+        never counts: it is looked at only where the two differ, as elsewhere it adds the same to both."""
+        (da, va), (db, vb) = self.either(a), self.either(b)
         if da is None or db is None:
             return None if db is None else (1 << 40, 0)
         differ = np.flatnonzero((self._cls(da) != self._cls(db)).reshape(-1))
@@ -437,8 +457,9 @@ class _Search:
         return best
 
     def _residual(self, rules: Rules) -> int:
-        """Pixels beyond tolerance under ``rules`` that are not ill-conditioned (nor float32 flips)."""
-        d, v = self.full(rules)
+        """Pixels beyond tolerance under ``rules`` (float64 or float32 image) that are not
+        ill-conditioned (nor float32 flips)."""
+        d, v = self.either(rules)
         if d is None:
             return self.target._model_shape[0] * self.target._model_shape[1]
         where = np.flatnonzero(self.target.beyond(d).reshape(-1))
@@ -456,7 +477,7 @@ class _Search:
         changes only output rules (no render). (2) The best VERIFY are rendered in full and the first
         that really gains is taken."""
         while True:
-            dc, vc = self.full(current)
+            dc, vc = self.either(current)
             if dc is None:
                 return current
             cls = self._cls(dc).reshape(-1)
@@ -498,6 +519,12 @@ class _Search:
             if traced:
                 est = self._traced(start, current, vc, c, sub.idx)
             e = self._gain_on(sub, current, vc, c, *est, flips)
+            if e is not None and e[0] == 0 and c.traced() != current.traced():
+                # No effect in float64 here: a rule a float32 tracer shows only through rounding (an offset
+                # along the ray, the far root from inside a ball), seen in its self-shadowing acne.
+                v32 = self.cache.subset32(self.scene, c, sub.idx)
+                if v32 is not None:
+                    e = self._gain_on(sub, current, vc, c, *est, flips, color2=v32.color)
             if e is not None and e > (0, 0):
                 scored.append([(-e[0], -e[1]), len(start.differs(c)), k, c, traced])
         scored.sort(key=lambda s: s[:3])
@@ -541,13 +568,16 @@ class _Search:
         return v.color, v, np.arange(idx.size)
 
     def _gain_on(
-        self, sub: _Subset, current: Rules, vc: Variant, c: Rules, color, v: Variant, at: np.ndarray, flips
+        self, sub: _Subset, current: Rules, vc: Variant, c: Rules, color, v: Variant, at: np.ndarray, flips, color2=None
     ) -> tuple[float, float] | None:
         """The candidate's estimated gain over the current rules on the subset: (pixels beyond tolerance,
-        pixels one level off) it fixes minus those it breaks, the stride's counts scaled back up."""
+        pixels one level off) it fixes minus those it breaks, the stride's counts scaled back up. With
+        ``color2`` (its float32 image) a pixel matching either counts as matching."""
         d = self.target.difference(color, c, sub.idx)
         if d is None:
             return None
+        if color2 is not None:
+            d = np.minimum(d, self.target.difference(color2, c, sub.idx))
         before, after = sub.before, self._cls(d)
         # ill-conditioned pixels count for neither; they matter only where the two differ
         keep = np.ones(sub.idx.size, dtype=bool)
@@ -638,7 +668,7 @@ class _Search:
         """(beyond-tolerance mask, off-by-any mask, ill mask) of ``rules`` on every pixel, leaving out
         pixels ill-conditioned in it (band, shadows, float32 flips) or in the renders ``f32_of``."""
         shape = self.target._model_shape
-        d, v = self.full(rules)
+        d, v = self.either(rules)
         if d is None:
             full = np.ones(shape, dtype=bool)
             return full, full, np.zeros(shape, dtype=bool)
