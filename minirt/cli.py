@@ -431,7 +431,7 @@ def run_checks(paths, backend: str, size: str | None, quiet: bool):
 
 def _print_check(result) -> None:
     t = Table(title="minirt check", title_justify="left")
-    for col in ("scene", "backend", "verdict", "geometry", "shading", "rules", "seconds"):
+    for col in ("scene", "backend", "verdict", "geometry", "shading", "rules explaining its image", "seconds"):
         t.add_column(col)
     for s in result.scenes:
         for name, b in s.backends.items():
@@ -461,7 +461,13 @@ def _print_check(result) -> None:
             verdict = f"[{VERDICT_STYLE[v]}]{v.upper()}[/]"
             if v in ("skip", "error", "fail", "warn") and b.reason:
                 verdict += f" {b.reason}"
-            rules_ = ", ".join(f"{k} {n}" for k, n in b.rules.items() if n) or "-"
+            rd = b.rule_diagnosis
+            if rd.ran:  # the diagnosis: which settings reproduce the oracle's image
+                rules_ = ", ".join(f"{k}={v}" for k, v in rd.rules_explaining.items()) or "the scene's own"
+                if rd.mismatch_pixels:
+                    rules_ += f" ({rd.mismatch_pixels} px unexplained)"
+            else:  # what each rule the oracle cannot follow would change in the reference
+                rules_ = ", ".join(f"{k} changes {n} px" for k, n in b.rules.items() if n) or "-"
             t.add_row(s.scene, name, verdict, geo, shade, rules_, f"{b.seconds:.1f}")
     err.print(t)
 
