@@ -44,7 +44,12 @@ SceneArg = Annotated[
     Path, typer.Argument(metavar="SCENE", help="A scene file (TOML), e.g. scenes/exercise.toml.", show_default=False)
 ]
 ProfileOpt = Annotated[
-    str | None, typer.Option("--profile", help="Model profile: exercise (the pseudo-code, literally) or conventional.")
+    str | None,
+    typer.Option(
+        "--profile",
+        help="Model profile: exercise (the pseudo-code, literally), conventional (as POV-Ray does) or eth2014 "
+        "(the course's 2014 edition).",
+    ),
 ]
 RuleOpt = Annotated[
     list[str] | None,
