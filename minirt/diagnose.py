@@ -14,20 +14,36 @@ How an image is compared with a render (``Target.mismatch``)
   never by two levels (relative error ~1e-6 of a value <= 255 is ~3e-4 of a level).
 - A float image (EXR, float TIFF, 16-bit): both are clamped to [0, 1], put through the gamma rule,
   and a pixel matches when every channel is within ``FLOAT_TOL``.
-- Ill-conditioned pixels never count: pixels whose decision (hit or miss, closest shape, shadow) is
-  within a float32 tracer's rounding of flipping in the candidate's own render (``ill_conditioned``).
-  Comparing two candidates, a pixel ill-conditioned in either is left out of both scores, so such a
-  pixel never decides between them.
+- Ill-conditioned pixels never count: a primary ray whose hit, closest shape or start inside a ball
+  is within ``EPS_REL`` (a float32 tracer's rounding) of flipping (minirt.band), a shadow ray that
+  close to a ball's silhouette, a pixel whose float32 render differs from its float64 one
+  (``_Search.ill_at``, ``flips``). Comparing two candidates, a pixel ill-conditioned in either is left
+  out of both scores, so such a pixel never decides between them.
 
 The search (``diagnose``)
 -------------------------
-Greedy descent in rule space from the scene's own rules: each step renders every single-rule change
-(every value of ``rules.values(name)``) and every profile, scores them all on the pixels that decide
-between them, and takes the change that removes the most mismatching pixels; it stops when nothing
-improves. Output rules (encoding, gamma, layout) cost no render: they re-encode the same colour. The
-specular exponent, an integer, is then refined by a ternary search between the neighbouring values
-of the list. Renders are cached per (scene, size, traced rules) in a ``VariantCache`` that a class
-run shares across students, so each variant is traced once however many images are graded.
+Greedy descent in rule space from the scene's own rules (``_Search``):
+
+- Output rules (encoding, gamma, layout) cost no render: the same colour is re-encoded; the best fit
+  is chosen first and again after every step.
+- Each step tries every single-rule change (every value of ``rules.values(name)``), every whole
+  profile, and the best integer specular exponent (a ternary search on the summed level difference,
+  odd and even exponents apart; the tracer reads the exponent at run time, so the search compiles
+  once). Candidates are scored on a subset -- a stride of the pixels the current rules get wrong and
+  of those they get right, counts scaled back up -- and the best three are rendered in full; the
+  first that really removes mismatching pixels is taken. A change one step from the scene's own rules
+  is rendered in full once and kept: every image of that scene asks for it.
+- A pixel matches a candidate if it matches its float64 or its float32 image (a float32 tracer may
+  draw either where rounding decides); a rule with no float64 effect is tried in float32 too.
+- Greedy steps can take a rule that imitates the right one (a high exponent dims the wrong-side
+  highlight that clamping removes) and stall: while pixels stay unexplained the descent restarts from
+  the scene's rules with each rule the answer changed forbidden in the first step, and keeps what
+  explains most.
+
+Renders are cached per (scene, size, traced rules) in a ``VariantCache`` that a class run shares
+across students, so each variant is traced once however many images are graded. Known limit: two
+rules that only show together, and only through a float32 tracer's rounding (an offset along the ray
+*and* the far root from inside a ball), are not found; their pixels are reported unexplained.
 """
 
 from __future__ import annotations
