@@ -334,14 +334,21 @@ def grade_one_row(student: Path, scene: Scene, scene_file: str, rules: Rules, ca
 
 
 def common_mistakes(rows: list[ClassRow]) -> list[dict[str, Any]]:
-    """Rule settings across the class, most frequent first: (rule, value) -> students and scenes."""
+    """Rule settings across the class, most frequent first: (rule, value) -> students and images, and
+    how many of those images still differ beyond tolerance (a setting such as another rounding of the
+    bitmap moves pixels by one level: its images can match and still show it)."""
     seen: dict[tuple[str, str], set[str]] = {}
     images: dict[tuple[str, str], int] = {}
+    differing: dict[tuple[str, str], int] = {}
     for r in rows:
         for k, v in r.rules.items():
             seen.setdefault((k, v), set()).add(r.student)
             images[(k, v)] = images.get((k, v), 0) + 1
-    out = [{"rule": k, "value": v, "students": len(s), "images": images[(k, v)]} for (k, v), s in seen.items()]
+            differing[(k, v)] = differing.get((k, v), 0) + (r.verdict == DIFFERS)
+    out = [
+        {"rule": k, "value": v, "students": len(s), "images": images[(k, v)], "differing_images": differing[(k, v)]}
+        for (k, v), s in seen.items()
+    ]
     return sorted(out, key=lambda m: (-m["students"], -m["images"], m["rule"], m["value"]))
 
 

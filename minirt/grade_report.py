@@ -391,7 +391,7 @@ def _mistake_views(rows: list[ClassRow], mistakes: Iterable[dict[str, Any]]) -> 
                 if typed:
                     s = _rule_sentence(rule, typed[0], given)
         out.append({"rule": rule, "value": value, "students": m.get("students", 0), "images": m.get("images", 0),
-                    "sentence": s})  # fmt: skip
+                    "differing": m.get("differing_images", 0), "sentence": s})  # fmt: skip
     return out
 
 
