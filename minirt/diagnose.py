@@ -100,6 +100,7 @@ class VariantCache:
         self._items: OrderedDict[tuple, Variant] = OrderedDict()
         self._rays: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self.alternatives: dict[tuple, list[dict[str, Any]]] = {}  # see ``indistinguishable``
         self.renders = 0  # rays traced, in units of whole images
         self.hits = 0
 
@@ -749,7 +750,15 @@ def indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Ta
     """Single-rule changes of ``best`` that this scene cannot tell apart from it: written the same way,
     their image equals best's on every pixel that is not ill-conditioned. Each with a bundled grading
     scene that does tell them apart (None when none does). A change that differs on a stride of pixels
-    is told apart without a full render."""
+    is told apart without a full render. It depends on the scene and the answer only, not on the image:
+    a class's images with the same answer share one list (kept in the cache)."""
+    key = (*VariantCache._key(scene, best), best, target.is_float)
+    if key not in cache.alternatives:
+        cache.alternatives[key] = _indistinguishable(scene, best, cache, target)
+    return [dict(e) for e in cache.alternatives[key]]
+
+
+def _indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Target) -> list[dict[str, Any]]:
     vb = cache.get(scene, best)
     h, w = vb.color.shape[:2]
     stride = np.arange(0, h * w, max(1, (h * w) // (4 * SAMPLE)))
