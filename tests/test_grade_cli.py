@@ -266,7 +266,13 @@ def test_class_mode(klass):
     assert {(g["student"], g["scene"], g["verdict"]) for g in data["grades"]} == {
         (r["student"], r["scene"], r["verdict"]) for r in rows
     }
-    assert data["common_mistakes"][0] == {"rule": "channels", "value": "bgr", "students": 1, "images": 2, "differing_images": 2}
+    assert data["common_mistakes"][0] == {
+        "rule": "channels",
+        "value": "bgr",
+        "students": 1,
+        "images": 2,
+        "differing_images": 2,
+    }
 
 
 def test_class_mode_is_deterministic(klass):
