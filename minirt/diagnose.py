@@ -119,8 +119,7 @@ class VariantCache:
             self.hits += 1
             self._items.move_to_end(key)
         if f32 and v.f32_flips is None:
-            v.f32_color, v.f32_flips = _f32_render(scene, v)
-            self.renders += 1
+            v.f32_color, v.f32_flips = self._f32_render(scene, v)
         return v
 
     def subset(self, scene: Scene, rules: Rules, idx: np.ndarray, keep: bool = False) -> Variant:
@@ -164,6 +163,19 @@ class VariantCache:
             flag[todo] = m["margin"] < EPS_REL
             known[todo] = True
         return flag[idx]
+
+    def _f32_render(self, scene: Scene, v: Variant) -> tuple[np.ndarray | None, np.ndarray]:
+        """The same rules traced in float32, and the pixels where that image differs by more than a level:
+        decisions that rounding flips anywhere in the ray tree (reflections, planes' shadows, self-shadowing
+        offsets). A float32 tracer may draw either image at those pixels."""
+        from minirt.errors import MinirtError
+
+        try:
+            c32 = self._trace(scene, v.rules, None, "f32").color
+        except MinirtError:  # beyond float32's range: no float32 tracer could draw it; nothing to add
+            return None, np.zeros(v.color.shape[:2], dtype=bool)
+        a, b = bitmap.encode(v.color), bitmap.encode(c32)
+        return c32, (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
 
     def subset32(self, scene: Scene, rules: Rules, idx: np.ndarray) -> Variant | None:
         """The candidate traced in float32 on the pixels ``idx`` (None beyond float32's range)."""
@@ -215,21 +227,6 @@ def _scale(scene: Scene) -> float:
         if isinstance(b, Ball):
             s.append(max(map(abs, b.center)) + b.radius)
     return max(s)
-
-
-def _f32_render(scene: Scene, v: Variant) -> tuple[np.ndarray | None, np.ndarray]:
-    """The same rules traced in float32, and the pixels where that image differs by more than a level:
-    decisions that rounding flips anywhere in the ray tree (reflections, planes' shadows, self-shadowing
-    offsets). A float32 tracer may draw either image at those pixels."""
-    from minirt.errors import MinirtError
-    from minirt.tracer import render
-
-    try:
-        r32 = render(scene, v.rules, precision="f32")
-    except MinirtError:  # beyond float32's range: no float32 tracer could draw it; nothing to add
-        return None, np.zeros(v.color.shape[:2], dtype=bool)
-    a, b = bitmap.encode(v.color), bitmap.encode(r32.color)
-    return r32.color, (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -450,10 +447,9 @@ class _Search:
         answer changed forbidden in the first step, and keep what explains most. A greedy step can take
         a rule that imitates the right one (a high exponent dims the wrong-side highlight that clamping
         removes) and then stall; the restart lets the right one go first."""
-        self.start = start
         first = self._best_output(start)
         self.steps = []
-        best = self._converge(start, first)
+        best = self._descend(start, first)
         path = self.steps
         tried: set[str] = set()
         while self._residual(best):
@@ -464,7 +460,7 @@ class _Search:
             improved = False
             for name in names:
                 self.steps = []
-                alt = self._converge(start, first, tabu=name)
+                alt = self._descend(start, first, tabu=name)
                 g = self.compare(best, alt) if alt != best else None
                 if g is not None and g > (0, 0):
                     best, path, improved = alt, self.steps, True
@@ -481,9 +477,6 @@ class _Search:
             return self.target._model_shape[0] * self.target._model_shape[1]
         where = np.flatnonzero(self.target.beyond(d).reshape(-1))
         return int((~(self.ill_at(rules, v, where) | self.flips(rules)[where])).sum())
-
-    def _converge(self, start: Rules, current: Rules, tabu: str | None = None) -> Rules:
-        return self._descend(start, current, tabu)
 
     def _descend(self, start: Rules, current: Rules, tabu: str | None = None) -> Rules:
         """Greedy steps from ``current`` until no single change (or profile) removes mismatching pixels.
@@ -639,10 +632,6 @@ class _Search:
                             if best_key is None or key < best_key:
                                 best, best_key = cand, key
         return best
-
-    def _score(self, rules: Rules) -> tuple[float, float]:
-        d, _ = self.full(rules)
-        return (math.inf, math.inf) if d is None else self.target.score(d)
 
     def _best_exponent(self, rules: Rules) -> int:
         """The integer exponent that fits the image best with the other rules as they are: the listed
