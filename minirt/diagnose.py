@@ -83,24 +83,44 @@ class Variant:
     shadow_ill: np.ndarray  # (H, W) or (N,) bool: shadow rays within rounding of a ball's silhouette
     idx: np.ndarray | None = None  # None: every pixel
     f32_flips: np.ndarray | None = None  # (H, W) bool, on demand (full renders only)
-    f32_color: np.ndarray | None = None  # (H, W, 3): the same rules in float32, with f32_flips
+    f32_stored: np.ndarray | None = None  # (H, W, 3) float32: the same rules traced in float32
+
+    @property
+    def f32_color(self) -> np.ndarray | None:
+        """The float32 render as float64 (exact: every float32 is a float64), so that it is encoded with
+        the same float64 arithmetic as ``color``; kept as float32, half the bytes."""
+        return None if self.f32_stored is None else self.f32_stored.astype(np.float64)
 
     @property
     def nbytes(self) -> int:
-        return self.color.nbytes + self.shadow_ill.nbytes
+        extra = sum(a.nbytes for a in (self.f32_flips, self.f32_stored) if a is not None)
+        return self.color.nbytes + self.shadow_ill.nbytes + extra
 
 
 class VariantCache:
-    """Renders of one or more scenes under many rule sets: full renders kept up to ``max_bytes`` (least
-    recently used first out), shared by every image graded in one run; subset renders are the search's
-    own and not kept. Tracing, not compiling, is what the cache saves: Dr.Jit keeps compiled kernels."""
+    """Renders of one or more scenes under many rule sets, shared by every image graded in one process;
+    subset renders are the search's own and not kept. Tracing, not compiling, is what the cache saves:
+    Dr.Jit keeps compiled kernels.
 
-    def __init__(self, max_bytes: int = 3 << 30):
+    Full renders (float64 colour, shadow flags, and the float32 twin when asked for: ``Variant.nbytes``
+    counts them all) are kept up to ``max_bytes``, least recently used first out -- except the *pinned*
+    ones: the scene's own rules with at most one rule changed, which every image of the scene asks for.
+    They are few (a scene's rules have ~35 single changes) and never evicted, so a long class run does not
+    trace them again; only the renders of one image's own search path age out.
+
+    ``requested`` collects the candidate renders (rules, precision) asked for since it was last cleared,
+    traced now or taken from the cache: the diagnosis reports that count, which does not depend on what
+    earlier images left in the cache (a class graded by one process or by several writes the same
+    pages)."""
+
+    def __init__(self, max_bytes: int = 2 << 30):
         self.max_bytes = max_bytes
         self._items: OrderedDict[tuple, Variant] = OrderedDict()
+        self._pinned: set[tuple] = set()
         self._rays: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-        self.alternatives: dict[tuple, list[dict[str, Any]]] = {}  # see ``indistinguishable``
+        self.alternatives: dict[tuple, tuple[list[dict[str, Any]], set]] = {}  # see ``indistinguishable``
+        self.requested: set[tuple] = set()
         self.renders = 0  # rays traced, in units of whole images
         self.hits = 0
 
@@ -108,8 +128,12 @@ class VariantCache:
     def _key(scene: Scene, rules: Rules) -> tuple:
         return (scene.digest, scene.source, scene.camera.width, scene.camera.height, rules.traced())
 
-    def get(self, scene: Scene, rules: Rules, f32: bool = False) -> Variant:
+    def get(self, scene: Scene, rules: Rules, f32: bool = False, pin: bool = False) -> Variant:
+        """The full render of ``rules`` (with its float32 twin if ``f32``); ``pin`` keeps it for good."""
         key = self._key(scene, rules)
+        self.requested.add((key, "f64"))
+        if pin:
+            self._pinned.add(key)
         v = self._items.get(key)
         if v is None:
             v = self._trace(scene, rules.traced(), None)
@@ -118,8 +142,11 @@ class VariantCache:
         else:
             self.hits += 1
             self._items.move_to_end(key)
-        if f32 and v.f32_flips is None:
-            v.f32_color, v.f32_flips = self._f32_render(scene, v)
+        if f32:
+            self.requested.add((key, "f32"))
+            if v.f32_flips is None:
+                v.f32_stored, v.f32_flips = self._f32_render(scene, v)
+                self._trim()
         return v
 
     def subset(self, scene: Scene, rules: Rules, idx: np.ndarray, keep: bool = False) -> Variant:
@@ -128,9 +155,12 @@ class VariantCache:
         cost, tracing Dr.Jit's graph in Python, ~20-30 ms, outweighs its rays up to ~512²: render it all
         and keep it); else only those pixels' rays, not kept."""
         key = self._key(scene, rules)
+        self.requested.add((key, "f64"))
         n = scene.camera.width * scene.camera.height
         if key not in self._items and (keep or n <= FULL_RENDER_PIXELS):
-            self.get(scene, rules)
+            self.get(scene, rules, pin=keep)
+        elif keep:
+            self._pinned.add(key)
         v = self._items.get(key)
         if v is not None:
             self.hits += 1
@@ -175,12 +205,13 @@ class VariantCache:
         except MinirtError:  # beyond float32's range: no float32 tracer could draw it; nothing to add
             return None, np.zeros(v.color.shape[:2], dtype=bool)
         a, b = bitmap.encode(v.color), bitmap.encode(c32)
-        return c32, (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
+        return c32.astype(np.float32), (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
 
     def subset32(self, scene: Scene, rules: Rules, idx: np.ndarray) -> Variant | None:
         """The candidate traced in float32 on the pixels ``idx`` (None beyond float32's range)."""
         from minirt.errors import MinirtError
 
+        self.requested.add((self._key(scene, rules), "f32"))
         try:
             return self._trace(scene, rules.traced(), idx, "f32")
         except MinirtError:
@@ -211,9 +242,16 @@ class VariantCache:
 
     def _trim(self) -> None:
         total = sum(v.nbytes for v in self._items.values())
-        while total > self.max_bytes and len(self._items) > 1:
-            _, v = self._items.popitem(last=False)
-            total -= v.nbytes
+        if total <= self.max_bytes:
+            return
+        for key in [k for k in self._items if k not in self._pinned]:  # oldest first
+            if total <= self.max_bytes or len(self._items) <= 1:
+                break
+            total -= self._items.pop(key).nbytes
+
+    @property
+    def nbytes(self) -> int:
+        return sum(v.nbytes for v in self._items.values())
 
 
 def _ray_key(rules: Rules) -> tuple:
@@ -314,7 +352,7 @@ class Diagnosis:
     given_color: np.ndarray
     best_color: np.ndarray
     steps: list[dict[str, Any]]
-    renders: float
+    renders: int  # candidate renders looked at (VariantCache.requested): traced now or taken from the cache
 
     @property
     def changed(self) -> dict[str, str]:
@@ -485,7 +523,13 @@ class _Search:
         of the right ones, counts scaled back up), traced on those pixels only -- unless it is one step
         from the scene's own rules (rendered in full once, shared by every image of the scene) or
         changes only output rules (no render). (2) The best VERIFY are rendered in full and the first
-        that really gains is taken."""
+        that really gains is taken.
+
+        A descent never returns to a rule set it has been at: ``compare`` leaves out pixels that are
+        ill-conditioned in either rule set, so on a scene full of such pixels a change and its undoing
+        can both look like gains (and the output refit after a step can undo that step); the rule space
+        is finite, so the descent ends."""
+        seen = {current}
         while True:
             dc, vc = self.either(current)
             if dc is None:
@@ -512,16 +556,21 @@ class _Search:
                 if e != current.specular_exponent and e not in rules_mod.values("specular_exponent"):
                     singles.append(replace(current, specular_exponent=e))
             singles += _profile_moves(current)
+            singles = [c for c in singles if c not in seen]
             if tabu:
                 singles = [c for c in singles if tabu not in current.differs(c)]
                 tabu = None
-            better = self._step(start, current, vc, sub, flips, singles)
+            better = self._step(start, current, vc, sub, flips, singles, seen)
             if better is None:
                 return current
+            seen.add(better)
             current = better
 
-    def _step(self, start: Rules, current: Rules, vc: Variant, sub: _Subset, flips, cands: list[Rules]):
-        """The candidate that really gains most, or None (see ``_descend``)."""
+    def _step(
+        self, start: Rules, current: Rules, vc: Variant, sub: _Subset, flips, cands: list[Rules], seen: set[Rules]
+    ):
+        """The candidate that really gains most (with its best output rules, unless that refit lands on a
+        rule set already ``seen``), or None (see ``_descend``)."""
         scored = []
         for k, c in enumerate(cands):
             est = self._estimate(start, current, vc, c, sub.idx)
@@ -542,13 +591,14 @@ class _Search:
             g = self.compare(current, c)
             if g is not None and g > (0, 0):
                 self.steps.append({"rules": current.differs(c), "gain": g[0], "gain_one_level": g[1]})
-                return self._best_output(c)
+                refit = self._best_output(c)
+                return c if refit in seen else refit
         return None
 
     def _one_step(self, start: Rules, name: str, value: Any) -> Variant | None:
         """The full render of the scene's own rules with one rule changed (shared across images)."""
         r = start if value == getattr(start, name) else replace(start, **{name: value})
-        return self.cache.get(self.scene, r) if _valid(r) else None
+        return self.cache.get(self.scene, r, pin=True) if _valid(r) else None
 
     def _estimate(
         self, start: Rules, current: Rules, vc: Variant, c: Rules, idx: np.ndarray
@@ -694,7 +744,7 @@ def diagnose(
     ``alternatives=False`` skips the list of settings the scene cannot tell apart from the answer
     (about half the time of a diagnosis; ``check`` does not show it)."""
     cache = cache or VariantCache()
-    before = cache.renders
+    cache.requested = set()
     search = _Search(scene, target, cache)
     best = search.run(given)
     pair = [given, best]
@@ -724,7 +774,7 @@ def diagnose(
         given_color=cache.get(scene, given).color,
         best_color=cache.get(scene, best).color,
         steps=search.steps,
-        renders=round(cache.renders - before, 2),
+        renders=len(cache.requested),
     )
 
 
@@ -743,8 +793,13 @@ def indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Ta
     a class's images with the same answer share one list (kept in the cache)."""
     key = (*VariantCache._key(scene, best), best, target.is_float)
     if key not in cache.alternatives:
-        cache.alternatives[key] = _indistinguishable(scene, best, cache, target)
-    return [dict(e) for e in cache.alternatives[key]]
+        asked, cache.requested = cache.requested, set()
+        found = _indistinguishable(scene, best, cache, target)
+        cache.alternatives[key] = (found, cache.requested)
+        cache.requested = asked
+    found, renders = cache.alternatives[key]
+    cache.requested |= renders  # what the list looked at counts whether it was made now or before
+    return [dict(e) for e in found]
 
 
 def _indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Target) -> list[dict[str, Any]]:

@@ -204,6 +204,32 @@ def test_eth2014_profile_is_named_whole(cache):
     assert d.best == eth and d.mismatch_pixels == 0
 
 
+def test_descent_never_revisits_a_rule_set():
+    """A float32 image of rules.toml at 96² with pixel centres and offsets along the ray: the search's
+    output refit after a step undid that step, and the descent looped forever between the same rule sets
+    (found by a seeded class of 20 students at 256²). It must end, and name the injected rules."""
+    import signal
+
+    scene = small_scene("rules", 96, 96)
+    given = R.resolve(scene)
+    injected = replace(given, pixel_sample="center", offset_along="ray")
+    img = bitmap.bitmap(render(scene, injected.traced(), precision="f32").color, injected)
+
+    def _hung(*_):
+        raise TimeoutError("the descent did not end in 120 s")
+
+    old = signal.signal(signal.SIGALRM, _hung)
+    signal.alarm(120)  # ~2 s on a quiet machine; without the fix it never ends
+    try:
+        d = dg.diagnose(scene, given, dg.Target(img, False, "student"), dg.VariantCache())
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    visited = [tuple(s["rules"]) for s in d.steps]
+    assert len(d.steps) <= 8, visited
+    assert d.changed == {"pixel_sample": "center", "offset_along": "ray"} and d.mismatch_pixels == 0
+
+
 # ---------------------------------------------------------------------------------------------
 def _grade(scene, injected: R.Rules, cache, tmp_path, name: str = "student.png") -> grading.Grade:
     path = tmp_path / name
