@@ -108,6 +108,14 @@ def _progress(enabled: bool = True):
         yield p
 
 
+def _bar_text(text: str) -> str:
+    """A folder or file name as a progress bar's description: control characters shown as '?' and
+    Rich markup escaped, so a student folder named '[red]x' or holding an escape code prints as text."""
+    from rich.markup import escape
+
+    return escape("".join(c if c.isprintable() else "?" for c in text))
+
+
 # ---------------------------------------------------------------------------------------------
 @app.command()
 def render(
@@ -618,6 +626,26 @@ def grade(
         typer.Option("--scenes", metavar="DIR", help="With --class: the scenes (default: the bundled scenes)."),
     ] = None,
     size: Annotated[str | None, typer.Option("--size", help="The scene rendered at WIDTHxHEIGHT.")] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            "--workers",
+            min=1,
+            max=256,
+            help="With --class: worker processes (default: one per core, none with fewer than 16 images; "
+            "1 grades in this process).",
+            show_default=False,
+        ),
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler",
+            metavar="ADDRESS",
+            help="With --class: grade on a running Dask cluster (tcp://host:8786); its workers need minirt "
+            "and the same paths.",
+        ),
+    ] = None,
     profile: ProfileOpt = None,
     rule: RuleOpt = None,
     quiet: QuietOpt = False,
@@ -634,14 +662,17 @@ def grade(
     if class_dir is not None:
         if scene_path is not None or image is not None:
             raise MinirtError("--class grades DIR/<student>/<scene>.png: give no SCENE or IMAGE with it")
-        _grade_class(class_dir, scenes_dir, out_dir or Path("grades"), json_out, size, profile, rule, quiet)
+        _grade_class(
+            class_dir, scenes_dir, out_dir or Path("grades"), json_out, size, profile, rule, quiet, workers, scheduler
+        )
         return
     if scene_path is None or image is None:
         raise MinirtError(
             "grade needs SCENE and IMAGE (or --class DIR), e.g. minirt grade scenes/rules.toml student.png"
         )
-    if scenes_dir is not None:
-        raise MinirtError("--scenes goes with --class")
+    for given, option in ((scenes_dir, "--scenes"), (workers, "--workers"), (scheduler, "--scheduler")):
+        if given is not None:
+            raise MinirtError(f"{option} goes with --class")
     from minirt import grade as grading
     from minirt.scenes import find_scene
 
@@ -703,9 +734,9 @@ def _print_grade(g, page: Path | None) -> None:
         out.print(f"wrote {page}", markup=False)
 
 
-def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet) -> None:
-    from minirt import diagnose as dg
+def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet, workers, scheduler) -> None:
     from minirt import grade as grading
+    from minirt import jobs
     from minirt.grade_report import write_class_page
     from minirt.imageio import write_json
     from minirt.scenes import BUNDLED
@@ -723,19 +754,20 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
         _out_file(Path(json_out), "--json")
     _out_dir(out_dir)
     wh = _parse_size(size)
-    loaded = [(f, *_load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
-    cache = dg.VariantCache()
-    rows = []
+    loaded = [(str(f), *_load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
     total = len(people) * len(loaded)
+    if workers is None:
+        workers = jobs.default_workers(total)
     with _progress(not quiet) as bar:
-        task = bar.add_task("grading", total=total) if bar else None
-        for s in people:
-            for f, scene, rules in loaded:
-                if bar:
-                    bar.update(task, description=f"{s.name[:16]:<16} {f.stem[:12]:<12}")
-                rows.append(grading.grade_one_row(s, scene, str(f), rules, cache))
-                if bar:
-                    bar.advance(task)
+        label = f"grading ({workers} processes)" if scheduler is None and workers > 1 else "grading"
+        task = bar.add_task(label, total=total) if bar else None
+
+        def done(job, row) -> None:
+            if bar:
+                bar.update(task, description=_bar_text(f"{row.student[:16]:<16} {row.scene[:12]:<12}"))
+                bar.advance(task)
+
+        rows = grading.grade_class(people, loaded, out_dir, workers=workers, scheduler=scheduler, on_done=done)
     summary = grading.class_dict(rows, [f.stem for f in files])
     index = write_class_page(rows, summary, out_dir, quiet=quiet)
     summary["grades"] = [r.as_dict() for r in rows]  # with the pages' links

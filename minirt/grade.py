@@ -288,6 +288,7 @@ class ClassRow:
     reason: str = ""
     page: str = ""
     grade: Grade | None = field(default=None, repr=False)
+    sentences: dict[str, str] = field(default_factory=dict, repr=False)  # rule -> the sentence for the student
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -330,7 +331,71 @@ def grade_one_row(student: Path, scene: Scene, scene_file: str, rules: Rules, ca
     except MinirtError as e:
         return ClassRow(student.name, stem, ERROR, {}, None, None, reason=str(e).splitlines()[0])
     d = g.diagnosis
-    return ClassRow(student.name, stem, g.verdict, d.changed, d.mismatch_pixels, d.as_given_pixels, grade=g)
+    said = {n: sentence(n, getattr(d.best, n), getattr(d.given, n)) for n in d.changed}
+    return ClassRow(
+        student.name, stem, g.verdict, d.changed, d.mismatch_pixels, d.as_given_pixels, grade=g, sentences=said
+    )
+
+
+@dataclass(frozen=True)
+class ClassJob:
+    """One image of a class to grade: everything a worker process needs, nothing it must share."""
+
+    student: str  # the student's folder
+    scene: Scene
+    scene_file: str
+    rules: Rules
+    out_dir: str  # the class's output folder (pages/ inside)
+    page_stem: str
+
+
+# Each process keeps one render cache for every image it grades (a worker's share of a class). Its budget
+# is per process: two workers hold twice this at most, plus what a diagnosis holds while it runs.
+PROCESS_CACHE_BYTES = 2 << 30
+_process_cache: dg.VariantCache | None = None
+
+
+def process_cache() -> dg.VariantCache:
+    global _process_cache
+    if _process_cache is None:
+        _process_cache = dg.VariantCache(PROCESS_CACHE_BYTES)
+    return _process_cache
+
+
+def grade_job(job: ClassJob) -> ClassRow:
+    """Grade one image of a class and write its page (in whichever process runs it); the row comes back
+    without the grade's arrays, so neither the worker nor the caller holds a class's worth of them."""
+    from minirt.grade_report import write_row_page
+
+    row = grade_one_row(Path(job.student), job.scene, job.scene_file, job.rules, process_cache())
+    write_row_page(row, Path(job.out_dir), job.page_stem)
+    row.grade = None
+    return row
+
+
+def grade_class(
+    people: list[Path],
+    scenes: list[tuple[str, Scene, Rules]],
+    out_dir: Path,
+    workers: int = 1,
+    scheduler: str | None = None,
+    on_done: Callable[[ClassJob, ClassRow], None] | None = None,
+) -> list[ClassRow]:
+    """Grade every student's image of every scene (``scenes``: (file, scene, rules)), writing each page
+    into ``out_dir/pages/`` as it is graded; rows in student order, then scene order, however the work
+    was spread (minirt.jobs: ``workers`` processes here, or a Dask ``scheduler``'s). A call that fails
+    inside a worker is an ``error`` row, like a missing image."""
+    from minirt import jobs
+    from minirt.grade_report import page_stems
+
+    keys = [(s, f, sc, r) for s in people for f, sc, r in scenes]
+    stems = page_stems((s.name, Path(f).stem) for s, f, _, _ in keys)
+    todo = [ClassJob(str(s), sc, f, r, str(out_dir), stem) for (s, f, sc, r), stem in zip(keys, stems, strict=True)]
+
+    def failed(job: ClassJob, message: str) -> ClassRow:
+        return ClassRow(Path(job.student).name, Path(job.scene_file).stem, ERROR, {}, None, None, reason=message)
+
+    return jobs.run(grade_job, todo, workers=workers, scheduler=scheduler, on_done=on_done, on_error=failed)
 
 
 def common_mistakes(rows: list[ClassRow]) -> list[dict[str, Any]]:

@@ -100,22 +100,34 @@ def _unique(stem: str, used: set[str]) -> str:
 
 
 class _Assets:
-    """PNGs in one folder; identical pixels are written once (``shared`` carries that across pages)."""
+    """PNGs in one folder. One page: identical pixels are written once, under the first name asked for.
+    A class (``by_content``): every picture is named by its pixels' hash and written once into the shared
+    folder, by whichever page -- in whichever worker process -- asks first (the exercise's model of a
+    scene, a matching image's empty heat maps: most pages share most pictures). So the same class writes
+    the same files however its pages are spread over processes."""
 
-    def __init__(self, folder: Path, href: str, shared: dict[str, str] | None = None):
-        self.folder, self.href = folder, href
-        self.by_key = shared if shared is not None else {}
+    def __init__(self, folder: Path, href: str, by_content: bool = False):
+        self.folder, self.href, self.by_content = folder, href, by_content
+        self.by_key: dict[str, str] = {}
 
     def image8(self, name: str, pixels: np.ndarray) -> str:
         pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
         key = hashlib.sha256(pixels.tobytes() + str(pixels.shape).encode()).hexdigest()
+        if self.by_content:
+            name = f"{key[:24]}.png"
+            if not (self.folder / name).is_file():  # same name, same pixels: written by another page
+                write_image(self.folder / name, pixels)
+            return f"{self.href}/{name}"
         if key not in self.by_key:
             write_image(self.folder / name, pixels)
             self.by_key[key] = name
         return f"{self.href}/{self.by_key[key]}"
 
     def colorbar(self) -> str:
-        return self.image8(COLORBAR, _lut()[None, :, :])
+        """The colour bar, under its fixed name (the same pixels on every page)."""
+        if not (self.folder / COLORBAR).is_file():
+            write_image(self.folder / COLORBAR, _lut()[None, :, :])
+        return f"{self.href}/{COLORBAR}"
 
 
 @functools.cache
@@ -336,15 +348,13 @@ def _write_html(path: Path, template: str, **context: Any) -> None:
         tmp.write_text(html, encoding="utf-8")
 
 
-def _write_page(
-    g: Grade, out_dir: Path, stem: str, assets: str, shared: dict[str, str] | None, back: str | None
-) -> Path:
+def _write_page(g: Grade, out_dir: Path, stem: str, assets: str, by_content: bool, back: str | None) -> Path:
     out_dir = Path(out_dir)
     stem = safe_stem(stem, "index")
     href = "/".join(safe_stem(p, "assets") for p in Path(assets).parts) or "assets"
     folder = out_dir / href
     folder.mkdir(parents=True, exist_ok=True)
-    view = _grade_view(g, stem, _Assets(folder, href, shared))
+    view = _grade_view(g, stem, _Assets(folder, href, by_content))
     page = out_dir / f"{stem}.html"
     _write_html(page, "grade.html", g=view, back=back)
     return page
@@ -352,7 +362,7 @@ def _write_page(
 
 def write_grade_page(g: Grade, out_dir: Path, stem: str = "index", assets: str = "assets") -> Path:
     """Write ``out_dir/<stem>.html`` and its images in ``out_dir/<assets>/``; return the page's path."""
-    return _write_page(g, out_dir, stem, assets, None, None)
+    return _write_page(g, out_dir, stem, assets, False, None)
 
 
 @dataclass
@@ -372,20 +382,22 @@ class _Table:
 
 
 def _mistake_views(rows: list[ClassRow], mistakes: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The summary's common mistakes with a sentence: the typed values from a row that has the mistake,
-    else parsed back from the text against the rule's listed values and the first grade's given rules."""
+    """The summary's common mistakes with a sentence: from a row that has the mistake (its grade, or the
+    sentences a worker kept of it), else parsed back from the text against the rule's listed values and
+    the first grade's given rules."""
     graded = [r.grade for r in rows if r.grade is not None and r.grade.diagnosis is not None]
+    kept = {(k, r.rules[k]): text for r in rows for k, text in r.sentences.items() if k in r.rules}
     out = []
     for m in mistakes:
         rule, value = str(m.get("rule")), str(m.get("value"))
-        s = ""
-        for g in graded:
+        s = kept.get((rule, value), "")
+        for g in graded if not s else ():
             d = g.diagnosis
             if d.changed.get(rule) == value:
                 s = _rule_sentence(rule, getattr(d.best, rule), getattr(d.given, rule))
                 break
         else:
-            if graded and rule in rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES:
+            if not s and graded and rule in rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES:
                 given = getattr(graded[0].diagnosis.given, rule)
                 typed = [x for x in rules_mod.values(rule) if rules_mod.format_rule_value(rule, x) == value]
                 if typed:
@@ -395,24 +407,35 @@ def _mistake_views(rows: list[ClassRow], mistakes: Iterable[dict[str, Any]]) -> 
     return out
 
 
-def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: bool = True) -> Path:
-    """Write a page per graded row into ``out_dir/pages/`` (setting ``row.page`` to its link) and the class
-    table ``out_dir/index.html``; return the index's path."""
-    out_dir = Path(out_dir)
-    pages = out_dir / "pages"
-    pages.mkdir(parents=True, exist_ok=True)
+def page_stems(keys: Iterable[tuple[str, str]]) -> list[str]:
+    """The page stem of each (student, scene), in order: sanitised, and unique case-insensitively (a
+    class's pages are named before any is graded, so every worker writes the name the index links)."""
     used: set[str] = set()
-    shared: dict[str, str] = {}
-    todo = [r for r in rows if r.grade is not None]
-    progress = None if quiet else _progress(len(todo))
+    return [_unique(f"{safe_stem(student, 'student')}-{safe_stem(scene, 'scene')}", used) for student, scene in keys]
+
+
+def write_row_page(row: ClassRow, out_dir: Path, stem: str) -> None:
+    """Write the page of one graded row of a class into ``out_dir/pages/<stem>.html`` (its pictures in
+    ``pages/assets/``) and set ``row.page`` to its link; a row without a grade (an error) gets none."""
+    if row.grade is None:
+        row.page = ""
+        return
+    page = _write_page(row.grade, Path(out_dir) / "pages", stem, "assets", True, "../index.html")
+    row.page = f"pages/{page.name}"
+
+
+def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: bool = True) -> Path:
+    """Write a page per graded row that has none yet into ``out_dir/pages/`` (setting ``row.page`` to its
+    link; a class graded by ``grade.grade_class`` arrives with its pages written) and the class table
+    ``out_dir/index.html``; return the index's path."""
+    out_dir = Path(out_dir)
+    (out_dir / "pages").mkdir(parents=True, exist_ok=True)
+    stems = page_stems((r.student, r.scene) for r in rows)
+    todo = [(r, stem) for r, stem in zip(rows, stems, strict=True) if r.grade is not None and not r.page]
+    progress = None if quiet or not todo else _progress(len(todo))
     try:
-        for r in rows:
-            if r.grade is None:
-                r.page = ""
-                continue
-            stem = _unique(f"{safe_stem(r.student, 'student')}-{safe_stem(r.scene, 'scene')}", used)
-            page = _write_page(r.grade, pages, stem, "assets", shared, "../index.html")
-            r.page = f"pages/{page.name}"
+        for r, stem in todo:
+            write_row_page(r, out_dir, stem)
             if progress:
                 progress.advance(r.student, r.scene)
     finally:

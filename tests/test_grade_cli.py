@@ -114,6 +114,8 @@ def _bad_inputs(work) -> dict[str, tuple[list, str]]:
     (t / "truncated.png").write_bytes(whole[: len(whole) // 2])
     write_image(t / "small.png", np.zeros((32, 40, 3), np.uint8))
     (t / "empty_class").mkdir(exist_ok=True)
+    (t / "one_class" / "s").mkdir(parents=True, exist_ok=True)
+    (t / "one_class" / "s" / "rules.png").write_bytes(work.match.read_bytes())
     scene = work.rules_toml
     return {
         "missing image": (["grade", scene, t / "none.png"], "no such image file"),
@@ -126,6 +128,21 @@ def _bad_inputs(work) -> dict[str, tuple[list, str]]:
         "class with scene": (["grade", "--class", work.tmp, scene], "--class"),
         "scenes without class": (["grade", scene, work.match, "--scenes", work.scenes], "--scenes"),
         "class on empty folder": (["grade", "--class", t / "empty_class", "--out", t / "o"], "empty_class"),
+        "workers without class": (["grade", scene, work.match, "--workers", "2"], "--workers goes with --class"),
+        "scheduler unreachable": (
+            [
+                "grade",
+                "--class",
+                t / "one_class",
+                "--scenes",
+                work.scenes,
+                "--out",
+                t / "o2",
+                "--scheduler",
+                "tcp://127.0.0.1:9",
+            ],
+            "--scheduler tcp://127.0.0.1:9: cannot reach",
+        ),
         "json unwritable": (["grade", scene, work.match, "--json", "/proc/x/y.json"], "/proc/x"),
     }
 
@@ -141,6 +158,8 @@ BAD = [
     "class with scene",
     "scenes without class",
     "class on empty folder",
+    "workers without class",
+    "scheduler unreachable",
     "json unwritable",
 ]
 
@@ -237,10 +256,17 @@ def klass(work) -> SimpleNamespace:
     (c / "carol" / "exercise.png").write_bytes(b"\x89PNG\r\n\x1a\nnot really")  # and no rules.png
     out = work.tmp / "class-out"
     args = ["grade", "--class", c, "--scenes", work.scenes, "--out", out]
-    first = run(*args)
+    first = run(*args)  # six images: graded in this process (minirt.jobs.default_workers)
     files = {n: (out / n).read_bytes() for n in ("grades.csv", "grades.json")}
+    tree = _tree(out)
     second = run(*args)
-    return SimpleNamespace(dir=c, out=out, first=first, second=second, files=files)
+    out2 = work.tmp / "class-out-2"
+    two = run(*args[:-1], out2, "--workers", "2")
+    return SimpleNamespace(dir=c, out=out, first=first, second=second, files=files, tree=tree, two=two, out2=out2)
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def test_class_mode(klass):
@@ -279,3 +305,14 @@ def test_class_mode_is_deterministic(klass):
     assert klass.second.returncode == 0, klass.second.stderr
     for name, first in klass.files.items():
         assert (klass.out / name).read_bytes() == first, name
+
+
+def test_class_on_two_worker_processes_writes_the_same_files(klass):
+    """--workers 2 (two Dask worker processes, each with its own render cache, pages written where they
+    are graded) writes exactly the files of a class graded in one process: every page, picture and table."""
+    assert klass.two.returncode == 0, klass.two.stderr
+    assert "Traceback" not in klass.two.stderr + klass.two.stdout
+    two = _tree(klass.out2)
+    assert sorted(two) == sorted(klass.tree)
+    assert [n for n in two if two[n] != klass.tree[n]] == []
+    assert any(n.startswith("pages/assets/") for n in two) and "index.html" in two
