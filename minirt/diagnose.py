@@ -35,6 +35,8 @@ Greedy descent in rule space from the scene's own rules (``_Search``):
   is rendered in full once and kept: every image of that scene asks for it.
 - A pixel matches a candidate if it matches its float64 or its float32 image (a float32 tracer may
   draw either where rounding decides); a rule with no float64 effect is tried in float32 too.
+- A descent stuck with pixels still wrong tries each traced change once more with the output rules that
+  fit it best (``_Search._paired``): a wrong gamma hides a trace rule's gain and the other way round.
 - Greedy steps can take a rule that imitates the right one (a high exponent dims the wrong-side
   highlight that clamping removes) and stall: while pixels stay unexplained the descent restarts from
   the scene's rules with each rule the answer changed forbidden in the first step, and keeps what
@@ -431,7 +433,8 @@ class _Subset:
 
 
 class _Search:
-    def __init__(self, scene: Scene, target: Target, cache: VariantCache):
+    def __init__(self, scene: Scene, target: Target, cache: VariantCache, outputs: bool = True):
+        self.outputs = outputs  # False: the image's output rules are known (the start's); never searched
         self.scene, self.target, self.cache = scene, target, cache
         self.steps: list[dict[str, Any]] = []
         self._exponents: dict[Rules, int] = {}
@@ -550,7 +553,8 @@ class _Search:
             sub.before = cls[sub.idx]
             flips = self.flips(current)
             moot = _moot(self.scene, current)
-            singles = _moves(current, rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES, moot)
+            names = rules_mod.TRACE_RULES + (rules_mod.OUTPUT_RULES if self.outputs else ())
+            singles = _moves(current, names, moot)
             if "specular_exponent" not in moot:  # beside the listed values, the best integer
                 e = self._best_exponent(current)
                 if e != current.specular_exponent and e not in rules_mod.values("specular_exponent"):
@@ -561,6 +565,8 @@ class _Search:
                 singles = [c for c in singles if tabu not in current.differs(c)]
                 tabu = None
             better = self._step(start, current, vc, sub, flips, singles, seen)
+            if better is None:
+                better = self._step(start, current, vc, sub, flips, self._paired(current, singles, seen), seen)
             if better is None:
                 return current
             seen.add(better)
@@ -594,6 +600,21 @@ class _Search:
                 refit = self._best_output(c)
                 return c if refit in seen else refit
         return None
+
+    def _paired(self, current: Rules, singles: list[Rules], seen: set[Rules]) -> list[Rules]:
+        """When no single change gains: each change of the traced rules with the output rules that fit it
+        best. An output rule can hide a trace rule's effect and the other way round -- the background
+        added to misses instead of hits, under a gamma curve, leaves every pixel wrong under either change
+        alone (``matte``: every pixel) -- so the pair is tried as one step. Only a stuck descent pays for
+        it: a full render and an output fit per candidate."""
+        out: list[Rules] = []
+        for c in singles if self.outputs else ():
+            if c.traced() == current.traced():
+                continue
+            refit = self._best_output(c)
+            if refit != c and refit not in seen and refit not in out:
+                out.append(refit)
+        return out
 
     def _one_step(self, start: Rules, name: str, value: Any) -> Variant | None:
         """The full render of the scene's own rules with one rule changed (shared across images)."""
@@ -661,6 +682,8 @@ class _Search:
         """The output rules (no render needed) that fit the image best for these traced rules: every
         encoding and gamma is encoded once and compared with the image in every layout, on a stride of
         about 4 SAMPLE pixels (single output-rule moves are verified in full later by the descent)."""
+        if not self.outputs:
+            return rules
         v = self.cache.get(self.scene, rules)
         n = v.color.shape[0] * v.color.shape[1]
         at = np.arange(0, n, max(1, n // (4 * SAMPLE)))
@@ -738,14 +761,20 @@ class _Search:
 
 
 def diagnose(
-    scene: Scene, given: Rules, target: Target, cache: VariantCache | None = None, alternatives: bool = True
+    scene: Scene,
+    given: Rules,
+    target: Target,
+    cache: VariantCache | None = None,
+    alternatives: bool = True,
+    outputs: bool = True,
 ) -> Diagnosis:
     """Search rule space for the setting that best reproduces ``target`` (see the module's docstring).
     ``alternatives=False`` skips the list of settings the scene cannot tell apart from the answer
-    (about half the time of a diagnosis; ``check`` does not show it)."""
+    (about half the time of a diagnosis; ``check`` does not show it). ``outputs=False`` keeps ``given``'s
+    output rules: for an image whose encoding and layout are known (an oracle's ``color8()``)."""
     cache = cache or VariantCache()
     cache.requested = set()
-    search = _Search(scene, target, cache)
+    search = _Search(scene, target, cache, outputs)
     best = search.run(given)
     pair = [given, best]
     mg, _, ill_g = search.final_mask(given, pair)

@@ -682,7 +682,10 @@ def diagnose_oracle(scene: Scene, rules: Rules, followed: Rules, res: RenderResu
         out.reason = "no search needed: the image is the scene's rules' within one 8-bit level on every pixel"
         out.unexplained_mask = np.zeros((h, w), dtype=bool)
     else:
-        d = dg.diagnose(one, given, dg.Target(img, False, name=res.backend), variants, alternatives=False)
+        # the oracle's image is color8(): written floor(c·255 + 0.5) in the scene's layout, output rules known
+        d = dg.diagnose(
+            one, given, dg.Target(img, False, name=res.backend), variants, alternatives=False, outputs=False
+        )
         pixels = {e.rule: e.pixels for e in d.explained}
         out.rules_explaining = {k: v for k, v in d.changed.items() if pixels.get(k, 0) > 0}
         out.cannot_tell = {k: v for k, v in d.changed.items() if pixels.get(k, 0) == 0}

@@ -204,6 +204,25 @@ def test_eth2014_profile_is_named_whole(cache):
     assert d.best == eth and d.mismatch_pixels == 0
 
 
+@pytest.mark.parametrize("stem,size", [("matte", 64), ("three_balls", 48)])
+@pytest.mark.parametrize(
+    "combo",
+    [{"background": "on-miss", "gamma": "srgb"}, {"background": "on-miss", "gamma": "srgb", "encoding": "floor256"}],
+    ids=["on-miss+srgb", "on-miss+srgb+floor256"],
+)
+def test_trace_rule_hidden_by_an_output_rule(stem, size, combo, cache):
+    """The background added to misses instead of hits, under a gamma curve: every pixel is wrong under
+    either change alone, so no single step gains (a seeded class of 200 left both scenes unexplained);
+    the stuck descent's paired step (a traced change with the output rules that fit it) finds them."""
+    scene = small_scene(stem, size, size)
+    given = R.resolve(scene)
+    injected = replace(given, **combo)
+    img, d = _diagnose(scene, injected, cache, given)
+    assert d.changed == {k: R.format_rule_value(k, v) for k, v in combo.items()}
+    assert d.mismatch_pixels == 0
+    _check_reproduces(scene, img, d, injected)
+
+
 def test_descent_never_revisits_a_rule_set():
     """A float32 image of rules.toml at 96² with pixel centres and offsets along the ray: the search's
     output refit after a step undid that step, and the descent looped forever between the same rule sets
