@@ -148,6 +148,8 @@ def whole_class(tmp: Path, students: int, size: int) -> dict[str, Any]:
     cmd = [sys.executable, "-m", "minirt", "grade", "--class", str(folder), "--out", str(out),
            "--size", f"{size}x{size}", "--quiet"]  # fmt: skip
     took, _ = run(cmd, {**os.environ})
+    from minirt.jobs import default_workers
+
     grades = json.loads((out / "grades.json").read_text())
     exact = sum(1 for g in grades["grades"] if g["rules"] == injected[(g["student"], g["scene"])])
     reproduced = sum(1 for g in grades["grades"] if g["verdict"] != "error" and g["mismatch_pixels"] == 0)
@@ -156,6 +158,7 @@ def whole_class(tmp: Path, students: int, size: int) -> dict[str, Any]:
         "scenes": len(CLASS_SCENES),
         "size": size,
         "images": len(grades["grades"]),
+        "worker_processes": default_workers(len(grades["grades"])),
         "generate_s": made,
         "grade_s": took,
         "per_image_s": took / max(1, len(grades["grades"])),
@@ -195,7 +198,8 @@ def main() -> None:
     second = f"{c['second_s']:.2f} s (first {c['first_s']:.2f} s)"
     print(f"| {c['size']}² second student, class cache warm (in process) | {second} |")
     per = f"{k['grade_s']:.1f} s ({k['per_image_s']:.3f} s/image)"
-    print(f"| class {k['students']}×{k['scenes']} at {k['size']}² | {per} |")
+    procs = f"{k['worker_processes']} process{'es' if k['worker_processes'] != 1 else ''}"
+    print(f"| class {k['students']}×{k['scenes']} at {k['size']}², {procs} | {per} |")
     print(f"| diagnoses naming exactly the injected rules | {k['named_exactly_the_injected_rules']} of {k['images']} |")
     print(f"| diagnoses that reproduce the image fully | {k['reproduced_fully']} of {k['images']} |")
     for name, ok in res.get("targets", {}).items():

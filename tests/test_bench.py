@@ -118,4 +118,4 @@ def test_grade_benchmark_quick(tmp_path):
     k = r["class"]
     assert k["images"] == 18 and k["verdicts"]["error"] == 0
     assert k["reproduced_fully"] == 18, k
-    assert "| class 3×6 at 48² |" in p.stdout
+    assert "| class 3×6 at 48², 1 process |" in p.stdout and k["worker_processes"] == 1
