@@ -119,7 +119,6 @@ class VariantCache:
         self.max_bytes = max_bytes
         self._items: OrderedDict[tuple, Variant] = OrderedDict()
         self._pinned: set[tuple] = set()
-        self._rays: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.alternatives: dict[tuple, tuple[list[dict[str, Any]], set]] = {}  # see ``indistinguishable``
         self.requested: set[tuple] = set()
@@ -169,14 +168,14 @@ class VariantCache:
             return Variant(v.rules, v.color.reshape(-1, 3)[idx], v.shadow_ill.reshape(-1)[idx], idx)
         return self._trace(scene, rules.traced(), idx)
 
-    def rays(self, scene: Scene, rules: Rules) -> tuple[np.ndarray, np.ndarray]:
-        """The primary rays (NumPy; the tracer's own bits), cached per camera rules."""
+    @staticmethod
+    def rays(scene: Scene, rules: Rules, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The primary rays of pixels ``idx`` (NumPy; the tracer's own bits). Only those pixels': the
+        search asks for a few thousand of an 800² image's, once per camera rule set, and the whole
+        image's rays of every pixel-shift candidate were an eighth of a grade's time."""
         from minirt import camera
 
-        key = (scene.digest, scene.source, scene.camera.width, scene.camera.height, _ray_key(rules))
-        if key not in self._rays:
-            self._rays[key] = camera.primary_rays(scene, rules)
-        return self._rays[key]
+        return camera.primary_rays(scene, rules, idx)
 
     def band(self, scene: Scene, rules: Rules, idx: np.ndarray) -> np.ndarray:
         """(N,) bool: primary rays of pixels ``idx`` whose hit/miss, closest-shape or inside/outside
@@ -189,9 +188,9 @@ class VariantCache:
         known, flag = self._bands.setdefault(key, (np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)))
         todo = idx[~known[idx]]
         if todo.size:
-            o, d = self.rays(scene, rules)
+            o, d = self.rays(scene, rules, todo)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-                m = band.margins(scene, o[todo], d[todo])
+                m = band.margins(scene, o, d)
             flag[todo] = m["margin"] < EPS_REL
             known[todo] = True
         return flag[idx]
@@ -230,8 +229,8 @@ class VariantCache:
         if idx is None:
             o, d = tr.primary_rays()
         else:
-            o_all, d_all = self.rays(scene, rules)
-            o, d = tr._load(o_all[idx]), tr._load(d_all[idx])
+            o_np, d_np = self.rays(scene, rules, idx)
+            o, d = tr._load(o_np), tr._load(d_np)
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             color, levels = tr.trace(o, d, tree=True)
         c = tr._to_numpy3(color)
@@ -565,7 +564,7 @@ class _Search:
                 singles = [c for c in singles if tabu not in current.differs(c)]
                 tabu = None
             better = self._step(start, current, vc, sub, flips, singles, seen)
-            if better is None:
+            if better is None and self._residual(current):  # not for pixels only a level off
                 better = self._step(start, current, vc, sub, flips, self._paired(current, singles, seen), seen)
             if better is None:
                 return current
@@ -605,8 +604,9 @@ class _Search:
         """When no single change gains: each change of the traced rules with the output rules that fit it
         best. An output rule can hide a trace rule's effect and the other way round -- the background
         added to misses instead of hits, under a gamma curve, leaves every pixel wrong under either change
-        alone (``matte``: every pixel) -- so the pair is tried as one step. Only a stuck descent pays for
-        it: a full render and an output fit per candidate."""
+        alone (``matte``: every pixel) -- so the pair is tried as one step. Only a descent stuck with
+        pixels beyond tolerance pays for it (a full render and an output fit per candidate); one stuck
+        with pixels a level off -- most answers' last step -- does not (it doubled an 800² grade)."""
         out: list[Rules] = []
         for c in singles if self.outputs else ():
             if c.traced() == current.traced():
