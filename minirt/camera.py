@@ -32,10 +32,17 @@ def pixel_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     return x.astype(np.float64), y.astype(np.float64)
 
 
-def rays_through(scene: Scene, rules: Rules, u: np.ndarray | float, v: np.ndarray | float):
-    """Origins and unit directions of the rays through sub-pixel positions (u, v) of every pixel."""
+def rays_through(
+    scene: Scene, rules: Rules, u: np.ndarray | float, v: np.ndarray | float, pixels: np.ndarray | None = None
+):
+    """Origins and unit directions of the rays through sub-pixel positions (u, v) of every pixel, or of
+    the row-major pixel indices ``pixels`` only (each ray the same bits as in the whole image's)."""
     w, h = scene.camera.width, scene.camera.height
-    x, y = pixel_grid(w, h)
+    if pixels is None:
+        x, y = pixel_grid(w, h)
+    else:
+        yi, xi = np.divmod(np.asarray(pixels, dtype=np.int64), w)
+        x, y = xi.astype(np.float64), yi.astype(np.float64)
     sx, sy = rules.pixel_shift
     fx, fy = x + u, y + v
     if sx != 0:  # rule pixel_shift: added only when non-zero, so (0, 0) is the unshifted arithmetic
@@ -51,16 +58,17 @@ def rays_through(scene: Scene, rules: Rules, u: np.ndarray | float, v: np.ndarra
     norm = np.sqrt(dx * dx + dy * dy + dz * dz)
     d = np.stack([dx / norm, dy / norm, dz / norm], axis=1)
     if rules.ray_origin == "camera":
-        o = np.tile(np.array([0.0, 0.0, cz]), (w * h, 1))
+        o = np.tile(np.array([0.0, 0.0, cz]), (x.size, 1))
     else:
         o = np.stack([px, py, pz], axis=1)
     return o, d
 
 
-def primary_rays(scene: Scene, rules: Rules) -> tuple[np.ndarray, np.ndarray]:
-    """The one-ray-per-pixel rays (the rule ``pixel_sample`` says corner or centre)."""
+def primary_rays(scene: Scene, rules: Rules, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The one-ray-per-pixel rays (the rule ``pixel_sample`` says corner or centre), of every pixel or
+    of the row-major indices ``pixels``."""
     uv = 0.0 if rules.pixel_sample == "corner" else 0.5
-    return rays_through(scene, rules, uv, uv)
+    return rays_through(scene, rules, uv, uv, pixels)
 
 
 def stratified_grid(n: int) -> tuple[int, int]:

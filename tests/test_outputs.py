@@ -197,3 +197,26 @@ def test_every_backend_writes_identical_files_twice(tmp_path):
         assert {f"three_balls.{backend}.exr", f"three_balls.{backend}.json"} <= set(names), (backend, names)
     for name in names:
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [{}, {"ray_origin": "camera", "pixel_sample": "center", "pixel_shift": (1.0, -0.5)}],
+    ids=["given", "moved"],
+)
+def test_rays_of_some_pixels_are_the_whole_images_bits(changes):
+    """camera.primary_rays(..., pixels): the diagnosis asks for a few pixels' rays; each must be the same
+    float64 bits as that pixel's ray in the whole image (a non-square image, first/last pixels, row ends)."""
+    from dataclasses import replace
+
+    from minirt import camera
+    from minirt import rules as R
+
+    sc = load_scene("scenes/rules.toml").with_overrides(width=37, height=23)
+    rules = replace(R.resolve(sc), **changes)
+    o, d = camera.primary_rays(sc, rules)
+    idx = np.array([0, 5, 36, 37, 500, 850])
+    o2, d2 = camera.primary_rays(sc, rules, idx)
+    assert o2.shape == (6, 3) and d2.shape == (6, 3)
+    assert (o[idx].view(np.uint64) == o2.view(np.uint64)).all()
+    assert (d[idx].view(np.uint64) == d2.view(np.uint64)).all()
