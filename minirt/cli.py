@@ -630,6 +630,7 @@ def grade(
         int | None,
         typer.Option(
             "--workers",
+            metavar="N",
             min=1,
             max=256,
             help="With --class: worker processes (default: one per core, none with fewer than 16 images; "
@@ -657,7 +658,9 @@ def grade(
     Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
     (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,
     one row per student and scene (missing or unreadable images are rows with verdict "error"); exit 0
-    when the class was graded.
+    when the class was graded. Each image of a class is one job: on --workers processes here (each
+    with its own render cache, pages written as images are graded) or on a Dask cluster (--scheduler);
+    the files are the same bytes either way.
     """
     if class_dir is not None:
         if scene_path is not None or image is not None:
