@@ -158,24 +158,15 @@ class VariantCache:
         key = self._key(scene, rules)
         self.requested.add((key, "f64"))
         n = scene.camera.width * scene.camera.height
-        if key not in self._items and (keep or n <= FULL_RENDER_PIXELS):
-            self.get(scene, rules, pin=keep)
-        elif keep:
+        if keep:
             self._pinned.add(key)
+        if key not in self._items and (keep or n <= FULL_RENDER_PIXELS):
+            self.get(scene, rules)
         v = self._items.get(key)
         if v is not None:
             self.hits += 1
             return Variant(v.rules, v.color.reshape(-1, 3)[idx], v.shadow_ill.reshape(-1)[idx], idx)
         return self._trace(scene, rules.traced(), idx)
-
-    @staticmethod
-    def rays(scene: Scene, rules: Rules, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The primary rays of pixels ``idx`` (NumPy; the tracer's own bits). Only those pixels': the
-        search asks for a few thousand of an 800² image's, once per camera rule set, and the whole
-        image's rays of every pixel-shift candidate were an eighth of a grade's time."""
-        from minirt import camera
-
-        return camera.primary_rays(scene, rules, idx)
 
     def band(self, scene: Scene, rules: Rules, idx: np.ndarray) -> np.ndarray:
         """(N,) bool: primary rays of pixels ``idx`` whose hit/miss, closest-shape or inside/outside
@@ -188,7 +179,11 @@ class VariantCache:
         known, flag = self._bands.setdefault(key, (np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)))
         todo = idx[~known[idx]]
         if todo.size:
-            o, d = self.rays(scene, rules, todo)
+            from minirt import camera
+
+            # only these pixels' rays (each the same bits as in the whole image's): the search asks for a
+            # few thousand of an 800² image, and whole images' rays per camera rule set were an eighth of it
+            o, d = camera.primary_rays(scene, rules, todo)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
                 m = band.margins(scene, o, d)
             flag[todo] = m["margin"] < EPS_REL
@@ -229,7 +224,9 @@ class VariantCache:
         if idx is None:
             o, d = tr.primary_rays()
         else:
-            o_np, d_np = self.rays(scene, rules, idx)
+            from minirt import camera
+
+            o_np, d_np = camera.primary_rays(scene, rules, idx)
             o, d = tr._load(o_np), tr._load(d_np)
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             color, levels = tr.trace(o, d, tree=True)
@@ -242,7 +239,7 @@ class VariantCache:
         return Variant(rules, c, sill, idx)
 
     def _trim(self) -> None:
-        total = sum(v.nbytes for v in self._items.values())
+        total = self.nbytes
         if total <= self.max_bytes:
             return
         for key in [k for k in self._items if k not in self._pinned]:  # oldest first

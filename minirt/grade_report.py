@@ -382,26 +382,26 @@ class _Table:
 
 
 def _mistake_views(rows: list[ClassRow], mistakes: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The summary's common mistakes with a sentence: from a row that has the mistake (its grade, or the
-    sentences a worker kept of it), else parsed back from the text against the rule's listed values and
-    the first grade's given rules."""
+    """The summary's common mistakes with a sentence: from a row that has the mistake (the sentences kept
+    with it, or its grade's), else parsed back from the text against the rule's listed values and the
+    first grade's given rules."""
     graded = [r.grade for r in rows if r.grade is not None and r.grade.diagnosis is not None]
-    kept = {(k, r.rules[k]): text for r in rows for k, text in r.sentences.items() if k in r.rules}
+    said: dict[tuple[str, str], str] = {}
+    for r in rows:
+        said.update({(k, r.rules[k]): text for k, text in r.sentences.items() if k in r.rules})
+    for g in graded:
+        d = g.diagnosis
+        for k, value in d.changed.items():
+            said.setdefault((k, value), _rule_sentence(k, getattr(d.best, k), getattr(d.given, k)))
     out = []
     for m in mistakes:
         rule, value = str(m.get("rule")), str(m.get("value"))
-        s = kept.get((rule, value), "")
-        for g in graded if not s else ():
-            d = g.diagnosis
-            if d.changed.get(rule) == value:
-                s = _rule_sentence(rule, getattr(d.best, rule), getattr(d.given, rule))
-                break
-        else:
-            if not s and graded and rule in rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES:
-                given = getattr(graded[0].diagnosis.given, rule)
-                typed = [x for x in rules_mod.values(rule) if rules_mod.format_rule_value(rule, x) == value]
-                if typed:
-                    s = _rule_sentence(rule, typed[0], given)
+        s = said.get((rule, value), "")
+        if not s and graded and rule in rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES:
+            given = getattr(graded[0].diagnosis.given, rule)
+            typed = [x for x in rules_mod.values(rule) if rules_mod.format_rule_value(rule, x) == value]
+            if typed:
+                s = _rule_sentence(rule, typed[0], given)
         out.append({"rule": rule, "value": value, "students": m.get("students", 0), "images": m.get("images", 0),
                     "differing": m.get("differing_images", 0), "sentence": s})  # fmt: skip
     return out
