@@ -220,14 +220,8 @@ class VariantCache:
 
         n = scene.camera.width * scene.camera.height
         self.renders += 1 if idx is None else idx.size / n
-        tr = Tracer(scene, rules, precision=precision, runtime_exponent=True)
-        if idx is None:
-            o, d = tr.primary_rays()
-        else:
-            from minirt import camera
-
-            o_np, d_np = camera.primary_rays(scene, rules, idx)
-            o, d = tr._load(o_np), tr._load(d_np)
+        tr = Tracer(scene, rules, precision=precision, runtime=True)
+        o, d = tr.primary_rays(idx)  # full images and subsets alike: one kernel for both
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             color, levels = tr.trace(o, d, tree=True)
         c = tr._to_numpy3(color)

@@ -135,15 +135,18 @@ class Tracer:
     it exists so a test can show that pruning leaves every output bit-identical.
     """
 
-    def __init__(
-        self, scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True, runtime_exponent: bool = False
-    ):
-        """``runtime_exponent``: the specular exponent is a value the kernel reads, not a constant compiled
-        into it, so renders that differ only in the exponent share one kernel (a search over exponents
-        compiles once); the same bits either way (tested)."""
+    def __init__(self, scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True, runtime: bool = False):
+        """``runtime``: the rules a search varies most are values the kernel reads, not constants
+        compiled into it -- specular_exponent, the camera's pixel_sample, pixel_shift, ray_origin, and
+        near_root_only, two_sided, clamp, a numeric offset and offset_along (the rules that change which
+        work is done stay compiled in: offset "error-bound", shadow_range, background, and the effects)
+        -- and primary rays come from an array of pixel indices (``primary_rays(pixels)``). Renders
+        that differ only in those, and renders of a few pixels, share one kernel: a search over
+        candidates compiles each kernel once. The same bits either way (tested), at the cost of a few
+        selects per ray."""
         require_llvm()
         self.scene, self.rules, self.precision, self.prune = scene, rules, precision, prune
-        self.runtime_exponent = runtime_exponent
+        self.runtime = runtime
         self.T = _Types.of(precision)
         if precision == "f32":
             _check_float32_range(scene)
@@ -153,6 +156,11 @@ class Tracer:
             self.effects = Effects(True, True, True, True, scene.max_depth > 0, scene.max_depth, True)
 
     # ---- small helpers -------------------------------------------------------------------
+    def _rule(self, cond: bool) -> Any:
+        """A rule's yes/no as the kernel sees it: under ``runtime`` an opaque Dr.Jit Bool (read at run
+        time, one kernel for both answers), else the Python bool itself (compiled in)."""
+        return dr.opaque(self.T.Bool, bool(cond)) if self.runtime else bool(cond)
+
     def _vec(self, v) -> Any:
         return self.T.Array3(*(float(c) for c in v))
 
@@ -189,11 +197,15 @@ class Tracer:
         t1 = dr.select(q_ok, q, 0)
         tn, tf = dr.minimum(t0, t1), dr.maximum(t0, t1)
         inf = F(math.inf)
-        if self.rules.near_root_only:
+        nro = self._rule(self.rules.near_root_only)
+        if nro is True:
             # "we are only interested in the smaller of the two intersection points, provided it is
             # not negative": from inside a ball the near root is behind the ray, so no hit at all.
             return dr.select(hit & (tn > 0), tn, inf)
-        return dr.select(hit & (tn > 0), tn, dr.select(hit & (tf > 0), tf, inf))
+        far = hit & (tf > 0)
+        if nro is not False:
+            far &= ~nro
+        return dr.select(hit & (tn > 0), tn, dr.select(far, tf, inf))
 
     def intersect_plane(self, plane: Plane, o, d) -> Any:
         F = self.T.Float
@@ -273,6 +285,9 @@ class Tracer:
     def offset_origin(self, p, n, err, direction) -> Any:
         """Start of a secondary ray leaving p in `direction` (n: the shading normal)."""
         off = self.rules.offset
+        if off != "error-bound" and self.runtime:
+            along = dr.select(dr.opaque(self.T.Bool, self.rules.offset_along == "ray"), direction, n)
+            return p + dr.opaque(self.T.Float, float(off)) * along
         if off != "error-bound":
             if self.rules.offset_along == "ray":
                 return p + self.T.Float(off) * direction  # rule offset_along "ray": along the new ray
@@ -333,9 +348,13 @@ class Tracer:
         lf = dr.norm(f)
         c = (lf - r) * (lf + r)
         both = (c > 0) & (b < 0)
-        if self.rules.near_root_only:
+        nro = self._rule(self.rules.near_root_only)
+        if nro is True:
             return hit & both
-        return hit & (both | (c < 0) | ((c == 0) & (b < 0)))
+        other = (c < 0) | ((c == 0) & (b < 0))
+        if nro is not False:
+            other &= ~nro
+        return hit & (both | other)
 
     def shadow_margin(self, o, s, light_dist, hit) -> Any:
         """Per shadow ray, the absolute distance from the nearest ball silhouette in front of it (before
@@ -362,8 +381,10 @@ class Tracer:
         t = dr.select(hit, t, math.inf)
         p, n = self.hit_point_and_normal(shape_id, o, d, dr.select(hit, t, 0))
         ns = n
-        if self.rules.two_sided:
-            ns = dr.select(dr.dot(d, n) > 0, -n, n)  # shading normal faces the incoming ray
+        two_sided = self._rule(self.rules.two_sided)
+        if two_sided is not False:
+            flip = dr.dot(d, n) > 0  # shading normal faces the incoming ray
+            ns = dr.select(flip if two_sided is True else flip & two_sided, -n, n)
         rec: dict[str, Any] = {}
         terms: dict[str, Any] = {}
         local = zero
@@ -372,6 +393,7 @@ class Tracer:
             local = local + terms["ambient"]
         r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction
         err = self.error_bound(shape_id, p) if self.rules.offset == "error-bound" else None
+        clamp_all, clamp_specular = self._rule(self.rules.clamp is True), self._rule(self.rules.clamp == "specular")
         if fx.diffuse or fx.specular:
             lpos = self._vec(sc.light.position)
             lc = self._vec(sc.light.color)
@@ -391,20 +413,25 @@ class Tracer:
                 if record:
                     rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
             if fx.diffuse:
-                fac = dr.maximum(sn, 0) if self.rules.clamp is True else sn  # "specular": s·n raw
+                if isinstance(clamp_all, bool):
+                    fac = dr.maximum(sn, 0) if clamp_all else sn  # "specular": s·n raw
+                else:
+                    fac = dr.select(clamp_all, dr.maximum(sn, 0), sn)
                 terms["diffuse"] = dr.select(lit, lc * self._material_term(shape_id, "diffuse") * fac, zero)
                 local = local + terms["diffuse"]
             if fx.specular:
                 rs = dr.dot(r, s)
                 e = self.rules.specular_exponent
-                if self.runtime_exponent:
+                if self.runtime:
                     pw = _power_runtime(rs, dr.opaque(self.T.UInt, e), SPECULAR_EXPONENT_MAX.bit_length())
                 else:
                     pw = _power(rs, e)  # (r·s)^e: for e = 8 rs2, rs4, rs4 * rs4
                 on = lit
-                if self.rules.clamp is True:
+                if self.runtime:
+                    on = lit & dr.select(clamp_all, (sn > 0) & (rs > 0), ~clamp_specular | (rs > 0))
+                elif clamp_all:
                     on = lit & (sn > 0) & (rs > 0)
-                elif self.rules.clamp == "specular":
+                elif clamp_specular:
                     on = lit & (rs > 0)
                 terms["specular"] = dr.select(on, lc * self._material_term(shape_id, "specular") * pw, zero)
                 local = local + terms["specular"]
@@ -429,8 +456,8 @@ class Tracer:
         code = self.T.Int(shape_id) * 4
         if fx.diffuse or fx.specular:
             code = code + dr.select(lit, 1, 0)
-            if fx.specular and self.rules.clamp is True:
-                code = code + dr.select(sn > 0, 2, 0)
+            if fx.specular and clamp_all is not False:
+                code = code + dr.select((sn > 0) if clamp_all is True else (sn > 0) & clamp_all, 2, 0)
         lvl.code = code
         if record:
             rec.update(shading_normal=ns, reflected=r, error_bound=err)
@@ -560,40 +587,58 @@ class Tracer:
             dr.sync_thread()
         return {k: np.asarray(b).reshape(h, w, 3) for k, b in bufs.items()}
 
-    def primary_rays(self) -> tuple[Any, Any]:
+    def primary_rays(self, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
         """camera.primary_rays computed in Dr.Jit: the same IEEE operations in the same order, so
-        the same bits (tested), without a round trip through NumPy."""
+        the same bits (tested), without a round trip through NumPy. ``pixels``: row-major indices of
+        the pixels wanted (default every pixel)."""
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):  # FastMath turns / w into * (1 / w)
-            return self._primary_rays()
+            uv = 0.0 if self.rules.pixel_sample == "corner" else 0.5
+            if self.runtime:
+                uv = dr.opaque(self.T.Float, uv)
+            return self._rays(self.T.Float, self.T.Array3, uv, uv, pixels)
 
-    def _primary_rays(self) -> tuple[Any, Any]:
-        uv = 0.0 if self.rules.pixel_sample == "corner" else 0.5
-        return self._rays(self.T.Float, self.T.Array3, uv, uv)
-
-    def _rays(self, F, A3, u, v) -> tuple[Any, Any]:
+    def _rays(self, F, A3, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
         """camera.rays_through in Dr.Jit arithmetic of type F (A3 its 3-vector): the same operations in
-        the same order. u, v: sub-pixel offsets, numbers or arrays of F."""
+        the same order. u, v: sub-pixel offsets, numbers or arrays of F.
+
+        Under ``runtime`` the pixel indices are an input array and the camera rules are values read at
+        run time: the shift is always added (x + u >= +0, so adding +0.0 changes no bit) and the
+        origin is a select between both rules' origins."""
         sc = self.scene
         w, h = sc.camera.width, sc.camera.height
-        idx = dr.arange(dr.llvm.UInt32, w * h)
+        U32 = dr.llvm.UInt32
+        if pixels is not None:
+            idx = U32(np.ascontiguousarray(pixels, dtype=np.uint32))
+        elif self.runtime:
+            idx = U32(np.arange(w * h, dtype=np.uint32))  # an input, like a subset's: the same kernel
+        else:
+            idx = dr.arange(U32, w * h)
+        n = dr.width(idx)
         yi = idx // w
         xi = idx - yi * w
         # dr.opaque: Dr.Jit turns division by a literal into a multiplication by its reciprocal
         # (one more rounding), even with FastMath off.
         sx, sy = self.rules.pixel_shift
         fx, fy = F(xi) + u, F(yi) + v
-        if sx != 0:  # rule pixel_shift: added only when non-zero, so (0, 0) is the unshifted arithmetic
-            fx = fx + float(sx)
-        if sy != 0:
-            fy = fy + float(sy)
+        if self.runtime:
+            fx, fy = fx + dr.opaque(F, float(sx)), fy + dr.opaque(F, float(sy))
+        else:
+            if sx != 0:  # rule pixel_shift: added only when non-zero, so (0, 0) is the unshifted arithmetic
+                fx = fx + float(sx)
+            if sy != 0:
+                fy = fy + float(sy)
         px = fx / dr.opaque(F, w) - 0.5
         py = -fy / dr.opaque(F, h) + 0.5
-        pz = dr.zeros(F, w * h)
+        pz = dr.zeros(F, n)
         cz = -sc.camera.distance
         dx, dy, dz = px - 0.0, py - 0.0, pz - cz
         nrm = dr.sqrt(dx * dx + dy * dy + dz * dz)
         d = A3(dx / nrm, dy / nrm, dz / nrm)
-        o = A3(0.0, 0.0, cz) + dr.zeros(A3, w * h) if self.rules.ray_origin == "camera" else A3(px, py, pz)
+        at_camera = A3(0.0, 0.0, cz) + dr.zeros(A3, n)
+        if self.runtime:
+            o = dr.select(dr.opaque(dr.llvm.Bool, self.rules.ray_origin == "camera"), at_camera, A3(px, py, pz))
+        else:
+            o = at_camera if self.rules.ray_origin == "camera" else A3(px, py, pz)
         return o, d
 
     def render(self, progress=None, diagnostics: bool = False) -> RenderResult:

@@ -447,5 +447,58 @@ def test_runtime_exponent_same_bits(profile):
     for e in (1, 5, 8, 12, 16, 777, 1024):
         rules = replace(PROFILES[profile], specular_exponent=e)
         a = Tracer(scene, rules).render().color
-        b = Tracer(scene, rules, runtime_exponent=True).render().color
+        b = Tracer(scene, rules, runtime=True).render().color
         assert np.array_equal(a.view(np.uint64), b.view(np.uint64)), e
+
+
+RUNTIME_RULES = [
+    {"pixel_sample": "center"},
+    {"pixel_shift": (0.5, -0.25)},
+    {"pixel_shift": (0.0, 1.0)},
+    {"ray_origin": "camera"},
+    {"near_root_only": False},
+    {"near_root_only": True},
+    {"two_sided": True},
+    {"clamp": True},
+    {"clamp": False},
+    {"clamp": "specular"},
+    {"offset": 0.0},
+    {"offset": 1e-3},
+    {"offset_along": "ray"},
+    {"offset": "error-bound", "offset_along": "normal"},
+]
+
+
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+@pytest.mark.parametrize("profile", ["exercise", "conventional"])
+def test_runtime_rules_same_bits(profile, precision):
+    """Under ``runtime`` the camera rules and near_root_only, two_sided, clamp, a numeric offset and
+    offset_along are values the kernel reads: every buffer the diagnosis reads (colour, terms, the ray
+    tree's decisions) has the same bits as with the rule compiled in."""
+    from minirt.tracer import Tracer
+
+    scene = load_scene("scenes/rules.toml").with_overrides(width=40, height=32, samples=1)
+    for change in RUNTIME_RULES:
+        rules = replace(PROFILES[profile], **change)
+        a = Tracer(scene, rules, precision=precision).render(diagnostics=True)
+        b = Tracer(scene, rules, precision=precision, runtime=True).render(diagnostics=True)
+        assert np.array_equal(a.color.view(np.uint64), b.color.view(np.uint64)), change
+        assert np.array_equal(a.aux["ray_tree"], b.aux["ray_tree"]), change
+        for k in a.terms:
+            assert np.array_equal(a.terms[k].view(np.uint64), b.terms[k].view(np.uint64)), (change, k)
+
+
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+def test_runtime_subset_rays_same_bits(precision):
+    """The rays of a few pixels (``primary_rays(pixels)``) are those pixels' rays in the whole image's,
+    bit for bit, whatever the camera rules; so a subset render is the full render's pixels."""
+    from minirt.tracer import Tracer
+
+    scene = load_scene("scenes/rules.toml").with_overrides(width=37, height=23, samples=1)
+    idx = np.random.default_rng(5).choice(37 * 23, 200, replace=False)
+    for change in [{}, {"pixel_sample": "center", "pixel_shift": (1.0, -0.5), "ray_origin": "camera"}]:
+        tr = Tracer(scene, replace(PROFILES["exercise"], **change), precision=precision, runtime=True)
+        (o, d), (os_, ds) = tr.primary_rays(), tr.primary_rays(idx)
+        for full, sub in ((o, os_), (d, ds)):
+            whole = tr._to_numpy3(full)
+            assert np.array_equal(whole[idx].view(np.uint8), tr._to_numpy3(sub).view(np.uint8)), change
