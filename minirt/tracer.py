@@ -29,7 +29,8 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from minirt import camera
+from minirt import accel, camera
+from minirt.accel import ShapeTable, gamma
 from minirt.engine import require_llvm
 from minirt.result import TERMS, RenderResult
 from minirt.rules import SPECULAR_EXPONENT_MAX, Effects, Rules, effects
@@ -60,11 +61,6 @@ def _power_runtime(x, e, bits: int) -> Any:
         if k + 1 < bits:
             base = base * base
     return result
-
-
-def gamma(n: int, u: float) -> float:
-    """pbrt's gamma(n) = n u / (1 - n u): bound on the relative error of n chained roundings."""
-    return n * u / (1 - n * u)
 
 
 @dataclass
@@ -135,7 +131,15 @@ class Tracer:
     it exists so a test can show that pruning leaves every output bit-identical.
     """
 
-    def __init__(self, scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True, runtime: bool = False):
+    def __init__(
+        self,
+        scene: Scene,
+        rules: Rules,
+        precision: str = "f64",
+        prune: bool = True,
+        runtime: bool = False,
+        accel: str = "auto",
+    ):
         """``runtime``: the rules a search varies most are values the kernel reads, not constants
         compiled into it -- specular_exponent, the camera's pixel_sample, pixel_shift, ray_origin, and
         near_root_only, two_sided, clamp, a numeric offset and offset_along (the rules that change which
@@ -143,11 +147,24 @@ class Tracer:
         -- and primary rays come from an array of pixel indices (``primary_rays(pixels)``). Renders
         that differ only in those, and renders of a few pixels, share one kernel: a search over
         candidates compiles each kernel once. The same bits either way (tested), at the cost of a few
-        selects per ray."""
+        selects per ray.
+
+        ``accel``: how rays find their shapes. "unrolled" tests every shape in code generated for this
+        scene (constants compiled in: fastest for a few shapes, one kernel per layout); "bvh" gathers
+        from the shape table and walks a BVH over the balls (``minirt.accel``: kernels independent of
+        the layout, time ~log N); "loop" gathers from the table and tests every ball in a loop (the
+        brute force, with kernels independent of the layout: what the tree is tested against); "auto"
+        picks "bvh" from ``ACCEL_MIN_SHAPES`` shapes on. The same bits every way (tested)."""
         require_llvm()
         self.scene, self.rules, self.precision, self.prune = scene, rules, precision, prune
         self.runtime = runtime
         self.T = _Types.of(precision)
+        if accel == "auto":
+            accel = "bvh" if len(scene.shapes) >= ACCEL_MIN_SHAPES else "unrolled"
+        if accel not in ACCELS:
+            raise ValueError(f"unknown accel {accel!r} (auto, {', '.join(ACCELS)})")
+        self.accel = accel
+        self.table = ShapeTable(scene, self.T, with_tree=accel == "bvh") if accel != "unrolled" else None
         if precision == "f32":
             _check_float32_range(scene)
         if prune:
@@ -164,6 +181,14 @@ class Tracer:
     def _vec(self, v) -> Any:
         return self.T.Array3(*(float(c) for c in v))
 
+    def _scene_vec(self, name: str) -> Any:
+        """A scene constant (light, light_color, background): read from the shape table when there is
+        one, so that the kernel does not depend on the scene's values; the same value, the same bits."""
+        if self.table is not None:
+            return self.table.vec(name)
+        sc = self.scene
+        return self._vec({"light": sc.light.position, "light_color": sc.light.color, "background": sc.background}[name])
+
     def _by_id(self, shape_id, values: list, zero) -> Any:
         """Per-lane lookup of a per-shape constant: a select chain (shapes are few)."""
         out = zero
@@ -172,20 +197,28 @@ class Tracer:
         return out
 
     def _material_term(self, shape_id, name: str) -> Any:
+        if self.table is not None:
+            return dr.gather(self.T.Array3, self.table.material[name], self.T.UInt(shape_id), shape_id >= 0)
         vals = [self._vec(getattr(s.material, name)) for s in self.scene.shapes]
         return self._by_id(shape_id, vals, self._vec((0.0, 0.0, 0.0)))
 
     # ---- Ball, Plane: intersect -------------------------------------------------------------
-    def _ball_ray(self, ball: Ball, o, d) -> tuple[Any, Any, Any, Any]:
+    def _ball_ray(self, center, r, o, d) -> tuple[Any, Any, Any, Any]:
         """What every ball test starts from: r, f = o - C, b = f·d and |f - b d|, the ray's distance
-        from the centre (d unit)."""
-        f = o - self._vec(ball.center)
+        from the centre (d unit). center, r: Dr.Jit values (constants or gathered from the table)."""
+        f = o - center
         b = dr.dot(f, d)
-        return self.T.Float(ball.radius), f, b, dr.norm(f - b * d)
+        return r, f, b, dr.norm(f - b * d)
+
+    def _ball(self, ball: Ball) -> tuple[Any, Any]:
+        return self._vec(ball.center), self.T.Float(ball.radius)
 
     def intersect_ball(self, ball: Ball, o, d) -> Any:
+        return self._ball_t(*self._ball(ball), o, d)
+
+    def _ball_t(self, center, radius, o, d) -> Any:
         F = self.T.Float
-        r, f, b, lg = self._ball_ray(ball, o, d)
+        r, f, b, lg = self._ball_ray(center, radius, o, d)
         disc = (r - lg) * (r + lg)  # r^2 - |f - (f·d) d|^2 without cancellation
         hit = disc >= 0
         sq = dr.sqrt(dr.maximum(disc, 0))
@@ -208,10 +241,12 @@ class Tracer:
         return dr.select(hit & (tn > 0), tn, dr.select(far, tf, inf))
 
     def intersect_plane(self, plane: Plane, o, d) -> Any:
+        return self._plane_t(self._vec(plane.normal), self._vec(plane.point), o, d)
+
+    def _plane_t(self, n, q, o, d) -> Any:
         F = self.T.Float
-        n = self._vec(plane.normal)
         denom = dr.dot(n, d)
-        t = dr.dot(n, self._vec(plane.point) - o) / denom
+        t = dr.dot(n, q - o) / denom
         ok = (denom != 0) & (t > 0) & (t < math.inf)  # parallel rays miss; never NaN
         return dr.select(ok, t, F(math.inf))
 
@@ -223,6 +258,15 @@ class Tracer:
         # Full width from the start: with no shapes at all these are the results, one per ray.
         t_best = dr.full(self.T.Float, math.inf, dr.width(d))
         id_best = dr.full(self.T.Int, -1, dr.width(d))
+        if self.table is not None:
+            tab = self.table
+            if tab.n_planes:
+                t_best, id_best = accel.planes_closest(self, tab, o, d, t_best, id_best)
+            if tab.n_balls and tab.tree is not None:
+                t_best, id_best = accel.traverse(self, tab, o, d, t_best, id_best)
+            elif tab.n_balls:
+                t_best, id_best = accel.balls_closest_loop(self, tab, o, d, t_best, id_best)
+            return id_best, t_best
         for k, s in enumerate(self.scene.shapes):
             tk = self.intersect(s, o, d)
             closer = tk < t_best
@@ -240,6 +284,8 @@ class Tracer:
         """
         p = o + t * d
         zero = self._vec((0.0, 0.0, 0.0))
+        if self.table is not None:
+            return self._hit_point_and_normal_table(shape_id, d, p)
         balls = [(k, s) for k, s in enumerate(self.scene.shapes) if isinstance(s, Ball)]
         planes = [(k, s) for k, s in enumerate(self.scene.shapes) if isinstance(s, Plane)]
         n = zero
@@ -266,6 +312,25 @@ class Tracer:
                 p = dr.select(is_ball, c + r * nb, p)
         return p, n
 
+    def _hit_point_and_normal_table(self, shape_id, d, p) -> tuple[Any, Any]:
+        """hit_point_and_normal with the hit shape's constants gathered from the table: the same
+        operations on the same values as the select chains, so the same bits."""
+        T, tab = self.T, self.table
+        hit = shape_id >= 0
+        k = T.UInt(shape_id)
+        is_ball = dr.gather(T.Bool, tab.is_ball, k, hit)
+        n = dr.gather(T.Array3, tab.plane_normal, k, hit & ~is_ball)
+        c = dr.gather(T.Array3, tab.center, k, is_ball)
+        r = dr.select(is_ball, dr.gather(T.Float, tab.radius, k, is_ball), T.Float(1.0))
+        reproject = self.rules.offset == "error-bound"
+        nb = dr.normalize(p - c) if reproject else (p - c) / r
+        degenerate = ~(dr.squared_norm(nb) > 0) | ~dr.isfinite(dr.squared_norm(nb))
+        nb = dr.select(degenerate, -d, nb)
+        n = dr.select(is_ball, nb, n)
+        if reproject:
+            p = dr.select(is_ball, c + r * nb, p)
+        return p, n
+
     def error_bound(self, shape_id, p) -> Any:
         """Absolute error bound of a hit point, per shape (measured to give 0 self-hits; tests/test_hard_cases.py).
 
@@ -274,6 +339,10 @@ class Tracer:
         """
         u = self.T.u
         lp = dr.norm(p)
+        if self.table is not None:
+            k, hit = self.T.UInt(shape_id), shape_id >= 0
+            factor = dr.gather(self.T.Float, self.table.err_factor, k, hit)
+            return factor * (dr.gather(self.T.Float, self.table.err_length, k, hit) + lp)
         vals = []
         for s in self.scene.shapes:
             if isinstance(s, Ball):
@@ -319,6 +388,8 @@ class Tracer:
         square root and the division that give t: a quarter less time for the whole trace kernel on
         three_balls. The balls' distances are then computed only when ``record`` asks.
         """
+        if self.table is not None and not record:
+            return self._shadow_blocked_table(o, s, light_dist), []
         blocked = self.T.Bool(False)
         ts = []
         for shape in self.scene.shapes:
@@ -336,14 +407,41 @@ class Tracer:
                 blocked |= tk < math.inf
         return blocked, ts
 
+    def _shadow_blocked_table(self, o, s, light_dist) -> Any:
+        """shadow_blocked through the shape table: planes in a loop, balls through the BVH (a ray stops
+        at its first blocker). The same decisions per shape, so the same answer."""
+        tab, to_light = self.table, self.rules.shadow_range != "any"
+        blocked = dr.full(self.T.Bool, False, dr.width(s))
+        if tab.n_planes:
+            blocked = accel.planes_block(self, tab, o, s, light_dist, to_light)
+        if tab.n_balls:
+            if to_light:
+                blocks = lambda c, r: self._ball_t(c, r, o, s) < light_dist  # noqa: E731
+                bound = light_dist
+            else:
+                blocks = lambda c, r: self._ball_occludes(c, r, o, s)  # noqa: E731
+                bound = dr.full(self.T.Float, math.inf, dr.width(s))
+            if tab.tree is not None:
+                by_balls, _ = accel.traverse(self, tab, o, s, bound, None, blocks=blocks)
+            else:
+                by_balls = accel.balls_each(
+                    self, tab, o, lambda acc, c, r, _: acc | blocks(c, r), dr.full(self.T.Bool, False, dr.width(s)),
+                    stop=lambda acc: acc,
+                )  # fmt: skip
+            blocked = blocked | by_balls
+        return blocked
+
     def occludes_ball(self, ball: Ball, o, d) -> Any:
+        return self._ball_occludes(*self._ball(ball), o, d)
+
+    def _ball_occludes(self, center, radius, o, d) -> Any:
         """intersect_ball(ball, o, d) < inf, from signs: the roots' product is c = |f|^2 - r^2 (d is
         unit) and their sum -2 b. Both roots > 0 iff c > 0 and b < 0; exactly one iff c < 0; c = 0
         gives roots 0 and -2 b. This decides as intersect_ball's t does: there q = -(b + sign(b) sqrt)
         has the sign of -b (or is 0 only where both roots are 0), so c / q and q carry these signs; the
         two differ only if c / q underflows to 0, i.e. a hit closer than 1e-308 relative, which the
         scene's 1e-100 limits and the ray offsets exclude."""
-        r, f, b, lg = self._ball_ray(ball, o, d)
+        r, f, b, lg = self._ball_ray(center, radius, o, d)
         hit = (r - lg) * (r + lg) >= 0
         lf = dr.norm(f)
         c = (lf - r) * (lf + r)
@@ -362,19 +460,26 @@ class Tracer:
         flip. Large (1e30) when no ball is in front; planes' decisions are the light's side, not this."""
         F = self.T.Float
         out = dr.full(F, 1e30, dr.width(s))
-        for ball in self.scene.shapes:
-            if not isinstance(ball, Ball):
-                continue
-            r, _, b, h = self._ball_ray(ball, o, s)
+
+        def nearer(out, center, radius, _id=None):
+            r, _, b, h = self._ball_ray(center, radius, o, s)
             front = -b > -r
             if self.rules.shadow_range != "any":
                 front &= -b < light_dist + r
-            out = dr.select(front, dr.minimum(out, dr.abs(h - r)), out)
+            return dr.select(front, dr.minimum(out, dr.abs(h - r)), out)
+
+        if self.table is not None:
+            if self.table.n_balls:
+                out = accel.balls_each(self, self.table, o, nearer, out)
+        else:
+            for ball in self.scene.shapes:
+                if isinstance(ball, Ball):
+                    out = nearer(out, *self._ball(ball))
         return dr.select(hit, out, F(1e30))
 
     def shade_level(self, o, d, parent, depth_left: int, record: bool, margins: bool = False) -> tuple[Level, Any]:
         """Intersect one level's rays and shade them locally; return the level and the next rays' mask."""
-        sc, fx = self.scene, self.effects
+        fx = self.effects
         zero = self._vec((0.0, 0.0, 0.0))
         shape_id, t = self.closest(o, d)
         hit = shape_id >= 0
@@ -395,8 +500,8 @@ class Tracer:
         err = self.error_bound(shape_id, p) if self.rules.offset == "error-bound" else None
         clamp_all, clamp_specular = self._rule(self.rules.clamp is True), self._rule(self.rules.clamp == "specular")
         if fx.diffuse or fx.specular:
-            lpos = self._vec(sc.light.position)
-            lc = self._vec(sc.light.color)
+            lpos = self._scene_vec("light")
+            lc = self._scene_vec("light_color")
             to_light = lpos - p
             light_dist = dr.norm(to_light)
             # The light exactly at the hit point has no direction: that point is unlit (not 0/0).
@@ -435,7 +540,7 @@ class Tracer:
                     on = lit & (rs > 0)
                 terms["specular"] = dr.select(on, lc * self._material_term(shape_id, "specular") * pw, zero)
                 local = local + terms["specular"]
-        bgc = self._vec(sc.background)
+        bgc = self._scene_vec("background")
         if self.rules.background == "on-hit":
             bg = dr.select(hit, bgc, zero) if fx.background else zero
         elif self.rules.background == "on-miss":
@@ -631,6 +736,8 @@ class Tracer:
         py = -fy / dr.opaque(F, h) + 0.5
         pz = dr.zeros(F, n)
         cz = -sc.camera.distance
+        if self.table is not None:  # one kernel for every camera distance, not one per scene
+            cz = self.table.camera_z(F)
         dx, dy, dz = px - 0.0, py - 0.0, pz - cz
         nrm = dr.sqrt(dx * dx + dy * dy + dz * dz)
         d = A3(dx / nrm, dy / nrm, dz / nrm)
@@ -744,6 +851,10 @@ DIAGNOSTICS = {
     "shadow_margin": "per pixel, the distance from its shadow ray to the nearest ball silhouette in front of it "
     "(1e30: none): how far the hit point may move before the shadow decision can flip",
 }
+
+# From this many shapes on, "auto" traces through the shape table and the BVH (measured: benchmarks/bench_scale.py).
+ACCEL_MIN_SHAPES = 16
+ACCELS = ("unrolled", "bvh", "loop")
 
 F32_LIMIT = 1e18  # squares stay below float32's max (3.4e38); reciprocals above its min normal
 

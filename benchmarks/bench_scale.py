@@ -1,0 +1,232 @@
+"""minirt scale benchmark: how the reference tracer's time grows with the number of balls.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_scale.py [--quick] [--out FILE.json]
+
+Scenes are fresh random layouts (``minirt.generate.balls_scene``: n balls over a mirror floor, 512²,
+max_depth 3, seeded), so every scene is a layout no kernel cache has seen. Sections:
+
+- ``threshold``: few balls, the unrolled path (every shape compiled into the kernel) against the BVH
+  (``minirt.accel``), each as a child process from an empty Dr.Jit kernel cache (``DRJIT_CACHE_DIR``):
+  import, parse, render, compile included; and the warm render time in process (median of 3 after a
+  warm-up). The crossover is what ``tracer.ACCEL_MIN_SHAPES`` should be.
+- ``layouts``: the whole command ``python -m minirt render FILE --out TMP`` from an empty kernel cache
+  for n = 1 ... 100,000 (what a user waits for). Targets: 1,024 balls within 3x the time of 1 ball;
+  100,000 balls under 60 s.
+- ``slope``: the warm trace time (primary rays, every level, ``dr.eval``; no read-out) against n, and
+  its log-log slope from 16 to 100,000 balls (goal <= 0.3), beside POV-Ray's own trace time (its
+  statistics, start-up and parse excluded) on the same scenes up to 10,000 balls.
+
+--quick: 64², fewer sizes, one repetition (finishes in about a minute; the targets are then n/a).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from minirt.generate import balls_scene  # noqa: E402
+
+_CHILD = r"""
+import json, sys, time
+t0 = time.perf_counter()
+from minirt.rules import resolve
+from minirt.scene import load_scene
+from minirt.tracer import Tracer
+sc = load_scene(sys.argv[1])
+t1 = time.perf_counter()
+Tracer(sc, resolve(sc), accel=sys.argv[2]).render()
+t2 = time.perf_counter()
+print(json.dumps({"import_parse": t1 - t0, "render": t2 - t1}))
+"""
+
+
+def _write(tmp: Path, n: int, size: int, seed: int) -> Path:
+    p = tmp / f"balls_{n}_{seed}.toml"
+    p.write_text(balls_scene(n, seed=seed, width=size, height=size, max_depth=3))
+    return p
+
+
+def _child(args: list[str], cache: Path) -> tuple[float, str]:
+    env = {**os.environ, "DRJIT_CACHE_DIR": str(cache)}
+    t0 = time.perf_counter()
+    p = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    dt = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} failed ({p.returncode}): {p.stderr.strip()[-400:]}")
+    return dt, p.stdout
+
+
+def _warm(tracer, reps: int) -> float:
+    tracer.render()
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        tracer.render()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def _trace_kernel(tracer, reps: int) -> float:
+    """Primary rays and every level traced and evaluated (as benchmarks/bench.py's ``trace``)."""
+    import drjit as dr
+
+    def once() -> None:
+        o, d = tracer.primary_rays()
+        c, _ = tracer.trace(o, d)
+        dr.eval(c)
+        dr.sync_thread()
+
+    once()
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        once()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def bench_threshold(tmp: Path, sizes: list[int], size: int, reps: int) -> list[dict[str, Any]]:
+    from minirt.rules import resolve
+    from minirt.scene import load_scene
+    from minirt.tracer import Tracer
+
+    rows = []
+    for n in sizes:
+        path = _write(tmp, n, size, seed=1000 + n)
+        row: dict[str, Any] = {"balls": n, "shapes": n + 1}
+        sc = load_scene(path)
+        for accel in ("unrolled", "bvh"):
+            cache = Path(tempfile.mkdtemp(dir=tmp, prefix="jit-"))
+            wall, out = _child([sys.executable, "-c", _CHILD, str(path), accel], cache)
+            row[f"{accel}_cold_wall_s"] = wall
+            row[f"{accel}_cold_render_s"] = json.loads(out.strip().splitlines()[-1])["render"]
+            row[f"{accel}_warm_render_s"] = _warm(Tracer(sc, resolve(sc), accel=accel), reps)
+        rows.append(row)
+        print(f"threshold n={n}: {row}", file=sys.stderr, flush=True)
+    return rows
+
+
+def bench_layouts(tmp: Path, sizes: list[int], size: int) -> list[dict[str, Any]]:
+    rows = []
+    for n in sizes:
+        path = _write(tmp, n, size, seed=n)
+        cache = Path(tempfile.mkdtemp(dir=tmp, prefix="jit-"))
+        out = tmp / f"out-{n}"
+        wall, _ = _child([sys.executable, "-m", "minirt", "render", str(path), "--out", str(out)], cache)
+        rows.append({"balls": n, "whole_command_cold_s": wall, "kernels_compiled": len(list(cache.iterdir()))})
+        print(f"layouts n={n}: {wall:.2f} s", file=sys.stderr, flush=True)
+    return rows
+
+
+def bench_slope(tmp: Path, sizes: list[int], pov_max: int, size: int, reps: int) -> dict[str, Any]:
+    from minirt import backends
+    from minirt.rules import resolve
+    from minirt.scene import load_scene
+    from minirt.tracer import Tracer
+
+    rows = []
+    pov = backends.info("povray")
+    for n in sizes:
+        sc = load_scene(_write(tmp, n, size, seed=n))
+        rules = resolve(sc)
+        row: dict[str, Any] = {"balls": n, "reference_trace_s": _trace_kernel(Tracer(sc, rules), reps)}
+        if n <= pov_max and pov.available:
+            res = backends.render("povray", sc, rules)
+            row["povray_trace_s"] = res.meta["timings"].get("trace")
+            row["povray_parse_s"] = res.meta["timings"].get("parse")
+        rows.append(row)
+        print(f"slope n={n}: {row}", file=sys.stderr, flush=True)
+
+    def fit(key: str, lo: int) -> float | None:
+        pts = [(r["balls"], r[key]) for r in rows if r.get(key) and r["balls"] >= lo]
+        if len(pts) < 2:
+            return None
+        x, y = np.log([p[0] for p in pts]), np.log([max(p[1], 1e-3) for p in pts])
+        return float(np.polyfit(x, y, 1)[0])
+
+    return {
+        "rows": rows,
+        "reference_slope_16_up": fit("reference_trace_s", 16),
+        "povray_slope_16_up": fit("povray_trace_s", 16),
+        "povray_unavailable": None if pov.available else pov.detail,
+    }
+
+
+def evaluate(res: dict[str, Any], quick: bool) -> list[dict[str, Any]]:
+    def verdict(ok: bool | None) -> str:
+        return "n/a" if quick or ok is None else ("PASS" if ok else "MISS")
+
+    lay = {r["balls"]: r["whole_command_cold_s"] for r in res["layouts"]}
+    ratio = lay[1024] / lay[1] if 1 in lay and 1024 in lay else None
+    big = lay.get(100000)
+    slope = res["slope"]["reference_slope_16_up"]
+    return [
+        {"name": "1,024 balls / 1 ball, whole command, cold cache", "target": "<= 3", "measured": ratio,
+         "verdict": verdict(None if ratio is None else ratio <= 3)},
+        {"name": "100,000 balls, whole command, cold cache", "target": "< 60 s", "measured": big,
+         "verdict": verdict(None if big is None else big < 60)},
+        {"name": "log-log slope of trace time vs balls, 16 up", "target": "<= 0.3 (goal)", "measured": slope,
+         "verdict": verdict(None if slope is None else slope <= 0.3)},
+    ]  # fmt: skip
+
+
+def _git() -> str:
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+        ).stdout.strip()
+    except OSError:
+        return "unknown"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="small sizes, one repetition")
+    ap.add_argument("--out", type=Path, help="also write the results as JSON")
+    a = ap.parse_args(argv)
+    size = 64 if a.quick else 512
+    reps = 1 if a.quick else 3
+    with tempfile.TemporaryDirectory(prefix="minirt-bench-scale-") as tmp_s:
+        tmp = Path(tmp_s)
+        res: dict[str, Any] = {
+            "meta": {
+                "cores": os.cpu_count(),
+                "machine": platform.machine(),
+                "commit": _git(),
+                "quick": a.quick,
+                "size": size,
+                "load_before": os.getloadavg(),
+            },
+            "threshold": bench_threshold(tmp, [1, 4, 16] if a.quick else [1, 2, 4, 8, 16, 32, 64], size, reps),
+            "layouts": bench_layouts(tmp, [1, 1024] if a.quick else [1, 16, 128, 1024, 10000, 100000], size),
+            "slope": bench_slope(
+                tmp, [16, 256] if a.quick else [16, 128, 1024, 10000, 100000], 256 if a.quick else 10000, size, reps
+            ),
+        }
+    res["meta"]["load_after"] = os.getloadavg()
+    res["targets"] = evaluate(res, a.quick)
+    if a.out:
+        a.out.write_text(json.dumps(res, indent=2, allow_nan=False) + "\n")
+    print(json.dumps(res, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,417 @@
+"""How a ray finds its closest ball among thousands: the shape table and a bounding volume hierarchy.
+
+The scene's shapes become arrays (``ShapeTable``) that kernels gather from, so a kernel's code depends on
+the rules and effects, not on the scene's layout: a new scene of the same kind reuses the compiled
+kernels, and compile time does not grow with the number of shapes. Balls are grouped in a BVH (built
+here in NumPy, traversed in a Dr.Jit loop with a small per-ray stack); planes, being unbounded, are tested
+one after the other in a loop of their own.
+
+**The same answers as testing every shape.** Every ball a ray reaches is tested with the very function the
+brute-force path uses (the tracer's ``_ball_t``), on the same inputs, so its t carries the same bits; ties
+keep the lower shape id whatever the visiting order (``(t < t_best) | (t == t_best & id < id_best)``). The
+tree only decides which balls are *not* tested, and it may skip a ball only if that ball's computed t
+could not have won. That is where care is needed: a box test that is exact about the ball is not enough,
+because the ball test rounds. Each node's box is therefore widened, per ray, by ``pad`` (derivation at
+``_Pad``), a bound on how far a ball test's rounding can move a hit: its hit/miss decision (the distance
+of the ray from the centre, |g|, errs by ~12 u |f|, f = o - C) and its t (which near a tangent ray errs
+by up to the square root of the discriminant's error, ~sqrt(2 r δ)). The slab test itself follows
+pbrt-v4's ``Bounds3::IntersectP``: t_far grows by 1 + 2 gamma(3), so the box test's own rounding never
+rejects a ray that reaches the exact box. Tests: bit-identical buffers against the brute-force path
+(tests/test_accel.py), on the bundled scenes, random scenes and tangent rays.
+
+Build: median split of the centroids along their widest axis down to leaves of at most ``LEAF`` balls,
+flattened depth first (left child = next node). Traversal pops a node, tests its (widened) box against
+the ray and the best t so far, then tests a leaf's balls or pushes the far child and visits the near one
+(by the sign of the ray's direction along the split axis).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+from minirt.scene import Ball, Plane, Scene
+
+LEAF = 1  # balls per leaf at most. Every loop iteration pays for LEAF masked ball tests, leaf or not: 1 is
+# fastest (measured, 384², 32 to 16,384 balls: leaves of 2 cost 5-25 % more time, of 4 20-45 %)
+STACK = 64  # per-ray stack entries; a median split of 10^7 balls is 22 levels deep
+
+
+def gamma(n: int, u: float) -> float:
+    """pbrt's gamma(n) = n u / (1 - n u): bound on the relative error of n chained roundings."""
+    return n * u / (1 - n * u)
+
+
+@dataclass
+class Tree:
+    """The flattened BVH (NumPy, float64 boxes): node k's box is lo[k]..hi[k]; a leaf (count > 0) holds
+    balls first..first+count of the table's ball order; an interior node's children are k + 1 and
+    right[k], split along axis[k]. reach[k] = max(|C| + r) and rmax[k] = max(r) over its balls (for the pad)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    first: np.ndarray
+    count: np.ndarray
+    right: np.ndarray
+    axis: np.ndarray
+    reach: np.ndarray
+    rmax: np.ndarray
+    depth: int
+
+    @property
+    def nodes(self) -> int:
+        return len(self.count)
+
+
+def build(center: np.ndarray, radius: np.ndarray) -> tuple[Tree, np.ndarray]:
+    """A BVH over balls (center (n, 3), radius (n,)): the tree and the ball order it indexes."""
+    n = len(radius)
+    lo_b, hi_b = center - radius[:, None], center + radius[:, None]
+    reach_b = np.linalg.norm(center, axis=1) + radius
+    order = np.arange(n)
+    nodes: list[list[Any]] = []  # [lo, hi, first, count, right, axis, reach, rmax]
+    depth = 0
+    # Explicit stack of (start, end, parent slot to patch with this node's index, level): no recursion limit.
+    todo = [(0, n, -1, 1)] if n else []
+    while todo:
+        start, end, patch, level = todo.pop()
+        depth = max(depth, level)
+        idx = order[start:end]
+        k = len(nodes)
+        if patch >= 0:
+            nodes[patch][4] = k
+        node = [lo_b[idx].min(axis=0), hi_b[idx].max(axis=0), start, 0, -1, 0, reach_b[idx].max(), radius[idx].max()]
+        nodes.append(node)
+        if end - start <= LEAF:
+            node[3] = end - start
+            continue
+        c = center[idx]
+        axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+        mid = (end - start) // 2
+        # A stable order within the split (mergesort): the same tree for the same scene, on every machine.
+        part = np.argsort(c[:, axis], kind="stable")
+        order[start:end] = idx[part]
+        node[5] = axis
+        # Depth first, left child next: push the right half first so the left is built (and numbered) first.
+        todo.append((start + mid, end, k, level + 1))
+        todo.append((start, start + mid, -1, level + 1))
+    if not nodes:
+        z = np.zeros((0, 3))
+        e = np.zeros(0, dtype=np.int64)
+        return Tree(z, z, e, e, e, e, np.zeros(0), np.zeros(0), 0), order
+    cols = list(zip(*nodes, strict=True))
+    tree = Tree(
+        lo=np.array(cols[0]),
+        hi=np.array(cols[1]),
+        first=np.array(cols[2], dtype=np.int64),
+        count=np.array(cols[3], dtype=np.int64),
+        right=np.array(cols[4], dtype=np.int64),
+        axis=np.array(cols[5], dtype=np.int64),
+        reach=np.array(cols[6]),
+        rmax=np.array(cols[7]),
+        depth=depth,
+    )
+    if depth > STACK:
+        raise ValueError(f"BVH depth {depth} exceeds the traversal stack ({STACK})")
+    return tree, order
+
+
+def _outward(x: np.ndarray, dtype, down: bool) -> np.ndarray:
+    """x rounded to dtype away from the box's inside (lo down, hi up): the stored box contains the exact one."""
+    y = x.astype(dtype)
+    if down:
+        return np.where(y.astype(np.float64) > x, np.nextafter(y, dtype(-np.inf)), y)
+    return np.where(y.astype(np.float64) < x, np.nextafter(y, dtype(np.inf)), y)
+
+
+class ShapeTable:
+    """A scene's shapes as Dr.Jit arrays of the tracer's precision (``T``: minirt.tracer._Types).
+
+    Per shape id (gathered by the shading code): the four material colours, and for the normal and
+    the error bound whether it is a ball, its centre or plane normal, its radius (1 for planes) and the
+    error-bound factor and length (gamma(6) and r for balls, gamma(4) and |a| for planes). Balls again in
+    BVH order for traversal; planes in id order.
+    """
+
+    def __init__(self, scene: Scene, T: Any, with_tree: bool = True):
+        self.T = T
+        F, I3 = T.Float, T.Array3
+        shapes = scene.shapes
+        dt = T.np_dtype
+        balls = [(k, s) for k, s in enumerate(shapes) if isinstance(s, Ball)]
+        planes = [(k, s) for k, s in enumerate(shapes) if isinstance(s, Plane)]
+        self.n_balls, self.n_planes = len(balls), len(planes)
+
+        def a3(rows: list) -> Any:
+            a = np.asarray(rows, dtype=np.float64).reshape(-1, 3).astype(dt)
+            return I3(*(F(np.ascontiguousarray(a[:, i])) for i in range(3)))
+
+        u = T.u
+        self.material = {
+            name: a3([getattr(s.material, name) for s in shapes])
+            for name in ("ambient", "diffuse", "specular", "reflection")
+        }
+        self.is_ball = T.Bool(np.array([isinstance(s, Ball) for s in shapes], dtype=bool))
+        self.center = a3([s.center if isinstance(s, Ball) else (0.0, 0.0, 0.0) for s in shapes])
+        self.plane_normal = a3([s.normal if isinstance(s, Plane) else (0.0, 0.0, 0.0) for s in shapes])
+        self.radius = F(np.array([s.radius if isinstance(s, Ball) else 1.0 for s in shapes], dtype=dt))
+        self.err_factor = F(np.array([gamma(6, u) if isinstance(s, Ball) else gamma(4, u) for s in shapes], dtype=dt))
+        self.err_length = F(np.array([s.radius if isinstance(s, Ball) else abs(s.distance) for s in shapes], dtype=dt))
+        # Planes, in id order.
+        self.p_id = T.Int(np.array([k for k, _ in planes], dtype=np.int32))
+        self.p_normal = a3([s.normal for _, s in planes])
+        self.p_point = a3([s.point for _, s in planes])
+        # Balls, in BVH order.
+        center = np.asarray([s.center for _, s in balls], dtype=np.float64).reshape(-1, 3)
+        radius = np.asarray([s.radius for _, s in balls], dtype=np.float64)
+        ids = np.array([k for k, _ in balls], dtype=np.int32)
+        self.tree = None
+        if with_tree and balls:
+            tree, order = build(center, radius)
+            center, radius, ids = center[order], radius[order], ids[order]
+            self.tree = tree
+            self._tree_arrays(tree)
+        self.b_id = T.Int(ids)
+        self.b_center = a3(center)
+        self.b_radius = F(radius.astype(dt))
+        # The scene's scalars, read from arrays rather than compiled in. (One array per type: Dr.Jit's
+        # width-1 opaque values are packed so that their alignment, which is part of the kernel's code,
+        # varies from run to run, and a kernel would be compiled again for the same scene.)
+        self._scalars: dict[str, int] = {}
+        vals: list[float] = []
+        for name, v in (
+            ("light", scene.light.position),
+            ("light_color", scene.light.color),
+            ("background", scene.background),
+        ):
+            self._scalars[name] = len(vals)
+            vals += [float(c) for c in v]
+        self._f = F(np.array(vals, dtype=dt))
+        self._f64 = dr.llvm.Float64(np.array([-scene.camera.distance]))
+        self._u = T.UInt(np.array([self.n_planes, self.n_balls], dtype=np.uint32))
+
+    def vec(self, name: str) -> Any:
+        """A scene 3-vector (light, light_color, background) read at run time."""
+        k = self._scalars[name]
+        return self.T.Array3(*(dr.gather(self.T.Float, self._f, self.T.UInt(k + i)) for i in range(3)))
+
+    def camera_z(self, F: Any) -> Any:
+        """-distance, the camera's z, in float type F (rounded from float64 as a literal would be)."""
+        return F(dr.gather(dr.llvm.Float64, self._f64, self.T.UInt(0)))
+
+    def count(self, what: str) -> Any:
+        return dr.gather(self.T.UInt, self._u, self.T.UInt(("planes", "balls").index(what)))
+
+    def _tree_arrays(self, tree: Tree) -> None:
+        T = self.T
+        F, U = T.Float, T.UInt
+        dt = T.np_dtype
+        lo, hi = _outward(tree.lo, dt, True), _outward(tree.hi, dt, False)
+        self.n_lo = T.Array3(*(F(np.ascontiguousarray(lo[:, i])) for i in range(3)))
+        self.n_hi = T.Array3(*(F(np.ascontiguousarray(hi[:, i])) for i in range(3)))
+        self.n_first = U(tree.first.astype(np.uint32))
+        self.n_count = U(tree.count.astype(np.uint32))
+        self.n_right = U(np.maximum(tree.right, 0).astype(np.uint32))
+        self.n_axis = U(tree.axis.astype(np.uint32))
+        pad = _Pad(T.u)
+        self.n_pad_b = F(pad.b(tree.rmax).astype(dt))
+        self.n_pad_c = F(pad.c(tree.rmax, tree.reach).astype(dt))
+        self.pad_a = pad.a
+
+
+class _Pad:
+    """How far a ball test's rounding can move a hit, as a widening of a node's box for one ray:
+    pad = a |o| + b sqrt|o| + c, with b and c per node (r_max, S = max(|C| + r) of its balls).
+
+    Derivation (u the unit round-off, f = o - C, |f| <= |o| + S):
+    - The hit decision compares |g| = |f - (f·d) d| with r. f, f·d, (f·d) d, the difference and the norm
+      each round; |g| errs by δ <= 12 u |f| (a generous count of ~8 roundings of magnitude |f|). A ball
+      the ball test calls hit has its centre within r + δ of the ray, so it lies in the box widened by δ.
+    - Its t: t = -b ± sqrt(D), D = (r - |g|)(r + |g|). D errs by <= 2 (r + δ) δ + 3 u r^2, so sqrt(D) by
+      <= sqrt(2.2 r δ) (the square root of a perturbation, the tangent ray's worst case; generous for
+      u r^2 too), b by <= 3 u |f|, and the final roundings by u t with t <= |f| + r. The Vieta form c / q
+      of the near root is no worse.
+    - The box may be skipped when its entry t_near exceeds the best t so far. A box widened by w contains
+      every point within w of its balls, so along the unit ray its entry is at least w before the exact
+      hit; it can wrongly be skipped only if a computed t undershoots its exact t by more than w.
+    So w = 2 (sqrt(2.2 r δ) + 4 u (|f| + r) + δ) suffices, doubled for margin, with δ = 12 u (|o| + S):
+    sqrt(2.2 r 12 u (|o| + S)) <= sqrt(26.4 u r) (sqrt|o| + sqrt S), and 16 u (|o| + S + r) <= 32 u (|o| + S).
+    """
+
+    def __init__(self, u: float):
+        self.u = u
+        self.a = 2 * (12 * u + 32 * u)
+
+    def b(self, rmax: np.ndarray) -> np.ndarray:
+        return 2 * np.sqrt(26.4 * self.u * rmax)
+
+    def c(self, rmax: np.ndarray, reach: np.ndarray) -> np.ndarray:
+        return self.b(rmax) * np.sqrt(reach) + self.a * reach
+
+
+def _inverse(T: Any, d: Any) -> Any:
+    """1 / d per component, a zero component replaced by a tiny one of its sign: its slab is then a
+    huge finite interval (never 0 * inf = NaN). Harmless: boxes are widened beyond the exact balls."""
+    tiny = 1e-300 if T.np_dtype == np.float64 else 1e-30
+    return T.Array3(*(1 / dr.select(d[i] == 0, dr.copysign(T.Float(tiny), d[i]), d[i]) for i in range(3)))
+
+
+def _slab(T: Any, tab: ShapeTable, node: Any, o: Any, inv: Any, pad: Any, active: Any) -> tuple[Any, Any]:
+    """Entry and exit t of the ray with node's box widened by pad (pbrt's slab test, exit grown by 1 + 2 gamma(3))."""
+    lo = dr.gather(T.Array3, tab.n_lo, node, active) - pad
+    hi = dr.gather(T.Array3, tab.n_hi, node, active) + pad
+    t0, t1 = (lo - o) * inv, (hi - o) * inv
+    near, far = dr.minimum(t0, t1), dr.maximum(t0, t1)
+    t_near = dr.maximum(dr.maximum(near[0], near[1]), near[2])
+    t_far = dr.minimum(dr.minimum(far[0], far[1]), far[2]) * (1 + 2 * gamma(3, T.u))
+    return t_near, t_far
+
+
+def _ray_pad(T: Any, tab: ShapeTable, o: Any) -> tuple[Any, Any]:
+    lo = dr.norm(o)
+    return tab.pad_a * lo, dr.sqrt(lo)
+
+
+def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any, blocks=None) -> tuple[Any, Any]:
+    """Closest hit among the table's balls, merged into (t_best, id_best) by the lower-id tie rule.
+
+    With ``blocks`` (a function (center, radius) -> Bool for the shadow ray o, d) the traversal answers
+    "does any ball block?" instead, and a ray stops at its first blocker: then the result is
+    (blocked, None) and t_best is the distance beyond which boxes are skipped (inf for shadow_range "any").
+    """
+    T = tracer.T
+    U, Int = T.UInt, T.Int
+    n = dr.width(d)
+    inv = _inverse(T, d)
+    pa, ps = _ray_pad(T, tab, o)
+    stack = dr.alloc_local(U, STACK)
+    node = dr.zeros(U, n)
+    sp = dr.zeros(U, n)
+    active = dr.full(T.Bool, True, n)
+    blocked = dr.full(T.Bool, False, n)
+
+    def cond(node, sp, active, t_best, id_best, blocked, stack):
+        return active
+
+    def body(node, sp, active, t_best, id_best, blocked, stack):
+        pad = pa + ps * dr.gather(T.Float, tab.n_pad_b, node, active) + dr.gather(T.Float, tab.n_pad_c, node, active)
+        t_near, t_far = _slab(T, tab, node, o, inv, pad, active)
+        enter = active & (t_near <= t_far) & (t_far >= 0) & (t_near <= t_best * (1 + 2 * gamma(3, T.u)))
+        count = dr.gather(U, tab.n_count, node, active)
+        leaf = enter & (count > 0)
+        first = dr.gather(U, tab.n_first, node, leaf)
+        for j in range(LEAF):
+            on = leaf & (j < count)
+            k = first + j
+            c = dr.gather(T.Array3, tab.b_center, k, on)
+            r = dr.gather(T.Float, tab.b_radius, k, on)
+            if blocks is None:
+                sid = dr.gather(Int, tab.b_id, k, on)
+                tk = tracer._ball_t(c, r, o, d)
+                closer = on & ((tk < t_best) | ((tk == t_best) & (sid < id_best)))
+                t_best = dr.select(closer, tk, t_best)
+                id_best = dr.select(closer, sid, id_best)
+            else:
+                blocked |= on & blocks(c, r)
+        inner = enter & (count == 0)
+        axis = dr.gather(U, tab.n_axis, node, inner)
+        dneg = dr.select(axis == 0, d[0] < 0, dr.select(axis == 1, d[1] < 0, d[2] < 0))
+        left, right = node + 1, dr.gather(U, tab.n_right, node, inner)
+        near, far = dr.select(dneg, right, left), dr.select(dneg, left, right)
+        stack.write(far, sp, inner)
+        sp = dr.select(inner, sp + 1, sp)
+        pop = active & ~inner
+        more = pop & (sp > 0)
+        sp = dr.select(more, sp - 1, sp)
+        popped = stack.read(sp, more)
+        node = dr.select(inner, near, popped)
+        active = inner | more
+        if blocks is not None:
+            active &= ~blocked
+        return node, sp, active, t_best, id_best, blocked, stack
+
+    _, _, _, t_best, id_best, blocked, _ = dr.while_loop(
+        (node, sp, active, t_best, id_best, blocked, stack), cond, body, label="bvh"
+    )
+    if blocks is not None:
+        return blocked, None
+    return t_best, id_best
+
+
+def planes_closest(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any) -> tuple[Any, Any]:
+    """Every plane in a loop (planes are unbounded: no tree), merged by the lower-id tie rule."""
+    T = tracer.T
+    n = dr.width(d)
+    k = dr.zeros(T.UInt, n)
+    count = tab.count("planes")
+
+    def cond(k, t_best, id_best):
+        return k < count
+
+    def body(k, t_best, id_best):
+        nrm = dr.gather(T.Array3, tab.p_normal, k)
+        q = dr.gather(T.Array3, tab.p_point, k)
+        sid = dr.gather(T.Int, tab.p_id, k)
+        tk = tracer._plane_t(nrm, q, o, d)
+        closer = (tk < t_best) | ((tk == t_best) & (sid < id_best))
+        return k + 1, dr.select(closer, tk, t_best), dr.select(closer, sid, id_best)
+
+    _, t_best, id_best = dr.while_loop((k, t_best, id_best), cond, body, label="planes")
+    return t_best, id_best
+
+
+def planes_block(tracer: Any, tab: ShapeTable, o: Any, s: Any, light_dist: Any, to_light: bool) -> Any:
+    """Does any plane block the shadow ray (within light_dist under shadow_range "to-light")?"""
+    T = tracer.T
+    n = dr.width(s)
+    k = dr.zeros(T.UInt, n)
+    count = tab.count("planes")
+    blocked = dr.full(T.Bool, False, n)
+
+    def cond(k, blocked):
+        return (k < count) & ~blocked
+
+    def body(k, blocked):
+        tk = tracer._plane_t(dr.gather(T.Array3, tab.p_normal, k), dr.gather(T.Array3, tab.p_point, k), o, s)
+        return k + 1, blocked | ((tk < light_dist) if to_light else (tk < math.inf))
+
+    _, blocked = dr.while_loop((k, blocked), cond, body, label="plane shadows")
+    return blocked
+
+
+def balls_each(tracer: Any, tab: ShapeTable, o: Any, fn, acc: Any, stop=None) -> Any:
+    """acc = fn(acc, center, radius, id) over every ball in a loop (for per-ray quantities no tree can
+    prune, such as the distance from the nearest silhouette, and for the brute-force "loop" path).
+    ``stop(acc)``: lanes where it holds leave the loop early."""
+    T = tracer.T
+    n = dr.width(o)
+    k = dr.zeros(T.UInt, n)
+    count = tab.count("balls")
+
+    def cond(k, acc):
+        go = k < count
+        return go if stop is None else go & ~stop(acc)
+
+    def body(k, acc):
+        c = dr.gather(T.Array3, tab.b_center, k)
+        r = dr.gather(T.Float, tab.b_radius, k)
+        return k + 1, fn(acc, c, r, dr.gather(T.Int, tab.b_id, k))
+
+    _, acc = dr.while_loop((k, acc), cond, body, label="balls")
+    return acc
+
+
+def balls_closest_loop(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any) -> tuple[Any, Any]:
+    """Every ball in a loop, merged by the lower-id tie rule: the brute force the tree must equal."""
+
+    def merge(acc, c, r, sid):
+        t_best, id_best = acc
+        tk = tracer._ball_t(c, r, o, d)
+        closer = (tk < t_best) | ((tk == t_best) & (sid < id_best))
+        return dr.select(closer, tk, t_best), dr.select(closer, sid, id_best)
+
+    return balls_each(tracer, tab, o, merge, (t_best, id_best))
