@@ -110,3 +110,42 @@ def render(name: str, scene: Scene, rules: Rules, options: dict[str, Any] | None
         result = RenderResult.failed(name, w, h, "error", f"{type(e).__name__}: {e}".splitlines()[0])
     result.meta.setdefault("timings", {})["wall"] = time.perf_counter() - t0
     return result
+
+
+def render_to_files(
+    name: str,
+    scene: Scene,
+    rules: Rules,
+    options: dict[str, Any] | None,
+    out_dir: Any,
+    stem: str,
+    timings: bool = False,
+    progress=None,
+    stream: bool = False,
+) -> tuple[RenderResult, dict[str, Any] | None]:
+    """Render with one backend and write its files (minirt.imageio.write_result); (result, paths), paths
+    None when the backend failed. With ``stream``, a reference image larger than one tile
+    (tracer.TILE_PIXELS) under the default output rules is written tile by tile as it is traced
+    (imageio.write_tiles): its memory is one tile's, whatever the size; the returned result then
+    carries the metadata only (no buffers)."""
+    from minirt import bitmap, tracer
+    from minirt.imageio import write_result, write_tiles
+
+    w, h = scene.camera.width, scene.camera.height
+    options = dict(options or {})
+    if stream and name == REFERENCE and w * h > tracer.TILE_PIXELS and bitmap.is_default(rules):
+        t0 = time.perf_counter()
+        try:
+            tr = tracer.Tracer(scene, rules, precision=options.get("precision", "f64"))
+            paths, last = write_tiles(tr.tiles(progress), w, h, out_dir, stem, timings=timings)
+        except MinirtError as e:
+            return RenderResult.failed(name, w, h, "error", str(e).splitlines()[0]), None
+        except MemoryError as e:
+            return RenderResult.failed(name, w, h, "error", f"out of memory: {e}".splitlines()[0]), None
+        res = RenderResult(backend=name, width=w, height=h, meta=dict(last.meta))
+        res.meta["timings"] = {"total": time.perf_counter() - t0, "wall": time.perf_counter() - t0}
+        return res, paths
+    res = render(name, scene, rules, options, progress)
+    if not res.ok:
+        return res, None
+    return res, write_result(res, out_dir, stem, timings=timings, rules=rules)

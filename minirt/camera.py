@@ -76,10 +76,17 @@ def stratified_grid(n: int) -> tuple[int, int]:
     return gx, math.ceil(n / gx)
 
 
-def sample_offsets(n: int, s: int, count: int, seed: int = SAMPLE_SEED) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-pixel positions (u, v) of sample s (of n) for `count` pixels: stratified and jittered."""
+def sample_offsets(
+    n: int, s: int, count: int, seed: int = SAMPLE_SEED, start: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel positions (u, v) of sample s (of n) for `count` pixels from pixel `start` on (row-major):
+    stratified and jittered. Pixel i takes the stream's draws 2i and 2i + 1 (one 64-bit output per
+    double), so a tile skips 2 start draws (PCG64.advance) and gets exactly the whole image's values."""
     gx, gy = stratified_grid(n)
     cx, cy = s % gx, s // gx
-    rng = np.random.Generator(np.random.PCG64([seed, s]))
+    bits = np.random.PCG64([seed, s])
+    if start:
+        bits.advance(2 * start)
+    rng = np.random.Generator(bits)
     j = rng.random((count, 2))
     return (cx + j[:, 0]) / gx, (cy + j[:, 1]) / gy

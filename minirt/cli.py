@@ -143,7 +143,6 @@ def render(
 ) -> None:
     """Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend."""
     from minirt import backends
-    from minirt.imageio import write_result
 
     scene, rules = _load(scene_path, width, height, samples, profile, rule)
     names = backends.parse_backends(backend)
@@ -162,12 +161,14 @@ def render(
             opts = {"precision": precision.value}
             if samples and name == "mitsuba":
                 opts.update(mode="sensor", spp=samples)
-            res = backends.render(name, scene, rules, opts, progress=tick)
+            # One backend alone: a large reference image is written tile by tile (bounded memory).
+            res, paths = backends.render_to_files(
+                name, scene, rules, opts, dest, f"{scene.name}.{name}", timings, tick, stream=len(names) == 1
+            )
             if bar:
                 bar.update(task, completed=1, total=1)
             results.append(res)
             if res.ok:
-                paths = write_result(res, dest, f"{scene.name}.{name}", timings=timings, rules=rules)
                 _report_render(res, paths)
             else:
                 err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {res.reason}")

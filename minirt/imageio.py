@@ -48,6 +48,17 @@ def write_image(path: str | Path, pixels: np.ndarray, channels: list[str] | None
         fmt = oiio.UINT16
     else:
         a, fmt = a.astype(np.float32), oiio.FLOAT
+    spec = _spec(w, h, c, fmt, path, channels)
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise MinirtError(f"{path}: cannot write image: {oiio.geterror()}")
+        ok = out.open(str(tmp), spec) and out.write_image(a) and out.close()
+        if not ok:
+            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+
+
+def _spec(w: int, h: int, c: int, fmt: Any, path: Path, channels: list[str] | None = None) -> Any:
     spec = oiio.ImageSpec(w, h, c, fmt)
     if channels:
         spec.channelnames = tuple(channels)
@@ -56,13 +67,48 @@ def write_image(path: str | Path, pixels: np.ndarray, channels: list[str] | None
     spec.attribute("DateTime", "2000:01:01 00:00:00")
     if path.suffix.lower() == ".exr":
         spec.attribute("compression", "zip")
-    with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(str(tmp))
-        if out is None:
-            raise MinirtError(f"{path}: cannot write image: {oiio.geterror()}")
-        ok = out.open(str(tmp), spec) and out.write_image(a) and out.close()
-        if not ok:
-            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+    return spec
+
+
+def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, timings: bool = False):
+    """Write a render that arrives as tiles of whole rows ((first row, RenderResult) from top to bottom,
+    as ``Tracer.tiles`` gives them) to `stem.png`, `stem.exr` and `stem.json`, each tile's scanlines as
+    it comes: the image is never whole in memory. The same files as ``write_result`` of the assembled
+    image (tested), for the exercise's default output rules. Returns (paths, the last tile's result)."""
+    out_dir = Path(out_dir)
+    paths = {"png": out_dir / f"{stem}.png", "exr": out_dir / f"{stem}.exr", "json": out_dir / f"{stem}.json"}
+    last = None
+    with contextlib.ExitStack() as stack:
+        outs = {}
+        for key in ("png", "exr"):
+            tmp = stack.enter_context(atomic_path(paths[key]))
+            outs[key] = (tmp, None)
+        for y0, tile in tiles:
+            blocks = {"png": (tile.color8(), None), "exr": exr_channels(tile)}
+            for key, (data, names) in blocks.items():
+                tmp, out = outs[key]
+                a = np.ascontiguousarray(data)
+                fmt = oiio.UINT8 if a.dtype == np.uint8 else oiio.FLOAT
+                if a.dtype != np.uint8:
+                    a = a.astype(np.float32)
+                if out is None:
+                    out = oiio.ImageOutput.create(str(tmp))
+                    if out is None or not out.open(str(tmp), _spec(width, height, a.shape[-1], fmt, tmp, names)):
+                        why = oiio.geterror() if out is None else out.geterror()
+                        raise MinirtError(f"{paths[key]}: cannot write image: {why}")
+                    outs[key] = (tmp, out)
+                if not out.write_scanlines(y0, y0 + tile.height, 0, a):
+                    raise MinirtError(f"{paths[key]}: cannot write image: {out.geterror()}")
+            last = tile
+        for key, (_, out) in outs.items():
+            if out is None or not out.close():
+                raise MinirtError(f"{paths[key]}: cannot write image: {'no rows' if out is None else out.geterror()}")
+    assert last is not None
+    meta = dict(last.meta)
+    write_json(
+        paths["json"], sidecar(RenderResult(backend=last.backend, width=width, height=height, meta=meta), timings)
+    )
+    return paths, last
 
 
 def read_image(path: str | Path) -> tuple[np.ndarray, list[str]]:

@@ -47,10 +47,15 @@ class _SceneInfo(_Strict):
     description: str = ""
 
 
+# The limits of the integer keys, one place for scene files and the CLI's flags (with_overrides):
+# OpenEXR's and the PNG writer's practical 16384 per side, 2^16 samples, 64 reflection levels.
+LIMITS = {"width": (1, 16384), "height": (1, 16384), "samples": (1, 65536), "max_depth": (0, 64)}
+
+
 class _Camera(_Strict):
     distance: Annotated[float, Field(gt=0, le=LIMIT, allow_inf_nan=False)]
-    width: Annotated[int, Field(ge=1, le=16384)] = 256
-    height: Annotated[int, Field(ge=1, le=16384)] = 256
+    width: Annotated[int, Field(ge=LIMITS["width"][0], le=LIMITS["width"][1])] = 256
+    height: Annotated[int, Field(ge=LIMITS["height"][0], le=LIMITS["height"][1])] = 256
 
     @field_validator("distance")
     @classmethod
@@ -65,8 +70,8 @@ class _Light(_Strict):
 
 class _Render(_Strict):
     background: _Color = (0.0, 0.0, 0.0)
-    max_depth: Annotated[int, Field(ge=0, le=64)] = 3
-    samples: Annotated[int, Field(ge=1, le=65536)] = 1
+    max_depth: Annotated[int, Field(ge=LIMITS["max_depth"][0], le=LIMITS["max_depth"][1])] = 3
+    samples: Annotated[int, Field(ge=LIMITS["samples"][0], le=LIMITS["samples"][1])] = 1
     profile: str = "exercise"
 
 
@@ -200,8 +205,16 @@ class Scene:
     materials: dict[str, Material] = field(default_factory=dict)
 
     def with_overrides(self, **kw: Any) -> Scene:
-        """A copy with camera size, samples, profile or max_depth replaced (CLI flags)."""
+        """A copy with camera size, samples, profile or max_depth replaced (CLI flags), within the same
+        limits as the scene file's keys."""
         from dataclasses import replace
+
+        from minirt.errors import MinirtError
+
+        for key, (lo, hi) in LIMITS.items():
+            v = kw.get(key)
+            if v is not None and not lo <= v <= hi:
+                raise MinirtError(f"--{key.replace('_', '-')} {v}: must be between {lo} and {hi}")
 
         cam = self.camera
         if kw.get("width") is not None or kw.get("height") is not None:

@@ -748,19 +748,59 @@ class Tracer:
             o = at_camera if self.rules.ray_origin == "camera" else A3(px, py, pz)
         return o, d
 
-    def render(self, progress=None, diagnostics: bool = False) -> RenderResult:
+    def render(self, progress=None, diagnostics: bool = False, tile_pixels: int | None = None) -> RenderResult:
         """The image and its buffers. ``diagnostics`` adds what the harness needs to classify pixels
         (aux ray_tree: every decision of each pixel's ray tree, hashed; aux shadow_margin): ~20 % more
-        time, so a plain render skips them."""
+        time, so a plain render skips them.
+
+        An image larger than ``tile_pixels`` (default ``TILE_PIXELS``) is traced in tiles of whole rows
+        (``tiles``) and assembled: Dr.Jit's working memory is then one tile's, whatever the image size;
+        the same bits as one pass (tested). For images too big to hold at all, write the tiles as they
+        come (``minirt.imageio.write_tiles``)."""
         sc = self.scene
         w, h = sc.camera.width, sc.camera.height
+        rows = tile_rows(w, tile_pixels)
+        if rows >= h:
+            return self.render_rows(0, h, progress, diagnostics)
+        t0 = time.perf_counter()
+        full: RenderResult | None = None
+        for y0, tile in self.tiles(progress, diagnostics, tile_pixels):
+            if full is None:
+                full = _empty_like(tile, h)
+            _paste(full, tile, y0)
+        assert full is not None
+        full.meta["timings"] = {"total": time.perf_counter() - t0}
+        return full
+
+    def tiles(self, progress=None, diagnostics: bool = False, tile_pixels: int | None = None):
+        """(first row, RenderResult of the rows from there) for each tile of whole rows, top to bottom."""
+        sc = self.scene
+        w, h = sc.camera.width, sc.camera.height
+        rows = tile_rows(w, tile_pixels)
+        count = -(-h // rows)
+        for k in range(count):
+            y0, y1 = k * rows, min(h, (k + 1) * rows)
+
+            def sub(done: int, total: int, k=k) -> None:
+                if progress:
+                    progress(k * total + done, count * total)
+
+            yield y0, self.render_rows(y0, y1, sub, diagnostics)
+
+    def render_rows(self, y0: int, y1: int, progress=None, diagnostics: bool = False) -> RenderResult:
+        """Rows y0 .. y1 - 1 of the image as a RenderResult of height y1 - y0 (the whole image: 0, height)."""
+        sc = self.scene
+        w = sc.camera.width
+        h = y1 - y0
+        pixels = None if (y0, y1) == (0, sc.camera.height) else np.arange(y0 * w, y1 * w, dtype=np.uint32)
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        o, d = self.primary_rays()
+        o, d = self.primary_rays(pixels)
         color, levels = self.trace(o, d, tree=diagnostics)
         lvl0 = levels[0]
         vectors = {"color": color, "position": lvl0.p, "normal": lvl0.n}
         out = self._read_out(w, h, lvl0.shape_id, lvl0.t, vectors | {"term." + k: v for k, v in lvl0.terms.items()})
+        del o, d, color, vectors
         col = out.pop("color")
         terms = {k[5:]: out.pop(k) for k in list(out) if k.startswith("term.")}
         geom = out
@@ -775,8 +815,9 @@ class Tracer:
             aux["ray_tree"] = (np.asarray(lvl0.record["tree"]) >> 8).astype(np.float64).reshape(h, w)
         if diagnostics and "shadow_margin" in lvl0.record:
             aux["shadow_margin"] = np.asarray(lvl0.record["shadow_margin"]).astype(np.float64).reshape(h, w)
+        del lvl0, levels
         if sc.samples > 1:
-            col, terms, more = self._render_samples(progress)
+            col, terms, more = self._render_samples(progress, y0, y1)
             aux.update(more)
         timings["total"] = time.perf_counter() - t0
         for k in TERMS:
@@ -787,7 +828,7 @@ class Tracer:
             "version": _versions(),
             "scene": sc.name,
             "scene_sha256": sc.digest,
-            "settings": {"precision": self.precision, "samples": sc.samples, "width": w, "height": h,
+            "settings": {"precision": self.precision, "samples": sc.samples, "width": w, "height": sc.camera.height,
                          "max_depth": sc.max_depth, "prune": self.prune, "sample_seed": camera.SAMPLE_SEED},
             "rules": self.rules.as_dict(),
             "effects": {"simulated": self.effects.simulated(), "skipped": self.effects.skipped(),
@@ -797,7 +838,9 @@ class Tracer:
         }  # fmt: skip
         return RenderResult(backend="reference", width=w, height=h, color=col, terms=terms, aux=aux, meta=meta, **geom)
 
-    def _render_samples(self, progress=None) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    def _render_samples(
+        self, progress=None, y0: int = 0, y1: int | None = None
+    ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Average `samples` stratified, jittered rays per pixel (see camera.sample_offsets).
 
         Also returns the per-pixel sample variance (unbiased, of one sample; divide by n for the
@@ -808,13 +851,16 @@ class Tracer:
         as summing in NumPy, FastMath off (no fused multiply-adds), so the same bits.
         """
         sc = self.scene
-        w, h, n = sc.camera.width, sc.camera.height, sc.samples
+        w, n = sc.camera.width, sc.samples
+        y1 = sc.camera.height if y1 is None else y1
+        h = y1 - y0
+        pixels = None if (y0, y1) == (0, sc.camera.height) else np.arange(y0 * w, y1 * w, dtype=np.uint32)
         A64 = dr.llvm.Array3f64
         sums: dict[str, Any] = {}
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             for s in range(n):
-                u, v = camera.sample_offsets(n, s, w * h)
-                c, levels = self.trace(*self._sample_rays(u, v))
+                u, v = camera.sample_offsets(n, s, w * h, start=y0 * w)
+                c, levels = self.trace(*self._sample_rays(u, v, pixels))
                 add = {"color": A64(c), **{"term." + k: A64(val) for k, val in levels[0].terms.items()}}
                 add["color2"] = add["color"] * add["color"]
                 if "term.diffuse" in add:
@@ -832,17 +878,53 @@ class Tracer:
             aux["variance_diffuse"] = (np.maximum(got["diffuse2"] - n * dm * dm, 0.0) / (n - 1)).reshape(h, w, 3)
         return mean.reshape(h, w, 3), terms, aux
 
-    def _sample_rays(self, u: np.ndarray, v: np.ndarray) -> tuple[Any, Any]:
+    def _sample_rays(self, u: np.ndarray, v: np.ndarray, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
         """camera.rays_through(scene, rules, u, v) in Dr.Jit: float64 like NumPy (so the same bits), then
         rounded to the tracer's precision as ``_load`` would."""
         F64 = dr.llvm.Float64
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
-            o, d = self._rays(F64, dr.llvm.Array3f64, F64(u), F64(v))
+            o, d = self._rays(F64, dr.llvm.Array3f64, F64(u), F64(v), pixels)
             return self.T.Array3(o), self.T.Array3(d)
 
     def _load(self, a: np.ndarray) -> Any:
         a = np.ascontiguousarray(a.astype(self.T.np_dtype))
         return self.T.Array3(self.T.Float(a[:, 0]), self.T.Float(a[:, 1]), self.T.Float(a[:, 2]))
+
+
+# Pixels per tile: Dr.Jit's working set is ~330 B per pixel in float64 (the wavefront's levels, the rays,
+# the read-out's interleaved buffers; measured: benchmarks/bench_scale.py, memory), so a tile of 2^20
+# pixels costs ~350 MB above the finished image's NumPy buffers, and its kernels are long enough that
+# the per-tile overhead is small (tiles of 1 Mpixel cost < 5 % more time than one pass).
+TILE_PIXELS = 1 << 20
+
+
+def tile_rows(width: int, tile_pixels: int | None = None) -> int:
+    """Rows per tile: as many whole rows as fit in ``tile_pixels`` (at least one)."""
+    return max(1, (tile_pixels or TILE_PIXELS) // width)
+
+
+def _empty_like(tile: RenderResult, height: int) -> RenderResult:
+    """A whole image's RenderResult with the buffers of ``tile`` (uninitialised, then pasted)."""
+
+    def big(a):
+        return None if a is None else np.empty((height, *a.shape[1:]), dtype=a.dtype)
+
+    return RenderResult(
+        backend=tile.backend, width=tile.width, height=height, color=big(tile.color),
+        terms={k: big(v) for k, v in tile.terms.items()}, aux={k: big(v) for k, v in tile.aux.items()},
+        meta=dict(tile.meta), hit=big(tile.hit), shape_id=big(tile.shape_id), t=big(tile.t),
+        position=big(tile.position), normal=big(tile.normal),
+    )  # fmt: skip
+
+
+def _paste(full: RenderResult, tile: RenderResult, y0: int) -> None:
+    y1 = y0 + tile.height
+    for name in ("color", "hit", "shape_id", "t", "position", "normal"):
+        if getattr(tile, name) is not None:
+            getattr(full, name)[y0:y1] = getattr(tile, name)
+    for group in ("terms", "aux"):
+        for k, v in getattr(tile, group).items():
+            getattr(full, group)[k][y0:y1] = v
 
 
 DIAGNOSTICS = {

@@ -132,6 +132,8 @@ def test_good_scene_renders(tmp_path):
         (["render", "scenes/exercise.toml", "--profile", "fancy"], "unknown profile 'fancy'"),
         (["probe", "scenes/exercise.toml", "999", "0"], "outside the 256x256 image"),
         (["render", "scenes/exercise.toml", "--width", "0"], "Invalid value"),
+        (["render", "scenes/exercise.toml", "--width", "100000"], "--width 100000: must be between 1 and 16384"),
+        (["render", "scenes/exercise.toml", "--samples", "100000000"], "--samples 100000000: must be between 1 and"),
         (["render", "scenes/exercise.toml", "--precision", "f16"], "Invalid value"),
         (["export", "scenes/exercise.toml", "--to", "blender"], "unknown target 'blender'"),
         (["frobnicate"], "No such command"),
