@@ -182,6 +182,30 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
             tr.render()
             times.append(time.perf_counter() - t0)
         out[prec] = {"trace": trace, "render": _stats(times, px), "effects": tr.effects.simulated()}
+    # Thread scaling: the f64 trace kernel on one Dr.Jit worker thread against the default (every core).
+    cores = dr.thread_count()
+    tr = Tracer(sc, rules, precision="f64")
+
+    def kernel64() -> None:
+        o, d = tr.primary_rays()
+        c, _levels = tr.trace(o, d)
+        dr.eval(c)
+        dr.sync_thread()
+
+    scaling = {}
+    for threads in sorted({1, cores}):
+        dr.set_thread_count(threads)
+        try:
+            kernel64()
+            times = []
+            for _ in range(cfg.reps):
+                t0 = time.perf_counter()
+                kernel64()
+                times.append(time.perf_counter() - t0)
+        finally:
+            dr.set_thread_count(cores)
+        scaling[str(threads)] = statistics.median(times)
+    out["threads"] = {"trace_f64_median_s": scaling, "speedup": scaling["1"] / scaling[str(cores)]}
     # Stratified supersampling: the whole render at SAMPLES_SPP rays per pixel, a quarter of the pixels.
     side = max(4, cfg.ref_size // 2)
     ss = sc.with_overrides(width=side, height=side, samples=SAMPLES_SPP)
@@ -522,6 +546,10 @@ def markdown(res: dict[str, Any]) -> str:
     smp = ref["samples"]
     L += ["", f"Supersampled: {smp['width']}x{smp['height']} at {smp['spp']} rays per pixel, whole f64 render: "
           f"median {_f(smp['render']['median_s'], 4)} s, {_f(smp['render']['mpix_s'], 3)} M rays/s."]  # fmt: skip
+    thr = ref["threads"]
+    L += ["", "Threads (f64 trace kernel, median s): "
+          + ", ".join(f"{k}: {_f(v, 4)}" for k, v in thr["trace_f64_median_s"].items())
+          + f"; speed-up {_f(thr['speedup'], 3)}x."]  # fmt: skip
     L += ["", f"NumPy model vs reference image: max abs difference {npy['max_abs_diff_vs_reference']:.3g}.", ""]
     L += ["## Cold whole command", "", f"`{cold['command']}` ({cold['width']}x{cold['height']}); {cold['cache']}; "
           f"{cold['kernels_cached']} kernels cached.", "", "| cache | runs s | median s |", "|---|---|---|",
