@@ -312,6 +312,7 @@ def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderRes
         "depth_rel_err": rel,
         "normal_deg": ang,
         "band": tol.band,
+        "not_judged": same & tol.band,  # t and normals compared but not judged: the silhouette band
     }
     thresholds = {
         "mask_outside_band": f"0: {THRESHOLDS['mask_outside_band'].why}",
@@ -421,7 +422,7 @@ def _shading_exercise(ref, res, classes, edges) -> Check:
         verdict, reason = "warn", f"{frac_one:.2%} of pixels differ by 1 level"
     elif figures["delta_e_p95"] > THRESHOLDS["delta_e_p95"].value:
         verdict, reason = "warn", f"CIEDE2000 p95 {figures['delta_e_p95']:.2f}"
-    images = {"color8_diff": d8, "delta_e": cd["_delta_e"], "flip": cd["_flip"], "edges": edges}
+    images = {"color8_diff": d8, "delta_e": cd["_delta_e"], "flip": cd["_flip"], "edges": edges, "not_judged": edges}
     thresholds = {
         k: f"{THRESHOLDS[k].value}: {THRESHOLDS[k].why}"
         for k in ("color8_levels", "color8_off_by_one_fraction", "color8_tie_rel", "delta_e_p95")
@@ -486,7 +487,8 @@ def _shading_physical(scene, ref, res, classes, edges) -> Check:
         bad.append(f"{int(lit_flip.sum())} pixel(s) lit on one side and shadowed on the other, off edges")
     if over.any():
         bad.append(f"{int(over.any(-1).sum())} diffuse value(s) above tolerance")
-    images = {"diffuse_rel_err": rel.max(axis=-1), "lit_mismatch": lit_flip, "edges": edges}
+    not_judged = both_hit & (edges | (unsure & flips))  # edges; shadow decisions within the hit point's error
+    images = {"diffuse_rel_err": rel.max(axis=-1), "lit_mismatch": lit_flip, "edges": edges, "not_judged": not_judged}
     thresholds = {
         "diffuse_rel": f"{THRESHOLDS['diffuse_rel'].value}: {THRESHOLDS['diffuse_rel'].why} On a plane, plus "
         "abs_error / |L - p| (the hit point's recorded error turning the light direction); largest here "
@@ -618,7 +620,7 @@ def check_stochastic(scene, ref, res, classes, edges, centre: RenderResult) -> C
         k: f"{THRESHOLDS[k].value}: {THRESHOLDS[k].why}"
         for k in ("z_significance", "z_pass_fraction", "z_var_floor", "shape_mean_sigma")
     }
-    images = {"p_value": np.where(mask, p, 1.0).min(axis=-1), "edges": edges}
+    images = {"p_value": np.where(mask, p, 1.0).min(axis=-1), "edges": edges, "not_judged": ref.hit & ~interior}
     return Check("fail" if bad else "pass", figures, "; ".join(bad), thresholds, images)
 
 
