@@ -50,7 +50,7 @@ Conventions bridged (each one is a place where Mitsuba and the exercise differ):
   Mitsuba writes no 8-bit image of its own and its radiance is tiny in these units (1/(pi r^2)), so
   ``image8`` (the PNG) shows diffuse_exercise + reflection_exercise: viewable beside the other
   backends. The EXR's colour channels stay Mitsuba's own radiance.
-- Falloff in the export (``minirt export SCENE --backend mitsuba``): a file for people to open in
+- Falloff in the export (``minirt export SCENE --to mitsuba``): a file for people to open in
   Mitsuba, not for the checks. With I = lc its render would be near black (~1e-3 for a light 15 units
   away), so the exported light's intensity is lc * pi * d^2, d the *viewing distance*
   (:func:`viewing_distance`: the median distance from the light to the points the camera's rays hit,
