@@ -312,6 +312,7 @@ def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderRes
         "depth_rel_err": rel,
         "normal_deg": ang,
         "band": tol.band,
+        "not_judged": same & tol.band,  # t and normals compared but not judged: the silhouette band
     }
     thresholds = {
         "mask_outside_band": f"0: {THRESHOLDS['mask_outside_band'].why}",
@@ -421,7 +422,7 @@ def _shading_exercise(ref, res, classes, edges) -> Check:
         verdict, reason = "warn", f"{frac_one:.2%} of pixels differ by 1 level"
     elif figures["delta_e_p95"] > THRESHOLDS["delta_e_p95"].value:
         verdict, reason = "warn", f"CIEDE2000 p95 {figures['delta_e_p95']:.2f}"
-    images = {"color8_diff": d8, "delta_e": cd["_delta_e"], "flip": cd["_flip"], "edges": edges}
+    images = {"color8_diff": d8, "delta_e": cd["_delta_e"], "flip": cd["_flip"], "edges": edges, "not_judged": edges}
     thresholds = {
         k: f"{THRESHOLDS[k].value}: {THRESHOLDS[k].why}"
         for k in ("color8_levels", "color8_off_by_one_fraction", "color8_tie_rel", "delta_e_p95")
@@ -486,7 +487,8 @@ def _shading_physical(scene, ref, res, classes, edges) -> Check:
         bad.append(f"{int(lit_flip.sum())} pixel(s) lit on one side and shadowed on the other, off edges")
     if over.any():
         bad.append(f"{int(over.any(-1).sum())} diffuse value(s) above tolerance")
-    images = {"diffuse_rel_err": rel.max(axis=-1), "lit_mismatch": lit_flip, "edges": edges}
+    not_judged = both_hit & (edges | (unsure & flips))  # edges; shadow decisions within the hit point's error
+    images = {"diffuse_rel_err": rel.max(axis=-1), "lit_mismatch": lit_flip, "edges": edges, "not_judged": not_judged}
     thresholds = {
         "diffuse_rel": f"{THRESHOLDS['diffuse_rel'].value}: {THRESHOLDS['diffuse_rel'].why} On a plane, plus "
         "abs_error / |L - p| (the hit point's recorded error turning the light direction); largest here "
@@ -495,30 +497,50 @@ def _shading_physical(scene, ref, res, classes, edges) -> Check:
     return Check("fail" if bad else "pass", figures, "; ".join(bad), thresholds, images)
 
 
-def z_test(a: np.ndarray, var_a: np.ndarray, n_a: int, b: np.ndarray, var_b: np.ndarray, n_b: int, mask: np.ndarray):
-    """Per pixel-channel two-sample test of equal means; Sidak-corrected significance.
+def sidak_alpha(alpha: float, m: int) -> float:
+    """Šidák's per-test significance for m independent tests at family-wise significance alpha:
+    1 - (1 - alpha)^(1/m) (Šidák 1967; Mitsuba's test_renders.py uses it over all pixel-channels).
+    Written out because no installed library provides it: SciPy has no family-wise corrections
+    (only false_discovery_control), and statsmodels' multipletests(method="sidak") is not a dependency."""
+    return 1 - (1 - alpha) ** (1 / max(int(m), 1))
 
-    The variances are estimated from the samples themselves, so the statistic follows Student's t
-    with Welch-Satterthwaite degrees of freedom, not the normal law: with 4 samples per pixel the
-    normal law rejects far too often (a fuzzed 4-sample scene failed a correct render). With many
-    samples the t law becomes the Z-test of Mitsuba's own render tests.
+
+DOF_NORMAL = 1e9  # degrees of freedom standing for the normal law (no variance to estimate)
+
+
+def z_test(a: np.ndarray, var_a: np.ndarray, n_a: int, b: np.ndarray, var_b: np.ndarray, n_b: int, mask: np.ndarray):
+    """Per pixel-channel two-sample test of equal means (Welch's t, SciPy); Šidák-corrected significance.
+
+    The variances are estimated from the samples themselves (n_a, n_b >= 2), so the statistic follows
+    Student's t with Welch-Satterthwaite degrees of freedom, not the normal law: with 4 samples per
+    pixel the normal law rejects far too often (a fuzzed 4-sample scene failed a correct render). With
+    many samples the t law becomes the Z-test of Mitsuba's own render tests.
+
+    The test is scipy.stats.ttest_ind_from_stats(equal_var=False), with one addition: a floor
+    (z_var_floor) on the squared standard error ea + eb (ea = var_a / n_a). SciPy takes no floor, so
+    both variances are scaled by (ea + eb + floor) / (ea + eb): the Welch-Satterthwaite degrees of
+    freedom, (ea + eb)^2 / (ea^2 / (n_a - 1) + eb^2 / (n_b - 1)), are homogeneous of degree 0 in
+    (ea, eb) and do not change, while the standard error becomes sqrt(ea + eb + floor). Where both
+    variances are 0 there is nothing to estimate: the normal law (t with DOF_NORMAL) on the floor alone.
 
     Returns (p-values, alpha corrected, pass fraction) over the masked pixel-channels.
     """
     from scipy.stats import t as student_t
+    from scipy.stats import ttest_ind_from_stats
 
+    if n_a < 2 or n_b < 2:
+        raise ValueError(f"Welch's test needs variances estimated from >= 2 samples per side (got {n_a}, {n_b})")
     floor = THRESHOLDS["z_var_floor"].value
-    ea, eb = var_a / n_a, var_b / n_b
-    se = np.sqrt(ea + eb + floor)
-    z = np.abs(a - b) / se
-    with np.errstate(divide="ignore", invalid="ignore"):
-        den = (ea * ea / (n_a - 1) if n_a > 1 else 0.0) + (eb * eb / (n_b - 1) if n_b > 1 else 0.0)
-        dof = np.where(den > 0, (ea + eb) ** 2 / den, np.inf)
-    dof = np.clip(np.nan_to_num(dof, nan=np.inf), 1.0, 1e9)  # zero variance on both sides: the normal limit
-    p = 2 * student_t.sf(z, dof)
+    var_a, var_b = np.asarray(var_a, dtype=np.float64), np.asarray(var_b, dtype=np.float64)
+    e = var_a / n_a + var_b / n_b
+    some = e > 0
+    scale = np.where(some, (e + floor) / np.where(some, e, 1.0), 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):  # the 0/0 of zero-variance pixels, replaced below
+        welch = ttest_ind_from_stats(a, np.sqrt(var_a * scale), n_a, b, np.sqrt(var_b * scale), n_b, equal_var=False)
+        constant = 2 * student_t.sf(np.abs(a - b) / np.sqrt(floor), DOF_NORMAL)
+    p = np.where(some, welch.pvalue, constant)
     vals = p[mask]
-    n = max(vals.size, 1)
-    alpha = 1 - (1 - THRESHOLDS["z_significance"].value) ** (1 / n)
+    alpha = sidak_alpha(THRESHOLDS["z_significance"].value, vals.size)
     frac = float((vals > alpha).mean()) if vals.size else 1.0
     return p, alpha, frac
 
@@ -598,7 +620,7 @@ def check_stochastic(scene, ref, res, classes, edges, centre: RenderResult) -> C
         k: f"{THRESHOLDS[k].value}: {THRESHOLDS[k].why}"
         for k in ("z_significance", "z_pass_fraction", "z_var_floor", "shape_mean_sigma")
     }
-    images = {"p_value": np.where(mask, p, 1.0).min(axis=-1), "edges": edges}
+    images = {"p_value": np.where(mask, p, 1.0).min(axis=-1), "edges": edges, "not_judged": ref.hit & ~interior}
     return Check("fail" if bad else "pass", figures, "; ".join(bad), thresholds, images)
 
 

@@ -75,6 +75,16 @@ HEATMAPS = {
     "p_value": ("Z-test: −log10 p (per pixel, min over RGB)", "−log10 p", "magma", None),
 }
 
+# What each check leaves unjudged (its image "not_judged"): hatched grey on its maps, named in the caption.
+NOT_JUDGED = {
+    "geometry": "the silhouette band",
+    "shading": "edges (silhouettes, shadow and reflection boundaries)",
+    "samples": "edges (silhouettes, shadow and reflection boundaries, over every sample's ray)",
+    "stochastic": "edges and pixels not fully covered",
+}
+NOT_JUDGED_DEFAULT = "pixels this check does not judge"
+HATCH = "#9a9a9a"
+
 # Figures that count defects: highlighted in the table when non-zero.
 DEFECT_COUNTS = {
     "mask_mismatch_outside_band",
@@ -214,16 +224,34 @@ class _Assets:
                 p.unlink()
 
 
-def _heatmap(data: np.ndarray, title: str, unit: str, cmap: str, line: float | None = None):
+def _heatmap(
+    data: np.ndarray, title: str, unit: str, cmap: str, line: float | None = None, excluded: np.ndarray | None = None
+):
+    """A difference map with a colour bar; `excluded` pixels (not judged by the check) are drawn grey and
+    hatched, and the colour scale is that of the judged pixels, so an edge pixel cannot wash them out."""
+    import matplotlib
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(2.9, 2.45), dpi=100, facecolor="#24262a")
     ax = fig.add_axes((0.04, 0.05, 0.66, 0.78))
-    vmax = float(np.nanmax(data)) if np.isfinite(data).any() else 1.0
+    ex = excluded if excluded is not None and excluded.shape == data.shape and excluded.any() else None
+    judged = data[~ex] if ex is not None else data
+    vmax = float(np.nanmax(judged)) if judged.size and np.isfinite(judged).any() else 1.0
     vmax = vmax if vmax > 0 else 1.0
     if line is not None:
         vmax = max(vmax, line * 1.25)
-    im = ax.imshow(data, cmap=cmap, vmin=0.0, vmax=vmax, interpolation="nearest")
+    cm = matplotlib.colormaps[cmap].with_extremes(bad=HATCH)
+    shown = np.ma.masked_array(data, mask=ex) if ex is not None else data
+    im = ax.imshow(shown, cmap=cm, vmin=0.0, vmax=vmax, interpolation="nearest")
+    if ex is not None:
+        # one hatched region per connected run of excluded pixels, on pixel edges (contourf on corners)
+        h, w = ex.shape
+        grid = np.pad(ex.astype(float), 1)
+        ys, xs = np.arange(-1, h + 1), np.arange(-1, w + 1)
+        with matplotlib.rc_context({"hatch.color": "#3a3a3a", "hatch.linewidth": 0.6}):
+            ax.contourf(xs, ys, grid, levels=[0.5, 1.5], colors="none", hatches=["/////"])
+        ax.set_xlim(-0.5, w - 0.5)
+        ax.set_ylim(h - 0.5, -0.5)
     ax.set_xticks([])
     ax.set_yticks([])
     for s in ax.spines.values():
@@ -344,9 +372,16 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
             if peak <= 0:
                 v["zero_maps"].append(title)
                 continue
-            fig = _heatmap(data, title, unit, cmap, line)
-            v["heatmaps"].append({"src": assets.figure(f"{stem}-{_slug(key, 'map')}.png", fig), "title": title,
-                                  "max": _fmt(peak), "check": cname})  # fmt: skip
+            ex = c.images.get("not_judged")
+            ex = ex if isinstance(ex, np.ndarray) and ex.dtype == bool and ex.shape == data.shape else None
+            n_ex = int(ex.sum()) if ex is not None else 0
+            judged_peak = float(data[~ex].max()) if n_ex and (~ex).any() else (0.0 if n_ex else peak)
+            fig = _heatmap(data, title, unit, cmap, line, ex)
+            v["heatmaps"].append({
+                "src": assets.figure(f"{stem}-{_slug(key, 'map')}.png", fig), "title": title, "check": cname,
+                "max": _fmt(judged_peak), "max_all": _fmt(peak), "excluded": n_ex,
+                "excluded_why": NOT_JUDGED.get(cname, NOT_JUDGED_DEFAULT),
+            })  # fmt: skip
     for k, (rule, count) in enumerate(bc.rules.items()):
         mask = bc.rule_masks.get(rule)
         src = None
@@ -469,7 +504,9 @@ def _sweep_view(sweep: dict[str, Any] | None, sweep_dir: Path | None, assets: _A
         })  # fmt: skip
     pareto = sweep.get("pareto") if isinstance(sweep.get("pareto"), dict) else {}
     size = sweep.get("size")
+    answer = sweep.get("answer_lines") if isinstance(sweep.get("answer_lines"), list) else []
     return {
+        "answer": [str(a) for a in answer],
         "scene": _fmt(sweep.get("scene")),
         "size": "×".join(str(s) for s in size) if isinstance(size, list | tuple) else _fmt(size),
         "repeats": _fmt(sweep.get("repeats")),

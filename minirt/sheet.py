@@ -2,7 +2,9 @@
 
 Backends that shade show their 8-bit colour image; geometry-only backends show their normals
 (n/2 + 1/2) on black, so a silhouette or orientation error is visible at a glance. Failed backends
-get a grey tile with their verdict. Drawn with matplotlib; PNG metadata is fixed for bit-identical files.
+get a grey tile with their verdict. Below, a difference row: each backend's picture minus the
+reference's picture of the same kind (colour or normals), largest channel difference in 8-bit levels.
+Drawn with matplotlib; PNG metadata is fixed for bit-identical files.
 """
 
 from __future__ import annotations
@@ -25,14 +27,37 @@ def preview(r: RenderResult) -> tuple[np.ndarray, str]:
     return (np.clip(n, 0, 1) * 255 + 0.5).astype(np.uint8), "normals"
 
 
+def _difference(r: RenderResult, ref: RenderResult) -> tuple[np.ndarray, str] | None:
+    """Per pixel, the largest channel difference in 8-bit levels between what `r` and `ref` show (colour
+    against colour, normals against normals), and what was compared; None if nothing can be."""
+    if not (r.ok and ref.ok) or (r.width, r.height) != (ref.width, ref.height):
+        return None
+    img, what = preview(r)
+    if what == "normals":
+        if ref.hit is None or ref.normal is None:
+            return None
+        base = (np.clip(np.where(ref.hit[..., None], ref.normal * 0.5 + 0.5, 0.0), 0, 1) * 255 + 0.5).astype(np.uint8)
+        vs = "normals"
+    elif ref.color is not None:
+        base, vs = ref.color8(), "colour"
+    else:
+        return None
+    return np.abs(img.astype(np.int16) - base.astype(np.int16)).max(axis=-1), vs
+
+
 def contact_sheet(results: list[RenderResult], path: Path) -> Path:
+    """Row 1: each backend's picture; row 2 (when a reference is among the results): each other backend's
+    8-bit difference from the reference's picture of the same kind, max channel, in levels."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     n = len(results)
-    fig, axes = plt.subplots(1, n, figsize=(2.6 * n, 3.0), dpi=100, squeeze=False)
+    ref = next((r for r in results if r.backend == "reference" and r.ok), None)
+    rows = 2 if ref is not None and n > 1 else 1
+    # constrained layout sizes the figure around the titles, so two-line titles are never cut off
+    fig, axes = plt.subplots(rows, n, figsize=(2.6 * n, 3.1 * rows), dpi=100, squeeze=False, layout="constrained")
     for ax, r in zip(axes[0], results, strict=True):
         img, what = preview(r)
         ax.imshow(img, interpolation="nearest")
@@ -41,9 +66,23 @@ def contact_sheet(results: list[RenderResult], path: Path) -> Path:
         if not r.ok:
             ax.text(0.5, 0.5, r.reason[:60], ha="center", va="center", wrap=True, fontsize=6, color="w",
                     transform=ax.transAxes)  # fmt: skip
+    if rows == 2:
+        for ax, r in zip(axes[1], results, strict=True):
+            d = None if r is ref else _difference(r, ref)
+            if d is None:
+                note = "differences from\nthe reference" if r is ref else "no difference image"
+                ax.text(0.5, 0.5, note, ha="center", va="center", fontsize=8, color="#555555", transform=ax.transAxes)
+                ax.axis("off")
+                continue
+            diff, vs = d
+            peak = int(diff.max())
+            im = ax.imshow(diff, cmap="magma", vmin=0, vmax=max(peak, 1), interpolation="nearest")
+            ax.set_title(f"{r.backend} − reference ({vs})\nmax {peak} level{'s' if peak != 1 else ''}", fontsize=9)
+            cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
+            cb.ax.tick_params(labelsize=6)
+    for ax in axes.flat:
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", metadata={"Software": None})
     plt.close(fig)

@@ -12,7 +12,7 @@ its knob, times it, and measures the error against that backend's *converged* an
 |           |               |                            | differs from the exercise by design (no ambient,     |
 |           |               |                            | 1/(pi r^2) falloff), so only it can be its own limit |
 | povray    | antialias     | off, +A0.0 +R1 ... +R4      | reference at 1024 spp under POV-Ray's rules          |
-| povray    | samples       | 1, 4, 16, 64 (the exercise's | the same, pixel corner: POV-Ray renders the          |
+| povray    | samples       | 1, 4, 16 (the exercise's     | the same, pixel corner: POV-Ray renders the          |
 |           |               | stratified samples)        | reference's own samples through its mesh camera      |
 | embree    | subdivisions  | 0 ... 7                    | the analytic geometry (reference f64, 1 ray/pixel,   |
 |           |               |                            | Embree's rules): t relative error, hit/id mismatches |
@@ -31,14 +31,17 @@ Conventions and choices (each is a place where the numbers could mislead):
   its converged reference are rendered with rule ``pixel_sample = "center"`` (with "corner" the
   skewed camera shifts the supersampled square by half a pixel against the reference's samples).
   The rows are colour only (no geometry frames, no 8-bit pass): one POV-Ray invocation per render.
-- Time: each setting is rendered once (the first run: JIT compilation, kernel and mesh caches, module
-  imports) and then ``repeats - 1`` more times (only once more when the first run took longer than
-  ``slow_seconds``). ``seconds_median`` is the median of the later runs and ``seconds_setup`` the
-  first run's excess over it (None with repeats = 1: the first run is then the only time). POV-Ray
-  starts a process per render (~0.65 s whatever the size, measured from its own statistics): that
-  start-up is its ``seconds_setup`` and is *not* in its ``seconds_median`` (the time inside POV-Ray:
-  parse, bounding, trace; millisecond resolution), ``seconds_total`` has both. Times are wall clock
-  of ``minirt.backends.render`` (POV-Ray: of its process), on however many cores the machine has.
+- Time: each setting is rendered once untimed (the warm-up: JIT compilation, kernel and mesh caches,
+  module imports), then ``repeats`` times (only once when the warm-up took longer than
+  ``slow_seconds``): even ``repeats = 1`` keeps compilation out of the time. ``seconds_median`` is
+  the median of the timed runs and ``seconds_setup`` the warm-up's excess over it. POV-Ray starts a
+  process per render (~0.65 s whatever the size, measured from its own statistics): that start-up is
+  its ``seconds_setup`` and is *not* in its ``seconds_median`` (the time inside POV-Ray: parse,
+  bounding, trace), ``seconds_total`` has both. POV-Ray's statistics count whole milliseconds: a
+  median below 1 ms is recorded *at* 1 ms with ``seconds_at_resolution`` true (an upper bound, drawn
+  hollow with a left arrow, "≤" in the tables), never as 0 (which would vanish from a log plot). Times
+  are wall clock of ``minirt.backends.render`` (POV-Ray: of its process), on however many cores the
+  machine has.
 - Errors: colours are clipped to [0, 1] first (what the 8-bit image shows). RMSE is over pixels and
   channels; FLIP is the mean LDR ꟻLIP (``flip_evaluator``, 67 pixels per degree) with the clipped
   linear values taken as display values, as the exercise writes them without a gamma curve. Geometry:
@@ -48,7 +51,17 @@ Conventions and choices (each is a place where the numbers could mislead):
   or triangles per ball (20 4^N for Embree, so ``factor_per_level`` = 4^slope: theory 1/4, the
   radial gap of an inscribed icosphere shrinks with the square of its edge), and against log(time).
   Points with error 0 (below measurement) are left out of fits and plots. Pareto front: the settings
-  no other setting of the same series beats in both time and error.
+  no other setting of the same series beats in both time and error. Plots: colour error and t error
+  have different units and go on separate axes (side by side in ``sweep.png``).
+- The answer (``answer`` and ``answer_lines`` in sweep.json, printed by ``minirt sweep``, the top of
+  sweep.md and of the report's sweep section): per backend, the cheapest setting (shortest median
+  time) whose colour RMSE against the converged image is below one 8-bit level (1/255), e.g. "error
+  < 1/255 costs 0.055 s with the reference at 16 spp". RMSE, not the largest pixel difference: an
+  edge pixel of a finite-sample render stays off by more than a level long after the image as a
+  whole has converged. Embree does not shade: its criterion is the harness's geometry check passing
+  with a mean relative t error below GEOMETRY_T_REL (why at the constant). When no setting reaches
+  it the line says so and names the most accurate one tried. ``reference/precision`` is no
+  candidate (measured against f64 itself).
 
 API: :func:`run_sweep` writes ``sweep.csv``, ``sweep.md``, ``sweep.json``, one ``sweep-<backend>.png``
 per backend and ``sweep.png`` (all series) into ``out_dir`` and returns the JSON dict. The knob
@@ -80,14 +93,14 @@ REFERENCE_PRECISIONS = ("f32", "f64")
 REFERENCE_SPP = (1, 4, 16, 64, 256)
 MITSUBA_SPP = (1, 4, 16, 64, 256, 1024)
 POVRAY_ANTIALIAS = (0, 1, 2, 3, 4)  # 0: antialiasing off (-A); R > 0: +A0.0 +R{R}
-POVRAY_SAMPLES = (1, 4, 16, 64)  # the exercise's stratified samples through POV-Ray's mesh camera
+POVRAY_SAMPLES = (1, 4, 16)  # the exercise's samples through POV-Ray's mesh camera (64 at 256² passes its ray limit)
 EMBREE_SUBDIVISIONS = (0, 1, 2, 3, 4, 5, 6, 7)
 CONVERGED_REFERENCE_SPP = 1024
 CONVERGED_MITSUBA_SPP = 4096
 MITSUBA_SEED = 0
 MITSUBA_CONVERGED_SEED = 1  # a different seed: the converged render must not share the rows' samples
 SLOW_SECONDS = 5.0  # a setting whose first run takes longer is timed once more only
-SIZE = 64
+SIZE = 256  # realistic: the exercise renders 256x256; tests pass small sizes
 REPEATS = 3
 
 Progress = Callable[[int, int, str], None]
@@ -189,6 +202,18 @@ def geometry_errors(test: RenderResult, ref: RenderResult) -> dict[str, float]:
     return out
 
 
+def harness_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderResult) -> dict[str, Any]:
+    """The harness's own geometry check (``minirt check``'s tolerances: silhouette band, t and normal
+    bounds from the oracle's declared precision): its verdict and the pixels beyond tolerance."""
+    from minirt.harness import check_geometry
+
+    g = check_geometry(scene, rules, ref, res)
+    f = g.figures
+    beyond = sum(int(f.get(k, 0)) for k in ("mask_mismatch_outside_band", "id_mismatch", "depth_violations",
+                                             "normal_violations"))  # fmt: skip
+    return {"geometry_check": g.verdict, "geometry_beyond_tolerance": beyond}
+
+
 # ---------------------------------------------------------------------------------------------
 # Timing
 
@@ -197,47 +222,52 @@ POVRAY_STAGES = ("parse", "bounding", "photon", "radiosity", "trace")  # POV-Ray
 POVRAY_RESOLUTION = 0.001
 
 
-def _seconds(res: RenderResult) -> tuple[float, float]:
-    """(time of the render itself, per-run start-up) of one result."""
+def _seconds(res: RenderResult) -> tuple[float, float, float]:
+    """(time of the render itself, per-run start-up, the timer's resolution; 0: fine-grained) of one result."""
     tm = res.meta.get("timings", {})
     if res.backend == "povray" and "passes" in tm:
         # the EXR pass is the image; the unantialiased render adds an 8-bit PNG pass (exact rounding only)
         passes = [tm["passes"]["exr"]] if "exr" in tm["passes"] else list(tm["passes"].values())
         work = sum(p.get(k, 0.0) for p in passes for k in POVRAY_STAGES)
-        return round(work, 6), sum(p["wall"] for p in passes) - work
-    return float(tm.get("wall", math.nan)), 0.0
+        return round(work, 6), sum(p["wall"] for p in passes) - work, POVRAY_RESOLUTION
+    return float(tm.get("wall", math.nan)), 0.0, 0.0
 
 
 def _timed(render: Callable[[], RenderResult], repeats: int, slow_seconds: float) -> tuple[RenderResult, dict]:
-    """Render once (setup) and up to repeats - 1 more times; the last result and the timing summary."""
-    res = render()
+    """One untimed warm-up render, then `repeats` timed ones (one when the warm-up took longer than
+    `slow_seconds`); the last result and the timing summary."""
+    res = render()  # warm-up: JIT compilation, kernel and mesh caches, imports -- never in the median
     if not res.ok:
         return res, {}
-    first, first_startup = _seconds(res)
-    runs, startups = [first], [first_startup]
-    extra = max(repeats - 1, 0)
-    if first + first_startup > slow_seconds:
-        extra = min(extra, 1)
-    for _ in range(extra):
+    first, first_startup, _ = _seconds(res)
+    runs, startups = [], []
+    resolution = 0.0
+    for _ in range(1 if first + first_startup > slow_seconds else max(repeats, 1)):
         r = render()
         if not r.ok:
             return r, {}
-        s, st = _seconds(r)
+        s, st, resolution = _seconds(r)
         runs.append(s)
         startups.append(st)
         res = r
-    later = runs[1:] or runs
-    median = statistics.median(later)
+    median = statistics.median(runs)
     startup = statistics.median(startups)
+    # A time below the timer's resolution (POV-Ray's statistics count whole milliseconds) is not 0: it is
+    # plotted and fitted at the resolution and marked as an upper bound.
+    floored = resolution > 0 and median < resolution
+    if floored:
+        median = resolution
     if startup > 0:  # a per-run start-up (POV-Ray's process): that is the setup
-        setup: float | None = startup
+        setup: float = startup
     else:
-        setup = max(first - median, 0.0) if len(runs) > 1 else None
+        setup = max(first - median, 0.0)
     timing = {
         "seconds_median": median,
         "seconds_setup": setup,
         "seconds_first": first + first_startup,
         "seconds_total": median + startup,
+        "seconds_at_resolution": floored,
+        "timer_resolution": resolution or None,
         "runs": [round(r + s, 6) for r, s in zip(runs, startups, strict=True)],
     }
     return res, timing
@@ -270,6 +300,8 @@ def _row(task: _Task | None, backend: str, knob: str | None, value: Any, status:
         "seconds_setup": None,
         "seconds_first": None,
         "seconds_total": None,
+        "seconds_at_resolution": False,
+        "timer_resolution": None,
         "runs": [],
         "metric": SERIES.get(f"{backend}/{knob}", {}).get("metric"),
         "error": {},
@@ -369,10 +401,15 @@ class _Sweep:
             er = bk.rules_for("embree", rules)
             exact = lambda: self._conv("reference/f64/embree-rules", lambda: self.reference_at(er, 1), {  # noqa: E731
                 "backend": "reference", "precision": "f64", "spp": 1, "rules": er.as_dict()})  # fmt: skip
+
+            def embree_err(res: RenderResult) -> dict[str, Any]:
+                ref = exact()
+                return {**geometry_errors(res, ref), **harness_geometry(sc, er, ref, res)}
+
             for lvl in k.embree_subdivisions:
                 out.append(_Task("embree", "subdivisions", lvl, 20 * 4**lvl, f"embree subdivisions {lvl}",
                                  lambda lvl=lvl: bk.render("embree", sc, er, {"subdivisions": lvl}),
-                                 lambda res: geometry_errors(res, exact())))  # fmt: skip
+                                 embree_err))  # fmt: skip
         return out
 
     def run_task(self, t: _Task) -> dict[str, Any]:
@@ -415,7 +452,7 @@ def run_sweep(
     """Sweep each backend's accuracy knob on `scene` at size x size; write the files; return sweep.json's dict.
 
     ``progress(done, total, label)`` is called before each render task (label: what runs now) and
-    once at the end with done == total. ``repeats`` (>= 1) counts the first (setup) run.
+    once at the end with done == total. ``repeats`` (>= 1) counts the timed runs after the untimed warm-up.
     """
     knobs = knobs or Knobs()
     repeats = max(int(repeats), 1)
@@ -447,6 +484,7 @@ def run_sweep(
         progress(total, total, "writing results")
     slopes = fit_slopes(rows)
     pareto = mark_pareto(rows)
+    answer = answers(rows)
     result = {
         "scene": scene.name,
         "source": scene.source,
@@ -459,6 +497,8 @@ def run_sweep(
         "rows": [_clean(r) for r in rows],
         "slopes": slopes,
         "pareto": pareto,
+        "answer": _clean(answer),
+        "answer_lines": [f"{scene.name} {size}x{size}: {a['line']}" for a in answer],
     }
     write_outputs(result, out_dir)
     return result
@@ -550,11 +590,104 @@ def mark_pareto(rows: list[dict[str, Any]]) -> dict[str, list[Any]]:
 
 
 # ---------------------------------------------------------------------------------------------
+# The answer: what an image error below one 8-bit level costs, per backend
+
+COLOR_LEVEL = 1 / 255  # one 8-bit level: a colour RMSE below it is an image error below one level
+# Embree does not shade, so no 8-bit level applies. The harness's own geometry check grants it the faceting
+# bound it declares for its level (oracles/embree.py precision_summary), so it passes at every level and
+# cannot say which level is enough; the criterion is that check passing *and* the mean relative t error
+# below the relative t tolerance the check holds an exact float32 intersector to (64 u32, Mitsuba's T_REL).
+GEOMETRY_T_REL = 64 * 2.0**-24
+ANSWER_SERIES = ("reference/spp", "mitsuba/spp", "povray/antialias", "povray/samples", "embree/subdivisions")
+# reference/precision is not a candidate: its rows are measured against the f64 render itself, not against
+# the converged image, so f64's error is 0 by construction.
+
+
+def setting_label(backend: str, knob: str | None, value: Any) -> str:
+    """A setting as a reader names it: "the reference at 16 spp", "POV-Ray +A0.0 +R3"."""
+    if backend == "reference":
+        return f"the reference at {value} spp" if knob == "spp" else f"the reference in {value}"
+    if backend == "mitsuba":
+        return f"Mitsuba at {value} spp"
+    if backend == "povray" and knob == "antialias":
+        return "POV-Ray -A (antialiasing off)" if value == 0 else f"POV-Ray +A0.0 +R{value}"
+    if backend == "povray" and knob == "samples":
+        return f"POV-Ray with the exercise's {value} sample{'s' if value != 1 else ''} (mesh camera)"
+    if backend == "embree":
+        return f"Embree at subdivision {value} ({20 * 4 ** int(value)} triangles per ball)"
+    return f"{backend} {knob}={value}"
+
+
+def _seconds_text(r: dict[str, Any]) -> str:
+    t = f"{'≤ ' if r.get('seconds_at_resolution') else ''}{r['seconds_median']:.3g} s"
+    if r["backend"] == "povray" and r.get("seconds_setup"):
+        t += f" (+{r['seconds_setup']:.2f} s process start-up)"
+    return t
+
+
+def _meets(r: dict[str, Any]) -> bool:
+    if r["backend"] == "embree":
+        t = r["error"].get("t_rel_mean")
+        return r["error"].get("geometry_check") == "pass" and t is not None and t < GEOMETRY_T_REL
+    e = r["error"].get("rmse")
+    return e is not None and e < COLOR_LEVEL
+
+
+def answers(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per backend (in row order): the cheapest setting (shortest median time; then lowest cost) whose
+    colour RMSE against the converged image is below one 8-bit level -- for Embree, which does not
+    shade, whose geometry passes the harness's own check with a mean relative t error below
+    GEOMETRY_T_REL -- with its time and a one-line sentence."""
+    out = []
+    by_backend: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        by_backend.setdefault(r["backend"], []).append(r)
+    for backend, rs in by_backend.items():
+        geometry = backend == "embree"
+        criterion = f"t error < {GEOMETRY_T_REL:.2g} (the check's float32 tolerance)" if geometry else "error < 1/255"
+        measure = "t_rel_mean" if geometry else "rmse"
+        cands = [r for r in rs if r["status"] == "ok" and f"{backend}/{r['knob']}" in ANSWER_SERIES
+                 and r.get("seconds_median") is not None and r["error"].get(measure) is not None]  # fmt: skip
+        a: dict[str, Any] = {"backend": backend, "criterion": criterion, "metric": measure,
+                             "threshold": GEOMETRY_T_REL if geometry else COLOR_LEVEL, "met": False, "knob": None,
+                             "value": None, "setting": None, "seconds": None, "seconds_setup": None,
+                             "error": None}  # fmt: skip
+        if not cands:
+            why = next((r["reason"] for r in rs if r.get("reason")), "no setting was measured")
+            a["line"] = f"{criterion}: not measured with {DISPLAY.get(backend, backend)} ({why})"
+            out.append(a)
+            continue
+        good = [r for r in cands if _meets(r)]
+        if good:  # the cheapest that reaches it
+            best = min(good, key=lambda r: (r["seconds_median"], r["cost"] or 0))
+        else:  # none does: the most accurate tried
+            best = min(cands, key=lambda r, m=measure: (r["error"][m], r["seconds_median"]))
+        label = setting_label(backend, best["knob"], best["value"])
+        a.update(met=bool(good), knob=best["knob"], value=best["value"], setting=label, seconds=best["seconds_median"],
+                 seconds_setup=best["seconds_setup"], error=best["error"][measure])  # fmt: skip
+        err = f"{'mean relative t error' if geometry else 'RMSE'} {best['error'][measure]:.2g}"
+        if good:
+            a["line"] = f"{criterion} costs {_seconds_text(best)} with {label} ({err})"
+        else:
+            extra = ""
+            if geometry:
+                extra = f", {best['error'].get('geometry_beyond_tolerance', '?')} pixel(s) beyond tolerance"
+            a["line"] = (f"no setting tried reaches {criterion} with {DISPLAY.get(backend, backend)}; "
+                         f"best: {label}, {err}{extra}, {_seconds_text(best)}")  # fmt: skip
+        out.append(a)
+    return out
+
+
+DISPLAY = {"reference": "the reference", "mitsuba": "Mitsuba", "povray": "POV-Ray", "embree": "Embree"}
+
+
+# ---------------------------------------------------------------------------------------------
 # Output files
 
 CSV_ERRORS = ("rmse", "flip", "max_abs", "t_rel_mean", "t_rel_max", "mask_mismatch", "id_mismatch")
 CSV_FIELDS = ("backend", "knob", "value", "cost", "status", "seconds_median", "seconds_setup", "seconds_total",
-              "repeats", "metric", "error", *CSV_ERRORS, "pareto", "slope_cost", "slope_time", "reason")  # fmt: skip
+              "repeats", "metric", "error", *CSV_ERRORS, "pareto", "slope_cost", "slope_time", "reason",
+              "at_resolution")  # fmt: skip
 
 
 def _fmt(v: Any) -> str:
@@ -579,7 +712,7 @@ def _table_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
             "seconds_total": r["seconds_total"], "repeats": len(r["runs"]), "metric": r["metric"],
             "error": e.get(r["metric"]) if r["metric"] else None, **{k: e.get(k) for k in CSV_ERRORS},
             "pareto": r["pareto"], "slope_cost": fit.get("slope_cost"), "slope_time": fit.get("slope_time"),
-            "reason": r["reason"],
+            "reason": r["reason"], "at_resolution": bool(r.get("seconds_at_resolution")),
         })  # fmt: skip
     return out
 
@@ -594,80 +727,127 @@ def write_csv(result: dict[str, Any], path: Path) -> None:
         tmp.write_text(buf.getvalue())
 
 
+def _md_table(rows: list[list[Any]], headers: list[str]) -> str:
+    """A GitHub-flavoured Markdown table (tabulate's "github" format: pipes, a header rule, aligned
+    columns); cells are formatted by _fmt first, so numbers read as in the CSV's short form."""
+    from tabulate import tabulate
+
+    cells = [[_fmt(v).replace("|", "/") for v in row] for row in rows]  # a pipe would split a cell
+    return tabulate(cells, headers=headers, tablefmt="github", disable_numparse=True)
+
+
 def markdown(result: dict[str, Any]) -> str:
     w, h = result["size"]
-    lines = [f"# Sweep: {result['scene']} at {w}x{h}, {result['repeats']} run(s) per setting", ""]
-    cols = ("backend", "knob", "value", "cost", "status", "seconds_median", "seconds_setup", "metric", "error",
-            "flip", "t_rel_max", "mask_mismatch", "pareto", "reason")  # fmt: skip
-    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines = [f"# Sweep: {result['scene']} at {w}x{h}, {result['repeats']} timed run(s) per setting", ""]
+    lines += [f"- {line}" for line in result.get("answer_lines", [])] + [""]
+    cols = ["backend", "knob", "value", "cost", "status", "seconds_median", "seconds_setup", "metric", "error",
+            "flip", "t_rel_max", "mask_mismatch", "pareto", "reason"]  # fmt: skip
+    table = []
     for r in _table_rows(result):
         if r["status"] != "ok":
             r["status"] = r["status"].upper()
-        lines.append("| " + " | ".join(_fmt(r[c]).replace("|", "/") for c in cols) + " |")
+        if r["at_resolution"]:
+            r["seconds_median"] = f"≤ {_fmt(r['seconds_median'])}"
+        table.append([r[c] for c in cols])
+    lines += [_md_table(table, cols)]
     lines += ["", "## Fitted slopes (log error against log cost, and against log time)", ""]
-    lines += ["| series | metric | cost | slope (cost) | slope (time) | factor per level | points | theory |",
-              "|---|---|---|---|---|---|---|---|"]  # fmt: skip
-    for key, f in result["slopes"].items():
-        lines.append(f"| {key} | {f.get('metric')} | {f.get('cost')} | {_fmt(f.get('slope_cost'))} | "
-                     f"{_fmt(f.get('slope_time'))} | {_fmt(f.get('factor_per_level'))} | {_fmt(f.get('points'))} | "
-                     f"{f.get('theory')} |")  # fmt: skip
+    slope_cols = ["series", "metric", "cost", "slope (cost)", "slope (time)", "factor per level", "points", "theory"]
+    slope_rows = [[key, f.get("metric"), f.get("cost"), f.get("slope_cost"), f.get("slope_time"),
+                   f.get("factor_per_level"), f.get("points"), f.get("theory")]
+                  for key, f in result["slopes"].items()]  # fmt: skip
+    lines += [_md_table(slope_rows, slope_cols)]
     lines += ["", "## Converged answers", ""]
     for key, c in result["converged"].items():
         desc = ", ".join(f"{k}={v}" for k, v in c.items() if k not in ("rules", "reason"))
         lines.append(f"- {key}: {desc}" + (f" ({c['reason']})" if c.get("reason") else ""))
-    lines += ["", "Times in seconds: median of the runs after the first; setup = the first run's excess (JIT, caches)",
-              "or POV-Ray's per-process start-up (not in its median). Errors: colours clipped to [0, 1]; see",
-              "minirt/sweep.py for what each backend's converged answer is.", ""]  # fmt: skip
+    lines += ["", "Times in seconds: median of the timed runs after an untimed warm-up; setup = the warm-up's excess",
+              "(JIT, caches) or POV-Ray's per-process start-up (not in its median); ≤: below POV-Ray's 1 ms",
+              "timer, shown at 1 ms. Errors: colours clipped to [0, 1]; see minirt/sweep.py for what each",
+              "backend's converged answer is.", ""]  # fmt: skip
     return "\n".join(lines)
 
 
 METRIC_LABELS = {"rmse": "colour RMSE (values in [0, 1])", "t_rel_mean": "mean relative t error"}
+AXES = {"rmse": "colour", "t_rel_mean": "geometry"}  # each metric on its own axes: the units differ
 
 
 def plot(result: dict[str, Any], path: Path, only: str | None = None) -> None:
-    """Log-log error against time, one line per series in knob order, Pareto front circled and dashed;
-    only=backend keeps that backend's series."""
+    """Log-log error against time: colour error and t error on separate axes (side by side when both
+    occur), one line per series in knob order, Pareto front circled and dashed, one 8-bit level as a
+    line on the colour axes, each backend's answer starred; only=backend keeps that backend's series.
+    Times below the timer's resolution are drawn hollow at the resolution, with a left arrow."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
-    fig, ax = plt.subplots(figsize=(7.0, 5.2), dpi=100)
-    metrics: list[str] = []
     rows = [r for r in result["rows"] if only is None or r["backend"] == only]
+    groups: dict[str, list[tuple[str, str, list[dict[str, Any]]]]] = {}
     for key, rs in _series(rows).items():
         m = SERIES.get(key, {}).get("metric", "rmse")
         pts = [r for r in rs if _usable(r, m)]  # in knob order
-        if not pts:
+        if pts:
+            groups.setdefault(AXES.get(m, m), []).append((key, m, pts))
+    panels = [g for g in ("colour", "geometry") if g in groups] + [g for g in groups if g not in AXES.values()]
+    n = max(len(panels), 1)
+    fig, axes = plt.subplots(1, n, figsize=(6.4 * n, 5.4), dpi=100, squeeze=False)
+    chosen = {(a.get("backend"), a.get("knob"), a.get("value")) for a in result.get("answer") or [] if a.get("met")}
+    w, h = result["size"]
+    for ax, panel in zip(axes[0], panels or [None], strict=True):
+        if panel is None:
+            ax.text(0.5, 0.5, "no measurements", ha="center", va="center", transform=ax.transAxes)
+            ax.set_title(f"{result['scene']} {w}x{h}" + (f" ({only})" if only else ""), fontsize=10)
             continue
-        metrics.append(m)
-        x = [r["seconds_median"] for r in pts]
-        y = [r["error"][m] for r in pts]
-        c = PALETTE.get(key, "#000000")
-        fit = result["slopes"].get(key, {})
-        label = f"{key}: {m}"
-        if fit.get("slope_cost") is not None:
-            label += f" ∝ cost^{fit['slope_cost']:.2f}"
-        ax.plot(x, y, marker=MARKERS.get(key, "o"), color=c, lw=1.2, ms=5, label=label)
-        for r, xi, yi in zip(pts, x, y, strict=True):
-            ax.annotate(str(r["value"]), (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=7, color=c)
-        front = sorted((r for r in pts if r["pareto"]), key=lambda r: r["seconds_median"])
-        if front:
-            ax.plot([r["seconds_median"] for r in front], [r["error"][m] for r in front], ls="--", lw=0.8,
-                    color="#000000", marker="o", ms=11, mfc="none", mec="#000000", mew=1.0)  # fmt: skip
-    if metrics:
+        metrics = []
+        floored = starred = False
+        for key, m, pts in groups[panel]:
+            metrics.append(m)
+            x = [r["seconds_median"] for r in pts]
+            y = [r["error"][m] for r in pts]
+            c = PALETTE.get(key, "#000000")
+            fit = result["slopes"].get(key, {})
+            label = key
+            if fit.get("slope_cost") is not None:
+                label += f": ∝ cost^{fit['slope_cost']:.2f}"
+            mk = MARKERS.get(key, "o")
+            ax.plot(x, y, marker=mk, color=c, lw=1.2, ms=5, label=label)
+            for r, xi, yi in zip(pts, x, y, strict=True):
+                ax.annotate(str(r["value"]), (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=7, color=c)
+                if r.get("seconds_at_resolution"):
+                    floored = True
+                    ax.plot([xi], [yi], marker=mk, ms=5, color="#ffffff", mec=c, ls="none")
+                    ax.annotate("", (xi * 0.6, yi), xytext=(xi, yi), arrowprops={"arrowstyle": "->", "color": c,
+                                                                                   "lw": 0.8})  # fmt: skip
+                if (r["backend"], r["knob"], r["value"]) in chosen:
+                    starred = True
+                    ax.plot([xi], [yi], marker="*", ms=15, color=c, mec="#000000", mew=0.6, ls="none", zorder=5)
+            front = sorted((r for r in pts if r["pareto"]), key=lambda r: r["seconds_median"])
+            if front:
+                ax.plot([r["seconds_median"] for r in front], [r["error"][m] for r in front], ls="--", lw=0.8,
+                        color="#000000", marker="o", ms=11, mfc="none", mec="#000000", mew=1.0)  # fmt: skip
         ax.plot([], [], ls="--", lw=0.8, color="#000000", marker="o", ms=11, mfc="none", label="Pareto front")
+        if panel == "colour":
+            ax.axhline(COLOR_LEVEL, color="#555555", lw=0.9, ls=":", label="one 8-bit level (1/255)")
+        elif panel == "geometry":
+            ax.axhline(GEOMETRY_T_REL, color="#555555", lw=0.9, ls=":",
+                       label=f"the check's float32 t tolerance ({GEOMETRY_T_REL:.2g})")  # fmt: skip
+        if starred:
+            goal = "below 1/255" if panel == "colour" else f"below {GEOMETRY_T_REL:.2g}"
+            ax.plot([], [], marker="*", ms=12, color="#bbbbbb", mec="#000000", ls="none", label=f"cheapest {goal}")
+        if floored:
+            note = f"below the timer's {POVRAY_RESOLUTION * 1e3:g} ms: drawn at it (an upper bound)"
+            ax.plot([], [], marker="o", ms=5, color="#ffffff", mec="#000000", ls="none", label=note)
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
-    else:
-        ax.text(0.5, 0.5, "no measurements", ha="center", va="center", transform=ax.transAxes)
-    w, h = result["size"]
-    names = [METRIC_LABELS.get(m, m) for m in dict.fromkeys(metrics)] or ["error"]
-    ax.set_xlabel("time per render, median [s]")
-    ax.set_ylabel("error vs converged answer:\n" + "; ".join(names), fontsize=8)
-    ax.set_title(f"{result['scene']} {w}x{h}: error against time" + (f" ({only})" if only else ""), fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
+        ax.xaxis.set_minor_formatter(NullFormatter())  # a span under a decade would label every minor tick
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, frameon=False)
+        names = [METRIC_LABELS.get(m, m) for m in dict.fromkeys(metrics)]
+        ax.set_xlabel("time per render, median of the timed runs [s]")
+        ax.set_ylabel("error vs converged answer: " + "; ".join(names), fontsize=8)
+        title = f"{result['scene']} {w}x{h}: {panel} error against time" + (f" ({only})" if only else "")
+        ax.set_title(title, fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", metadata={"Software": None})

@@ -50,6 +50,15 @@ Conventions bridged (each one is a place where Mitsuba and the exercise differ):
   Mitsuba writes no 8-bit image of its own and its radiance is tiny in these units (1/(pi r^2)), so
   ``image8`` (the PNG) shows diffuse_exercise + reflection_exercise: viewable beside the other
   backends. The EXR's colour channels stay Mitsuba's own radiance.
+- Falloff in the export (``minirt export SCENE --to mitsuba``): a file for people to open in
+  Mitsuba, not for the checks. With I = lc its render would be near black (~1e-3 for a light 15 units
+  away), so the exported light's intensity is lc * pi * d^2, d the *viewing distance*
+  (:func:`viewing_distance`: the median distance from the light to the points the camera's rays hit,
+  taken on a grid of at most 64 x 64 primary rays). At distance d Mitsuba's diffuse radiance then
+  equals the exercise's n.s dc lc; nearer points come out brighter and farther ones darker (1/r^2).
+  The median, not the mean, so that a far floor does not decide it; the hit points, not the look-at
+  point (the image plane's centre, usually in front of every shape). The file states the factor in a
+  comment. The oracle's own renders (``render``, ``check``) keep I = lc and convert per pixel.
 - Ambient, Phong specular, background: Mitsuba has no ambient term and no (r.s)^8 lobe, and a miss
   returns black. They are not simulated; meta["unsupported_terms"] lists the ones the scene uses.
 - One-sidedness: ``rectangle``/``diffuse``/``conductor`` are one-sided, so every BSDF is wrapped in
@@ -379,19 +388,76 @@ def _principal_offset(base: float, shift: float, size: int) -> float:
     return (base + shift) / size if shift != 0 else base / size
 
 
-def scene_to_xml(scene: Scene, rules: Rules, rects: dict[int, PlaneRect] | None = None, spp: int = 1) -> str:
+VIEWING_GRID = 64  # rays per side at most for viewing_distance: a median, it needs no more
+
+
+def viewing_distance(scene: Scene, rules: Rules) -> float | None:
+    """The median distance from the light to the points the camera's primary rays hit (at most a
+    VIEWING_GRID^2 grid of them, analytic float64 intersections); None when no ray hits anything."""
+    w, h = scene.camera.width, scene.camera.height
+    small = scene.with_overrides(width=min(w, VIEWING_GRID), height=min(h, VIEWING_GRID))
+    o, d = camera.primary_rays(small, rules)
+    best = np.full(len(o), np.inf)
+    for s in scene.shapes:
+        if isinstance(s, Ball):
+            f = o - np.asarray(s.center, dtype=np.float64)
+            b = np.einsum("ij,ij->i", f, d)
+            disc = b * b - (np.einsum("ij,ij->i", f, f) - s.radius**2)
+            root = np.sqrt(np.maximum(disc, 0.0))
+            t = np.where(-b - root > 1e-9, -b - root, -b + root)
+            t = np.where((disc >= 0) & (t > 1e-9), t, np.inf)
+        else:
+            n = np.asarray(s.normal, dtype=np.float64)
+            den = d @ n
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (s.distance - o @ n) / den
+            t = np.where(np.isfinite(t) & (t > 1e-9), t, np.inf)
+        best = np.minimum(best, t)
+    hit = np.isfinite(best)
+    if not hit.any():
+        return None
+    p = o[hit] + best[hit, None] * d[hit]
+    return float(np.median(np.linalg.norm(p - np.asarray(scene.light.position, dtype=np.float64), axis=1)))
+
+
+def scene_to_xml(
+    scene: Scene,
+    rules: Rules,
+    rects: dict[int, PlaneRect] | None = None,
+    spp: int = 1,
+    light_distance: float | None = None,
+) -> str:
     """The scene as a Mitsuba 3 XML file. Only numbers, fixed keywords and generated ids are written;
-    the scene's name goes into a comment, escaped. ``rects`` defaults to the primary-ray rectangles."""
+    the scene's name goes into a comment, escaped. ``rects`` defaults to the primary-ray rectangles.
+
+    ``light_distance`` d (the export's, for viewing; None for the oracle's own renders): the light's
+    intensity becomes lc * pi * d^2, so that Mitsuba's diffuse at distance d from the light equals
+    the exercise's, and a comment in the file says so."""
     if rects is None:
         o, d = camera.primary_rays(scene, rules)
         rects = plane_frames(scene, o, d)
     sp = sensor_params(scene, rules)
+    if light_distance is None:
+        intensity = scene.light.color
+        falloff = [
+            "     light falls off as 1/r^2 (the exercise has neither). Planes are rectangles sized to the view. -->",
+        ]
+    else:
+        factor = math.pi * light_distance**2
+        intensity = tuple(c * factor for c in scene.light.color)
+        falloff = [
+            "     light falls off as 1/r^2 (the exercise has neither). Planes are rectangles sized to the view.",
+            f"     For viewing, the light's intensity is the exercise's light colour times pi d^2 = {_num(factor)},",
+            f"     with d = {_num(light_distance)} the median distance from the light to the points the camera sees.",
+            "     At distance d Mitsuba's diffuse (dc I n.s / (pi r^2)) then equals the exercise's (dc lc n.s);",
+            "     nearer points are brighter, farther ones darker. minirt's own checks use I = lc instead. -->",
+        ]
     lines = [
         '<?xml version="1.0" encoding="utf-8"?>',
         f"<!-- minirt scene {_comment(scene.name)}, exported by oracles/mitsuba.py for Mitsuba {PACKAGE_VERSION}. -->",
         "<!-- Render with: mitsuba scene.xml (writes scene.exr). Not representable in Mitsuba and left out:",
         "     ambient, the (r.s)^8 specular lobe, the background colour. Diffuse is dc/pi and the point",
-        "     light falls off as 1/r^2 (the exercise has neither). Planes are rectangles sized to the view. -->",
+        *falloff,
         '<scene version="3.0.0">',
         f'    <default name="spp" value="{int(spp)}"/>',
         '    <integrator type="direct">',
@@ -420,7 +486,7 @@ def scene_to_xml(scene: Scene, rules: Rules, rects: dict[int, PlaneRect] | None 
         '    <emitter type="point" id="light">',
         f'        <point name="position" x="{_num(scene.light.position[0])}" y="{_num(scene.light.position[1])}" '
         f'z="{_num(scene.light.position[2])}"/>',
-        f'        <rgb name="intensity" value="{_rgb(scene.light.color)}"/>',
+        f'        <rgb name="intensity" value="{_rgb(intensity)}"/>',
         "    </emitter>",
     ]
     for k, s in enumerate(scene.shapes):
@@ -504,7 +570,8 @@ class MitsubaOracle(Oracle):
         out_dir.mkdir(parents=True, exist_ok=True)
         path = out_dir / "scene.xml"
         spp = int((options or {}).get("spp", 1))
-        path.write_text(scene_to_xml(scene, rules, spp=spp), encoding="utf-8")
+        d = viewing_distance(scene, rules)  # the light scaled for viewing (module docstring: falloff)
+        path.write_text(scene_to_xml(scene, rules, spp=spp, light_distance=d), encoding="utf-8")
         return [path]
 
     # ---- render ------------------------------------------------------------------------------

@@ -85,6 +85,7 @@ SWEEP = {
     ],
     "slopes": {"reference/spp": {"metric": "rmse", "slope_cost": -0.5, "theory": PAYLOAD}, "bad": None},
     "pareto": {"reference/spp": [4]},
+    "answer_lines": ["exercise 16x16: error < 1/255 costs 0.01 s with the reference at 4 spp " + PAYLOAD],
 }  # fmt: skip
 
 
@@ -164,6 +165,49 @@ def test_assets_are_reproducible(built, tmp_path):
     a = {p.name: p.read_bytes() for p in (built.out / "assets").iterdir()}
     b = {p.name: p.read_bytes() for p in (index.parent / "assets").iterdir()}
     assert a == b  # the date and the command are in the page only
+
+
+def test_sweep_answer_opens_the_sweep_section(built):
+    html = built.html
+    section = html[html.index('<section class="sweep"') :]
+    assert section.index('<ul class="answer">') < section.index("<table")  # the answer before any table
+    assert "error &lt; 1/255 costs 0.01 s with the reference at 4 spp " + ESCAPED in section
+
+
+def test_maps_mark_the_pixels_the_check_does_not_judge(built):
+    """The real exercise-vs-Embree geometry check leaves the silhouette band unjudged: its t map says so
+    (pixels hatched, their count and the max over judged pixels in the caption), and the hatched pixels
+    are drawn grey, the judged ones in the colour map."""
+    real = built.result.scenes[0].backends["embree"]
+    geom = real.checks["geometry"]
+    ex = geom.images["not_judged"]
+    assert ex.any() and not (ex & ~geom.images["band"]).any()
+    rel = geom.images["depth_rel_err"]
+    html = built.html[built.html.index('id="scene-0-embree"') :]  # the real scene's Embree section
+    caption = re.search(r"geometry</span> · max over judged pixels <span class=\"mono\">([^<]+)</span>\s*<br>"
+                        r"<span class=\"sw hatch\"></span><span class=\"muted small\">hatched: (\d+) pixels? the "
+                        r"check does not judge \(the silhouette band\); max over all pixels <span class=\"mono\">"
+                        r"([^<]+)</span>", html)  # fmt: skip
+    assert caption, "no caption with the excluded pixels"
+    assert int(caption.group(2)) == int(ex.sum())
+    assert float(caption.group(1)) == pytest.approx(float(rel[~ex].max()), rel=1e-3)
+    assert float(caption.group(3)) == pytest.approx(float(rel.max()), rel=1e-3)
+    # the map itself: grey where not judged
+    img = read_image_u8(built.out / "assets" / "s00-embree-depth_rel_err.png")[..., :3].astype(int)
+    grey = (np.abs(img - np.array([0x9A, 0x9A, 0x9A])).max(-1) <= 2).sum()
+    assert grey > ex.sum()  # each unjudged pixel is several grey display pixels (between the hatch lines)
+
+
+def test_heatmap_scale_is_that_of_the_judged_pixels():
+    data = np.zeros((8, 8))
+    data[2:6, 2:6] = 0.01
+    data[0, 0] = 100.0  # an unjudged edge pixel
+    ex = np.zeros((8, 8), bool)
+    ex[0, 0] = True
+    fig = report._heatmap(data, "t", "relative", "viridis", None, ex)
+    (im,) = fig.axes[0].get_images()
+    assert im.get_clim() == (0.0, 0.01)
+    assert report._heatmap(data, "t", "relative", "viridis").axes[0].get_images()[0].get_clim() == (0.0, 100.0)
 
 
 def test_sweep_view_tolerates_missing_keys(tmp_path):

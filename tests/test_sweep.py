@@ -1,6 +1,7 @@
 """The accuracy/time sweep (minirt.sweep): files written, errors fall where theory says, slopes near theory.
 
-Small on purpose: 16x16 images, one run per setting, short knob lists. The slopes are checked loosely
+Small on purpose: 16x16 images (the default is 256x256), one timed run per setting, short knob lists.
+The slopes are checked loosely
 (theory: stratified jittered sampling gives RMSE ~ spp^-0.75 at edges, between the -0.5 of random
 sampling and -1; an inscribed icosphere's radial gap, hence the faceted t error, shrinks by 4 per
 subdivision level), since a 16x16 image has few edge pixels.
@@ -11,6 +12,8 @@ from __future__ import annotations
 import csv
 import itertools
 import json
+import re
+from types import SimpleNamespace
 
 import pytest
 from conftest import ROOT
@@ -80,7 +83,91 @@ def test_every_row_ok_and_timed(result):
     res, _, _ = result
     for r in res["rows"]:
         assert r["status"] == "ok", r
-        assert r["seconds_median"] >= 0 and len(r["runs"]) == 1
+        assert r["seconds_median"] > 0 and len(r["runs"]) == 1
+        # repeats=1 still renders an untimed warm-up first: its time is apart, its excess is the setup
+        assert r["seconds_first"] > 0 and r["seconds_setup"] is not None and r["seconds_setup"] >= 0
+
+
+def test_warm_up_is_not_timed():
+    """A render whose first call pays a compilation (1 s here) is timed without it, even with repeats=1."""
+    calls = []
+
+    def render():
+        calls.append(1)
+        wall = 1.0 if len(calls) == 1 else 0.01
+        return SimpleNamespace(ok=True, backend="reference", meta={"timings": {"wall": wall}})
+
+    _, timing = sweep._timed(render, repeats=1, slow_seconds=5.0)
+    assert len(calls) == 2 and timing["runs"] == [0.01] and timing["seconds_median"] == 0.01
+    assert timing["seconds_setup"] == pytest.approx(0.99) and timing["seconds_first"] == 1.0
+
+
+def test_povray_time_below_its_timer_is_floored_and_marked():
+    """POV-Ray's statistics count whole milliseconds: a 0 ms render is recorded at 1 ms and marked, not 0."""
+    stages = {"parse": 0.0, "bounding": 0.0, "photon": 0.0, "radiosity": 0.0, "trace": 0.0, "wall": 0.7}
+    res = SimpleNamespace(ok=True, backend="povray", meta={"timings": {"passes": {"exr": stages}}})
+    _, timing = sweep._timed(lambda: res, repeats=3, slow_seconds=5.0)
+    assert timing["seconds_median"] == sweep.POVRAY_RESOLUTION and timing["seconds_at_resolution"]
+    assert timing["seconds_setup"] == pytest.approx(0.7)  # the process start-up, apart
+    row = {**sweep._row(None, "povray", "antialias", 0, "ok"), **timing, "error": {"rmse": 0.01}, "cost": 1}
+    assert sweep._usable(row, "rmse")  # on the log plot and in the fits
+    result = {"scene": "x", "size": [8, 8], "repeats": 3, "rows": [row], "slopes": {}, "converged": {},
+              "answer": sweep.answers([row])}  # fmt: skip
+    assert "≤ 0.001" in sweep.markdown(result)
+    assert "≤ 0.001 s" in result["answer"][0]["line"]
+
+
+def test_answer_line_per_backend(result):
+    """One line per backend: the cheapest setting below one 8-bit level (RMSE < 1/255), with its time."""
+    res, out, _ = result
+    ans = {a["backend"]: a for a in res["answer"]}
+    assert list(ans) == ["reference", "embree"]
+    ref = ans["reference"]
+    rows = _rows(res, "reference", "spp")
+    good = [r for r in rows.values() if r["error"]["rmse"] < 1 / 255]
+    assert good and ref["met"] and ref["knob"] == "spp"
+    assert ref["seconds"] == min(r["seconds_median"] for r in good)
+    assert rows[ref["value"]]["error"]["rmse"] < 1 / 255
+    assert ref["line"].startswith("error < 1/255 costs ") and f"the reference at {ref['value']} spp" in ref["line"]
+    emb = ans["embree"]
+    if emb["met"]:
+        assert emb["error"] < sweep.GEOMETRY_T_REL and "Embree at subdivision" in emb["line"]
+    else:
+        assert emb["line"].startswith("no setting tried reaches")
+    assert res["answer_lines"][0].startswith(f"exercise {SIZE}x{SIZE}: error < 1/255 costs")
+    md = (out / "sweep.md").read_text()
+    assert md.index(res["answer_lines"][0]) < md.index("| backend")  # the answer opens the file
+    assert json.loads((out / "sweep.json").read_text())["answer_lines"] == res["answer_lines"]
+
+
+def test_answer_says_when_no_setting_reaches_it():
+    rows = [{**sweep._row(None, "mitsuba", "spp", n, "ok"), "cost": n, "seconds_median": 0.1 * n,
+             "seconds_setup": 0.0, "error": {"rmse": e}} for n, e in ((1, 0.05), (4, 0.02))]  # fmt: skip
+    (a,) = sweep.answers(rows)
+    assert not a["met"] and a["value"] == 4
+    assert a["line"].startswith("no setting tried reaches error < 1/255 with Mitsuba; best: Mitsuba at 4 spp")
+    skipped = [sweep._row(None, "povray", None, None, "skip", "povray not installed")]
+    (b,) = sweep.answers(skipped)
+    assert not b["met"] and "not measured" in b["line"] and "povray not installed" in b["line"]
+
+
+def test_markdown_tables_are_github_pipe_tables(result):
+    res, out, _ = result
+    lines = (out / "sweep.md").read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("| backend"))
+    table = lines[head : head + 2 + len(res["rows"])]
+    assert set(table[1]) <= set("|-: ")  # the header rule
+    assert len({len(line) for line in table}) == 1  # aligned columns
+    assert all(line.count("|") == table[0].count("|") for line in table)
+
+
+def test_colour_and_t_error_on_separate_axes(result):
+    import matplotlib.image as mpimg
+
+    _, out, _ = result
+    both = mpimg.imread(out / "sweep.png")
+    one = mpimg.imread(out / "sweep-reference.png")
+    assert both.shape[1] > 1.8 * one.shape[1]  # two panels (colour, geometry) side by side; one for the reference
 
 
 def test_reference_error_falls_with_samples(result):
@@ -127,7 +214,7 @@ def test_unavailable_backend_is_a_skip_row(exercise, tmp_path, monkeypatch):
     by = {r["backend"]: r for r in res["rows"]}
     assert by["embree"]["status"] == "skip" and "embreex not installed" in by["embree"]["reason"]
     assert by["no-such-backend"]["status"] == "skip" and "unknown backend" in by["no-such-backend"]["reason"]
-    assert "| SKIP |" in (tmp_path / "sweep.md").read_text()
+    assert re.search(r"\| SKIP +\|", (tmp_path / "sweep.md").read_text())
     assert (tmp_path / "sweep.png").exists() and (tmp_path / "sweep.csv").exists()
 
 
@@ -137,6 +224,10 @@ def test_oracles_sweep_small(exercise, tmp_path):
     res = sweep.run_sweep(sc, rules, ["mitsuba", "povray"], tmp_path, size=SIZE, repeats=1, knobs=KNOBS)
     for r in res["rows"]:
         assert r["status"] == "ok", r
+        if r["backend"] == "povray":  # never a 0-second point: floored at the timer's 1 ms and marked
+            assert r["seconds_median"] >= sweep.POVRAY_RESOLUTION
+            assert not r["seconds_at_resolution"] or r["seconds_median"] == sweep.POVRAY_RESOLUTION
+    assert [a["backend"] for a in res["answer"]] == ["mitsuba", "povray"]
     mi = _rows(res, "mitsuba", "spp")
     assert mi[1]["error"]["rmse"] > mi[16]["error"]["rmse"] > 0
     pov = _rows(res, "povray", "antialias")
