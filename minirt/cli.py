@@ -427,20 +427,18 @@ def run_checks(paths, backend: str, size: str | None, quiet: bool):
     wh = _parse_size(size)
     for p in scenes_:  # bad input first, before any long work
         _load(p)
-    results = []
     oracle_count = max(1, len([n for n in names if n != backends.REFERENCE]))
     with _progress(not quiet) as bar:
         task = bar.add_task("checking", total=len(scenes_) * oracle_count) if bar else None
-        for i, p in enumerate(scenes_):
 
-            def tick(scene: str, name: str, j: int, n: int, i=i) -> None:
-                if bar:
-                    bar.update(task, completed=i * oracle_count + j, description=f"{scene}: {name}")
-
-            results.append(harness.check_scene(p, names, wh, tick))
+        def tick(i: int, scene: str, name: str, j: int, n: int) -> None:
             if bar:
-                bar.update(task, completed=(i + 1) * oracle_count)
-    return harness.CheckResult(verdict=harness.worst([s.verdict for s in results]), scenes=results)
+                bar.update(task, completed=i * oracle_count + j, description=f"{scene}: {name}")
+
+        result = harness.run(scenes_, names, wh, tick)
+        if bar:
+            bar.update(task, completed=len(scenes_) * oracle_count)
+    return result
 
 
 def _print_check(result) -> None:

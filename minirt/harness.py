@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -723,12 +724,23 @@ def diagnose_oracle(scene: Scene, rules: Rules, followed: Rules, res: RenderResu
 
 
 def check_backend(
-    scene: Scene, rules: Rules, name: str, refs: _ReferenceCache, options: dict | None = None, variants=None
+    scene: Scene,
+    rules: Rules,
+    name: str,
+    refs: _ReferenceCache,
+    options: dict | None = None,
+    variants=None,
+    rendered=None,
 ) -> BackendCheck:
+    """``rendered``: the backend's render of (scene, rules, options) when it was started earlier (a
+    concurrent.futures.Future or a RenderResult), else it is rendered here."""
     t0 = time.perf_counter()
     followed = backends.rules_for(name, rules) if backends.info(name).available else rules
     bc = BackendCheck(backend=name, verdict="skip", rules_followed=followed.as_dict())
-    res = backends.render(name, scene, rules, options)
+    if rendered is None:
+        res = backends.render(name, scene, rules, options)
+    else:
+        res = rendered.result() if hasattr(rendered, "result") else rendered
     bc.result = res
     if not res.ok:
         bc.verdict, bc.reason = res.status, res.reason
@@ -794,15 +806,25 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache) -
     return check
 
 
-def check_scene(
-    path: str | Path, names: list[str], size: tuple[int, int] | None = None, progress=None, variants=None
-) -> SceneCheck:
-    """Check one scene file against the given backends (the reference itself is always rendered).
-    ``variants``: the run's minirt.diagnose.VariantCache (default: the process's, ``shared_variants``)."""
+def _scene_and_rules(path: str | Path, size: tuple[int, int] | None) -> tuple[Scene, Rules]:
     scene = load_scene(path)
     if size:
         scene = scene.with_overrides(width=size[0], height=size[1])
-    rules = resolve(scene)
+    return scene, resolve(scene)
+
+
+def check_scene(
+    path: str | Path,
+    names: list[str],
+    size: tuple[int, int] | None = None,
+    progress=None,
+    variants=None,
+    rendered: dict | None = None,
+) -> SceneCheck:
+    """Check one scene file against the given backends (the reference itself is always rendered).
+    ``variants``: the run's minirt.diagnose.VariantCache (default: the process's, ``shared_variants``);
+    ``rendered``: backend name -> its render started earlier (see ``run``)."""
+    scene, rules = _scene_and_rules(path, size)
     sc = SceneCheck(scene=scene.name, file=str(path), verdict="skip", description=scene.description)
     refs = _ReferenceCache(scene)
     sc.reference = refs.get(rules)
@@ -810,17 +832,36 @@ def check_scene(
     for i, name in enumerate(oracle_names):
         if progress:
             progress(scene.name, name, i, len(oracle_names))
-        sc.backends[name] = check_backend(scene, rules, name, refs, variants=variants)
+        got = (rendered or {}).get(name)
+        sc.backends[name] = check_backend(scene, rules, name, refs, variants=variants, rendered=got)
     sc.verdict = worst([b.verdict for b in sc.backends.values()]) if sc.backends else "pass"
     return sc
 
 
 def run(paths: list[Path], names: list[str], size: tuple[int, int] | None = None, progress=None) -> CheckResult:
+    """Check every scene file against the backends. ``progress(i, scene, backend, j, n)``: scene i's
+    backend j of n is starting."""
     from minirt.diagnose import VariantCache
 
     variants = VariantCache(VARIANT_CACHE_BYTES)
-    scenes = [check_scene(p, names, size, progress, variants) for p in paths]
+    # POV-Ray runs as a separate process: its renders of every scene start now, one after the other on
+    # a thread of their own, and overlap the reference's, Mitsuba's and Embree's work in this process
+    # (the cores are otherwise idle while Python waits for POV-Ray). The same results, in less time.
+    ahead = [n for n in names if n in CONCURRENT_BACKENDS and backends.info(n).available]
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        rendered = [
+            {n: pool.submit(lambda p=p, n=n: backends.render(n, *_scene_and_rules(p, size))) for n in ahead}
+            for p in paths
+        ]
+        scenes = []
+        for i, (p, r) in enumerate(zip(paths, rendered, strict=True)):
+            tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
+            scenes.append(check_scene(p, names, size, tick, variants, r))
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
+
+
+# Backends whose renders run in a child process, started ahead by ``run``.
+CONCURRENT_BACKENDS = ("povray",)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -71,13 +71,16 @@ Conventions bridged (each measured with Debian's povray 3.7.0.10):
 
 from __future__ import annotations
 
+import functools
 import math
+import os
 import re
 import shlex
 import shutil
 import subprocess
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -678,6 +681,18 @@ def _run(cmd: list[str], cwd: Path, timeout: float) -> tuple[str, dict[str, floa
     return p.stderr, {"wall": wall, **tm, "setup": max(wall - inside, 0.0)}
 
 
+@functools.lru_cache(maxsize=8)
+def _version(exe: str, mtime_ns: int, size: int) -> str:
+    """``povray --version`` of one executable, once per process (each call is a ~0.6 s start-up, and a
+    check asks for every scene and pass); keyed by the file's path, time and size, so another povray
+    on PATH is asked again."""
+    p = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=30, stdin=subprocess.DEVNULL)
+    m = re.search(r"POV-Ray\s+(\d+(?:\.\d+)+)", p.stdout + p.stderr)
+    if not m:
+        raise RuntimeError("cannot read the version from 'povray --version'")
+    return f"POV-Ray {m.group(1)}"
+
+
 def _frame_files(cwd: Path, stem: str, ext: str) -> dict[int, Path]:
     out = {}
     for p in cwd.glob(f"{stem}*.{ext}"):
@@ -722,11 +737,8 @@ class PovrayOracle(Oracle):
         exe = shutil.which("povray")
         if exe is None:
             raise FileNotFoundError(INSTALL_HINT)
-        p = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=30, stdin=subprocess.DEVNULL)
-        m = re.search(r"POV-Ray\s+(\d+(?:\.\d+)+)", p.stdout + p.stderr)
-        if not m:
-            raise RuntimeError("cannot read the version from 'povray --version'")
-        return f"POV-Ray {m.group(1)}"
+        st = os.stat(exe)
+        return _version(exe, st.st_mtime_ns, st.st_size)
 
     # ---- render -------------------------------------------------------------------------
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
@@ -812,16 +824,21 @@ class PovrayOracle(Oracle):
             n = len(frames)
             # One EXR animation: float colour frames and geometry frames, +UA for the hit mask.
             cmd_exr = command(scene, n, 1, n, "exr", threads=threads, antialias=antialias, mesh_camera=mesh)
-            _, t_exr = _run(cmd_exr, cwd, timeout)
-            passes.append({"name": "exr", "frames": [f.label for f in frames], "command": shlex.join(cmd_exr),
-                           "timings": t_exr})  # fmt: skip
             png_pass = antialias is None
-            if png_pass:
-                # The 8-bit PNG of the colour frames: POV-Ray's own rounding, exact.
-                cmd_png = command(scene, n, 1, len(cframes), "png8", threads=threads, mesh_camera=mesh)
-                _, t_png = _run(cmd_png, cwd, timeout)
+            # The 8-bit PNG of the colour frames: POV-Ray's own rounding, exact. The two passes are
+            # independent processes (their own output files, the same .pov read): run side by side, so
+            # one's single-threaded parse and start-up overlap the other's trace (both cores busy).
+            cmd_png = (
+                command(scene, n, 1, len(cframes), "png8", threads=threads, mesh_camera=mesh) if png_pass else None
+            )
+            with ThreadPoolExecutor(max_workers=2) as pool:
+                jobs = [pool.submit(_run, c, cwd, timeout) for c in (cmd_exr, cmd_png) if c is not None]
+                done = [j.result() for j in jobs]  # the first failure raises, in pass order
+            passes.append({"name": "exr", "frames": [f.label for f in frames], "command": shlex.join(cmd_exr),
+                           "timings": done[0][1]})  # fmt: skip
+            if cmd_png is not None:
                 passes.append({"name": "png8", "frames": [f.label for f in cframes],
-                               "command": shlex.join(cmd_png), "timings": t_png})  # fmt: skip
+                               "command": shlex.join(cmd_png), "timings": done[1][1]})  # fmt: skip
             t0 = time.perf_counter()
             exr = _frame_files(cwd, "out", "exr")
             png = _frame_files(cwd, "out", "png") if png_pass else {}
@@ -853,6 +870,8 @@ class PovrayOracle(Oracle):
                 imgs = [read(exr[len(cframes) + 1 + g]) for g in range(len(gframes))]
                 geom = decode_geometry(scene, rules, imgs, ranges)
             timings["decode"] = time.perf_counter() - t0
+        # The passes run side by side: setup, parse and trace are sums over them (each process's own
+        # time), total is the wall time of the whole render.
         timings["passes"] = {p["name"]: p["timings"] for p in passes}
         timings["setup"] = sum(p["timings"]["setup"] for p in passes)
         timings["trace"] = sum(p["timings"].get("trace", 0.0) for p in passes)
