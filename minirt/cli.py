@@ -7,7 +7,6 @@ never a traceback (set MINIRT_DEBUG=1 to see one for an unexpected internal erro
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from contextlib import contextmanager
@@ -63,6 +62,12 @@ ScenesArg = Annotated[
 OraclesOpt = Annotated[str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")]
 SizeOpt = Annotated[str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
+JsonOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--json", metavar="FILE", help="Write the results as JSON to FILE (- for standard output; then nothing else)."
+    ),
+]
 
 
 def _parse_rules(items: list[str] | None) -> dict[str, Any]:
@@ -221,7 +226,9 @@ def probe(
     ],
     x: Annotated[int, typer.Argument(help="Pixel column (0 = left).", show_default=False)],
     y: Annotated[int, typer.Argument(help="Pixel row (0 = top).", show_default=False)],
-    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Write the probe as JSON to standard output (strict JSON, nothing else).")
+    ] = False,
     image: Annotated[
         Path | None,
         typer.Option(
@@ -259,7 +266,7 @@ def probe(
     if target is not None:
         p["image"] = image_pixel(scene, p, target, rules, notes)
     if as_json:
-        out.print_json(json.dumps(p))
+        _emit_json("-", p)
         return
     _print_probe(p)
 
@@ -489,7 +496,7 @@ def _print_check(result) -> None:
 def check(
     scene_paths: ScenesArg = None,
     backend: OraclesOpt = "all",
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON.")] = None,
+    json_out: JsonOpt = None,
     junit: Annotated[Path | None, typer.Option("--junit", help="Write the results as JUnit XML.")] = None,
     size: SizeOpt = None,
     quiet: QuietOpt = False,
@@ -500,14 +507,13 @@ def check(
     """
     from minirt.imageio import atomic_path
 
-    _out_file(json_out, "--json")
+    if json_out != "-":
+        _out_file(Path(json_out) if json_out else None, "--json")
     _out_file(junit, "--junit")
     result = run_checks(scene_paths, backend, size, quiet)
     _print_check(result)
     if json_out:
-        from minirt.imageio import write_json
-
-        write_json(json_out, result.as_dict())
+        _emit_json(json_out, result.as_dict())
     if junit:
         from minirt.harness import junit_xml
 
@@ -518,7 +524,7 @@ def check(
         for b in s.backends.values():
             counts[b.verdict] += 1
     summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
-    out.print(f"{result.verdict.upper()}: {summary}")
+    (err if json_out == "-" else out).print(f"{result.verdict.upper()}: {summary}")
     raise typer.Exit(result.exit_code())
 
 
@@ -609,9 +615,7 @@ def grade(
             metavar="IMAGE", help="The other tracer's image: PNG, BMP, PPM/PGM, TGA, TIFF or EXR.", show_default=False
         ),
     ] = None,
-    json_out: Annotated[
-        str | None, typer.Option("--json", metavar="FILE", help="Write the grade as JSON (- for standard output).")
-    ] = None,
+    json_out: JsonOpt = None,
     out_dir: Annotated[
         Path | None, typer.Option("--out", "-o", help="Write an HTML page with the pictures (DIR/index.html).")
     ] = None,
@@ -704,12 +708,11 @@ def grade(
 
 
 def _emit_json(dest: str, data: dict[str, Any]) -> None:
-    if dest == "-":
-        sys.stdout.write(json.dumps(data, indent=2, sort_keys=True) + "\n")
-        return
-    from minirt.imageio import write_json
+    """Every command's --json: strict JSON with schema_version, to the file or (``-``) to standard output,
+    which then holds nothing else (messages go to standard error)."""
+    from minirt.jsonout import emit_json
 
-    write_json(Path(dest), data)
+    emit_json(dest, data)
 
 
 def _print_grade(g, page: Path | None) -> None:
@@ -779,7 +782,7 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
     if json_out is not None:
         _emit_json(json_out, summary)
     v = summary["verdicts"]
-    out.print(
+    (err if json_out == "-" else out).print(
         f"graded {len(people)} students x {len(files)} scenes: {v['match']} match, {v['differs']} differ, "
         f"{v['error']} error; wrote {index}",
         markup=False,
