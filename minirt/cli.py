@@ -145,6 +145,9 @@ def render(
             "without it every file is bit-identical and the timings are printed only).",
         ),
     ] = False,
+    quiet: Annotated[
+        bool, typer.Option("--quiet", "-q", help="No progress bar and no per-backend lines (failures still print).")
+    ] = False,
 ) -> None:
     """Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend."""
     from minirt import backends
@@ -154,9 +157,10 @@ def render(
     names = backends.parse_backends(backend)
     dest = _out_dir(out_dir or Path("renders") / scene.name)
     w, h = scene.camera.width, scene.camera.height
-    err.print(f"[bold]{scene.name}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}")
+    if not quiet:
+        err.print(f"[bold]{scene.name}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}")
     results = []
-    with _progress() as bar:
+    with _progress(not quiet) as bar:
         for name in names:
             task = bar.add_task(f"{name:<9}", total=1) if bar else None
 
@@ -173,14 +177,16 @@ def render(
             results.append(res)
             if res.ok:
                 paths = write_result(res, dest, f"{scene.name}.{name}", timings=timings, rules=rules)
-                _report_render(res, paths)
+                if not quiet:
+                    _report_render(res, paths)
             else:
                 err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {res.reason}")
     if len(results) > 1:
         from minirt.sheet import contact_sheet
 
         sheet = contact_sheet(results, dest / f"{scene.name}.contact.png")
-        _render_table(results)
+        if not quiet:
+            _render_table(results)
         out.print(f"wrote {dest}/ ({sheet.name} and {sum(r.ok for r in results)} backend(s))")
     else:
         out.print(f"wrote {dest}/")
