@@ -21,6 +21,11 @@ from rich.table import Table
 
 from minirt.errors import MinirtError
 
+try:  # Typer >= 0.20 raises the exceptions of the Click it vendors; older ones use Click itself
+    from typer._click import exceptions as click_errors
+except ImportError:  # pragma: no cover
+    from click import exceptions as click_errors
+
 app = typer.Typer(
     name="minirt",
     help="A reference ray tracer for ETH Informatik I problem 13.1, checked against Mitsuba 3, POV-Ray and Embree.",
@@ -70,6 +75,37 @@ JsonOpt = Annotated[
 ]
 
 
+def _version(value: bool) -> None:
+    if not value:
+        return
+    import importlib.metadata as md
+
+    def v(pkg: str) -> str:
+        try:
+            return md.version(pkg)
+        except md.PackageNotFoundError:
+            return "missing"
+
+    out.print(f"minirt {v('minirt')}", markup=False)
+    out.print(f"drjit {v('drjit')}, mitsuba {v('mitsuba')}", markup=False)
+    raise typer.Exit(0)
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            callback=_version,
+            is_eager=True,
+            help="Print minirt's version and the pinned drjit and mitsuba versions, then exit.",
+        ),
+    ] = False,
+) -> None:
+    pass
+
+
 def _parse_rules(items: list[str] | None) -> dict[str, Any]:
     out_: dict[str, Any] = {}
     for item in items or []:
@@ -114,8 +150,8 @@ def _progress(enabled: bool = True):
 
 
 def _bar_text(text: str) -> str:
-    """A folder or file name as a progress bar's description: control characters shown as '?' and
-    Rich markup escaped, so a student folder named '[red]x' or holding an escape code prints as text."""
+    """Untrusted text (a folder or file name, a backend's message) inside Rich markup: control characters
+    shown as '?' and markup escaped, so a student folder named '[red]x' or holding an escape code prints as text."""
     from rich.markup import escape
 
     return escape("".join(c if c.isprintable() else "?" for c in text))
@@ -180,7 +216,7 @@ def render(
                 if not quiet:
                     _report_render(res, paths)
             else:
-                err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {res.reason}")
+                err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {_bar_text(res.reason)}")
     if len(results) > 1:
         from minirt.sheet import contact_sheet
 
@@ -486,7 +522,7 @@ def _print_check(result) -> None:
             v = b.verdict
             verdict = f"[{VERDICT_STYLE[v]}]{v.upper()}[/]"
             if v in ("skip", "error", "fail", "warn") and b.reason:
-                verdict += f" {b.reason}"
+                verdict += f" {_bar_text(b.reason)}"  # a backend's own words: no markup
             rd = b.rule_diagnosis
             if rd.ran:  # the diagnosis: which settings reproduce the oracle's image
                 rules_ = ", ".join(f"{k}={v}" for k, v in rd.rules_explaining.items()) or "the scene's own"
@@ -814,6 +850,19 @@ def _out_file(path: Path | None, option: str) -> None:
         _out_dir(path.parent if str(path.parent) else Path("."), option)
 
 
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _command_path(ctx) -> str:
+    """`minirt CMD` however minirt was started (the console script or python -m minirt)."""
+    names = []
+    while ctx is not None and ctx.parent is not None:
+        names.append(ctx.info_name)
+        ctx = ctx.parent
+    return " ".join(["minirt", *reversed(names)])
+
+
 def main() -> None:
     try:
         rv = app(standalone_mode=False)
@@ -827,9 +876,17 @@ def main() -> None:
     except typer.Abort:
         err.print("minirt: aborted")
         sys.exit(130)
-    except typer.TyperException as e:  # usage errors: exit status 2, Click's message
+    except click_errors.NoArgsIsHelpError as e:  # `minirt` or a command alone: its help
         e.show()
-        sys.exit(e.exit_code)
+        sys.exit(2)
+    except click_errors.UsageError as e:  # a bad option or argument: one line, like every other bad input
+        err.print(f"minirt: error: {_one_line(e.format_message())}", markup=False)
+        if e.ctx is not None:
+            err.print(f"try: {_command_path(e.ctx)} --help", markup=False)
+        sys.exit(2)
+    except click_errors.ClickException as e:  # Click's other errors (a file it could not open): the same line
+        err.print(f"minirt: error: {_one_line(e.format_message())}", markup=False)
+        sys.exit(2 if e.exit_code in (0, 1) else e.exit_code)
     except OSError as e:  # an output folder that cannot be made or written, a disk that is full: bad input
         if os.environ.get("MINIRT_DEBUG"):
             raise
