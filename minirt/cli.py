@@ -185,11 +185,18 @@ def render(
         bool, typer.Option("--quiet", "-q", help="No progress bar and no per-backend lines (failures still print).")
     ] = False,
 ) -> None:
-    """Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend."""
+    """Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend.
+
+    Files are named SCENE.BACKEND.png (.exr, .json); a render under another profile or rule than the
+    scene's own is named by what differs, e.g. exercise.reference+clamp=true.png, so it never overwrites
+    the render of the scene's own model.
+    """
     from minirt import backends
+    from minirt import names as naming
     from minirt.imageio import write_result
 
     scene, rules = _load(scene_path, width, height, samples, profile, rule)
+    tag = naming.variant_tag(_load(scene_path)[0], scene, rules)
     names = backends.parse_backends(backend)
     dest = _out_dir(out_dir or Path("renders") / scene.name)
     w, h = scene.camera.width, scene.camera.height
@@ -212,7 +219,9 @@ def render(
                 bar.update(task, completed=1, total=1)
             results.append(res)
             if res.ok:
-                paths = write_result(res, dest, f"{scene.name}.{name}", timings=timings, rules=rules)
+                if tag:
+                    res.meta["variant"] = tag
+                paths = write_result(res, dest, naming.render_stem(scene, name, tag), timings=timings, rules=rules)
                 if not quiet:
                     _report_render(res, paths)
             else:
@@ -220,7 +229,7 @@ def render(
     if len(results) > 1:
         from minirt.sheet import contact_sheet
 
-        sheet = contact_sheet(results, dest / f"{scene.name}.contact.png")
+        sheet = contact_sheet(results, dest / naming.contact_sheet_name(scene, tag))
         if not quiet:
             _render_table(results)
         out.print(f"wrote {dest}/ ({sheet.name} and {sum(r.ok for r in results)} backend(s))")
