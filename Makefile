@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := povray libllvm19 chromium
 
-.PHONY: setup system demo sample test lint format bench fuzz goldens clean
+.PHONY: setup system demo sample test lint format bench fuzz goldens schemas clean
 
 setup: system $(STAMP)
 
@@ -49,6 +49,10 @@ format:
 # Refresh the reference tracer's golden images on purpose (after an intended change to its output).
 goldens: setup
 	MINIRT_UPDATE_GOLDENS=1 $(BIN)/python -m pytest -q tests/test_goldens.py
+
+# Regenerate the shipped JSON Schemas (minirt/schemas/) from the document models (after changing a document).
+schemas: setup
+	$(BIN)/python -m minirt.documents
 
 bench: setup
 	$(BIN)/python benchmarks/bench.py

@@ -122,12 +122,14 @@ def render_to_files(
     timings: bool = False,
     progress=None,
     stream: bool = False,
+    variant: str = "",
 ) -> tuple[RenderResult, dict[str, Any] | None]:
     """Render with one backend and write its files (minirt.imageio.write_result); (result, paths), paths
     None when the backend failed. With ``stream``, a reference image larger than one tile
     (tracer.TILE_PIXELS) under the default output rules is written tile by tile as it is traced
     (imageio.write_tiles): its memory is one tile's, whatever the size; the returned result then
-    carries the metadata only (no buffers)."""
+    carries the metadata only (no buffers). ``variant``: what differs from the scene's own model (see
+    minirt.names), recorded in the metadata and so in the sidecar."""
     from minirt import bitmap, tracer
     from minirt.imageio import write_result, write_tiles
 
@@ -137,7 +139,14 @@ def render_to_files(
         t0 = time.perf_counter()
         try:
             tr = tracer.Tracer(scene, rules, precision=options.get("precision", "f64"))
-            paths, last = write_tiles(tr.tiles(progress), w, h, out_dir, stem, timings=timings)
+
+            def tiles():
+                for y0, tile in tr.tiles(progress):
+                    if variant:
+                        tile.meta["variant"] = variant
+                    yield y0, tile
+
+            paths, last = write_tiles(tiles(), w, h, out_dir, stem, timings=timings)
         except MinirtError as e:
             return RenderResult.failed(name, w, h, "error", str(e).splitlines()[0]), None
         except MemoryError as e:
@@ -148,4 +157,6 @@ def render_to_files(
     res = render(name, scene, rules, options, progress)
     if not res.ok:
         return res, None
+    if variant:
+        res.meta["variant"] = variant
     return res, write_result(res, out_dir, stem, timings=timings, rules=rules)

@@ -7,7 +7,6 @@ never a traceback (set MINIRT_DEBUG=1 to see one for an unexpected internal erro
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from contextlib import contextmanager
@@ -21,6 +20,11 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from rich.table import Table
 
 from minirt.errors import MinirtError
+
+try:  # Typer >= 0.20 raises the exceptions of the Click it vendors; older ones use Click itself
+    from typer._click import exceptions as click_errors
+except ImportError:  # pragma: no cover
+    from click import exceptions as click_errors
 
 app = typer.Typer(
     name="minirt",
@@ -63,6 +67,43 @@ ScenesArg = Annotated[
 OraclesOpt = Annotated[str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")]
 SizeOpt = Annotated[str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
+JsonOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--json", metavar="FILE", help="Write the results as JSON to FILE (- for standard output; then nothing else)."
+    ),
+]
+
+
+def _version(value: bool) -> None:
+    if not value:
+        return
+    import importlib.metadata as md
+
+    def v(pkg: str) -> str:
+        try:
+            return md.version(pkg)
+        except md.PackageNotFoundError:
+            return "missing"
+
+    out.print(f"minirt {v('minirt')}", markup=False)
+    out.print(f"drjit {v('drjit')}, mitsuba {v('mitsuba')}", markup=False)
+    raise typer.Exit(0)
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            callback=_version,
+            is_eager=True,
+            help="Print minirt's version and the pinned drjit and mitsuba versions, then exit.",
+        ),
+    ] = False,
+) -> None:
+    pass
 
 
 def _parse_rules(items: list[str] | None) -> dict[str, Any]:
@@ -109,8 +150,8 @@ def _progress(enabled: bool = True):
 
 
 def _bar_text(text: str) -> str:
-    """A folder or file name as a progress bar's description: control characters shown as '?' and
-    Rich markup escaped, so a student folder named '[red]x' or holding an escape code prints as text."""
+    """Untrusted text (a folder or file name, a backend's message) inside Rich markup: control characters
+    shown as '?' and markup escaped, so a student folder named '[red]x' or holding an escape code prints as text."""
     from rich.markup import escape
 
     return escape("".join(c if c.isprintable() else "?" for c in text))
@@ -140,17 +181,28 @@ def render(
             "without it every file is bit-identical and the timings are printed only).",
         ),
     ] = False,
+    quiet: Annotated[
+        bool, typer.Option("--quiet", "-q", help="No progress bar and no per-backend lines (failures still print).")
+    ] = False,
 ) -> None:
-    """Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend."""
+    """Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend.
+
+    Files are named SCENE.BACKEND.png (.exr, .json); a render under another profile or rule than the
+    scene's own is named by what differs, e.g. exercise.reference+clamp=true.png, so it never overwrites
+    the render of the scene's own model.
+    """
     from minirt import backends
+    from minirt import names as naming
 
     scene, rules = _load(scene_path, width, height, samples, profile, rule)
+    tag = naming.variant_tag(_load(scene_path)[0], scene, rules)
     names = backends.parse_backends(backend)
     dest = _out_dir(out_dir or Path("renders") / scene.name)
     w, h = scene.camera.width, scene.camera.height
-    err.print(f"[bold]{scene.name}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}")
+    if not quiet:
+        err.print(f"[bold]{scene.name}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}")
     results = []
-    with _progress() as bar:
+    with _progress(not quiet) as bar:
         for name in names:
             task = bar.add_task(f"{name:<9}", total=1) if bar else None
 
@@ -162,21 +214,24 @@ def render(
             if samples and name == "mitsuba":
                 opts.update(mode="sensor", spp=samples)
             # One backend alone: a large reference image is written tile by tile (bounded memory).
+            stem = naming.render_stem(scene, name, tag)
             res, paths = backends.render_to_files(
-                name, scene, rules, opts, dest, f"{scene.name}.{name}", timings, tick, stream=len(names) == 1
+                name, scene, rules, opts, dest, stem, timings, tick, stream=len(names) == 1, variant=tag
             )
             if bar:
                 bar.update(task, completed=1, total=1)
             results.append(res)
             if res.ok:
-                _report_render(res, paths)
+                if not quiet:
+                    _report_render(res, paths)
             else:
-                err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {res.reason}")
+                err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {_bar_text(res.reason)}")
     if len(results) > 1:
         from minirt.sheet import contact_sheet
 
-        sheet = contact_sheet(results, dest / f"{scene.name}.contact.png")
-        _render_table(results)
+        sheet = contact_sheet(results, dest / naming.contact_sheet_name(scene, tag))
+        if not quiet:
+            _render_table(results)
         out.print(f"wrote {dest}/ ({sheet.name} and {sum(r.ok for r in results)} backend(s))")
     else:
         out.print(f"wrote {dest}/")
@@ -222,7 +277,9 @@ def probe(
     ],
     x: Annotated[int, typer.Argument(help="Pixel column (0 = left).", show_default=False)],
     y: Annotated[int, typer.Argument(help="Pixel row (0 = top).", show_default=False)],
-    as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Write the probe as JSON to standard output (strict JSON, nothing else).")
+    ] = False,
     image: Annotated[
         Path | None,
         typer.Option(
@@ -260,7 +317,7 @@ def probe(
     if target is not None:
         p["image"] = image_pixel(scene, p, target, rules, notes)
     if as_json:
-        out.print_json(json.dumps(p))
+        _emit_json("-", p)
         return
     _print_probe(p)
 
@@ -472,7 +529,7 @@ def _print_check(result) -> None:
             v = b.verdict
             verdict = f"[{VERDICT_STYLE[v]}]{v.upper()}[/]"
             if v in ("skip", "error", "fail", "warn") and b.reason:
-                verdict += f" {b.reason}"
+                verdict += f" {_bar_text(b.reason)}"  # a backend's own words: no markup
             rd = b.rule_diagnosis
             if rd.ran:  # the diagnosis: which settings reproduce the oracle's image
                 rules_ = ", ".join(f"{k}={v}" for k, v in rd.rules_explaining.items()) or "the scene's own"
@@ -488,7 +545,7 @@ def _print_check(result) -> None:
 def check(
     scene_paths: ScenesArg = None,
     backend: OraclesOpt = "all",
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write the results as JSON.")] = None,
+    json_out: JsonOpt = None,
     junit: Annotated[Path | None, typer.Option("--junit", help="Write the results as JUnit XML.")] = None,
     size: SizeOpt = None,
     quiet: QuietOpt = False,
@@ -499,14 +556,13 @@ def check(
     """
     from minirt.imageio import atomic_path
 
-    _out_file(json_out, "--json")
+    if json_out != "-":
+        _out_file(Path(json_out) if json_out else None, "--json")
     _out_file(junit, "--junit")
     result = run_checks(scene_paths, backend, size, quiet)
     _print_check(result)
     if json_out:
-        from minirt.imageio import write_json
-
-        write_json(json_out, result.as_dict())
+        _emit_json(json_out, result.as_dict())
     if junit:
         from minirt.harness import junit_xml
 
@@ -517,7 +573,7 @@ def check(
         for b in s.backends.values():
             counts[b.verdict] += 1
     summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
-    out.print(f"{result.verdict.upper()}: {summary}")
+    (err if json_out == "-" else out).print(f"{result.verdict.upper()}: {summary}")
     raise typer.Exit(result.exit_code())
 
 
@@ -621,9 +677,7 @@ def grade(
             metavar="IMAGE", help="The other tracer's image: PNG, BMP, PPM/PGM, TGA, TIFF or EXR.", show_default=False
         ),
     ] = None,
-    json_out: Annotated[
-        str | None, typer.Option("--json", metavar="FILE", help="Write the grade as JSON (- for standard output).")
-    ] = None,
+    json_out: JsonOpt = None,
     out_dir: Annotated[
         Path | None, typer.Option("--out", "-o", help="Write an HTML page with the pictures (DIR/index.html).")
     ] = None,
@@ -716,12 +770,11 @@ def grade(
 
 
 def _emit_json(dest: str, data: dict[str, Any]) -> None:
-    if dest == "-":
-        sys.stdout.write(json.dumps(data, indent=2, sort_keys=True) + "\n")
-        return
-    from minirt.imageio import write_json
+    """Every command's --json: strict JSON with schema_version, to the file or (``-``) to standard output,
+    which then holds nothing else (messages go to standard error)."""
+    from minirt.jsonout import emit_json
 
-    write_json(Path(dest), data)
+    emit_json(dest, data)
 
 
 def _print_grade(g, page: Path | None) -> None:
@@ -791,7 +844,7 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
     if json_out is not None:
         _emit_json(json_out, summary)
     v = summary["verdicts"]
-    out.print(
+    (err if json_out == "-" else out).print(
         f"graded {len(people)} students x {len(files)} scenes: {v['match']} match, {v['differs']} differ, "
         f"{v['error']} error; wrote {index}",
         markup=False,
@@ -817,6 +870,19 @@ def _out_file(path: Path | None, option: str) -> None:
         _out_dir(path.parent if str(path.parent) else Path("."), option)
 
 
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _command_path(ctx) -> str:
+    """`minirt CMD` however minirt was started (the console script or python -m minirt)."""
+    names = []
+    while ctx is not None and ctx.parent is not None:
+        names.append(ctx.info_name)
+        ctx = ctx.parent
+    return " ".join(["minirt", *reversed(names)])
+
+
 def main() -> None:
     try:
         rv = app(standalone_mode=False)
@@ -830,9 +896,17 @@ def main() -> None:
     except typer.Abort:
         err.print("minirt: aborted")
         sys.exit(130)
-    except typer.TyperException as e:  # usage errors: exit status 2, Click's message
+    except click_errors.NoArgsIsHelpError as e:  # `minirt` or a command alone: its help
         e.show()
-        sys.exit(e.exit_code)
+        sys.exit(2)
+    except click_errors.UsageError as e:  # a bad option or argument: one line, like every other bad input
+        err.print(f"minirt: error: {_one_line(e.format_message())}", markup=False)
+        if e.ctx is not None:
+            err.print(f"try: {_command_path(e.ctx)} --help", markup=False)
+        sys.exit(2)
+    except click_errors.ClickException as e:  # Click's other errors (a file it could not open): the same line
+        err.print(f"minirt: error: {_one_line(e.format_message())}", markup=False)
+        sys.exit(2 if e.exit_code in (0, 1) else e.exit_code)
     except OSError as e:  # an output folder that cannot be made or written, a disk that is full: bad input
         if os.environ.get("MINIRT_DEBUG"):
             raise

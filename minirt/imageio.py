@@ -7,7 +7,6 @@ interrupted or failing render never leaves a half-written output file.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import tempfile
 from pathlib import Path
@@ -216,21 +215,10 @@ def _without_timings(v: Any) -> Any:
 
 
 def write_json(path: str | Path, data: Any) -> None:
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, sort_keys=True, default=_jsonable) + "\n")
+    """Write a JSON document: strict, versioned, atomic (minirt.jsonout, the one place that does)."""
+    from minirt import jsonout
 
-
-def _jsonable(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    if hasattr(o, "as_dict"):
-        return o.as_dict()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+    jsonout.write_json(path, data)
 
 
 # Formats a graded image may come in (OpenImageIO reads each; the extension picks the reader).

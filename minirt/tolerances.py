@@ -87,7 +87,7 @@ class GeometryTolerance:
     t_abs: np.ndarray  # float (H, W): allowed |t_oracle - t_ref|
     normal_deg: np.ndarray  # float (H, W): allowed angle between normals
     why: dict[str, str] = field(default_factory=dict)
-    summary: dict[str, float] = field(default_factory=dict)
+    summary: dict[str, float | str] = field(default_factory=dict)  # figures; "<key>_reason" beside a non-finite one
 
 
 def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[str, np.ndarray]) -> GeometryTolerance:
@@ -154,6 +154,9 @@ def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[st
             "normal": "per pixel: face-to-vertex normal angle + the shell's tilt (aux normal_bound_deg)",
         }
         summary = {"band_eps": p["band_abs"], "t_abs_max": float(np.max(t_abs)), "normal_deg_max": float(np.max(nd))}
+        for key in ("t_abs_max", "normal_deg_max"):  # the reason strict JSON writes beside the null (minirt.jsonout)
+            if not math.isfinite(summary[key]):
+                summary[key + "_reason"] = "infinite: the bound is unlimited on pixels the oracle misses"
     else:  # a backend that records only generic keys
         eps = p.get("band_eps", 1e-6)
         band = m["margin"] < eps

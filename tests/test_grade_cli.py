@@ -221,7 +221,10 @@ def test_reproduce_command_reproduces_the_image(work, tmp_path):
     g = strict_json(run("grade", work.rules_toml, work.differs, "--json", "-").stdout)
     p = _reproduce(g["reproduce"], tmp_path / "r")
     assert p.returncode == 0, p.stderr
-    rep = read_image_u8(tmp_path / "r" / "rules.reference.png")[..., :3]
+    # a variant render: named by the rules that differ (minirt.names), the plain name left alone
+    rules = "+".join(f"{k}={v}" for k, v in sorted(g["diagnosis"]["rules"].items()))
+    assert not (tmp_path / "r" / "rules.reference.png").exists()
+    rep = read_image_u8(tmp_path / "r" / f"rules.reference+{rules}.png")[..., :3]
     assert rep.shape == work.differs_img.shape
     assert levels_off(rep, work.differs_img) <= 0.002 * SIZE * SIZE
 
@@ -236,7 +239,10 @@ def test_bundled_scene_by_name(work, tmp_path):
     assert f"--width {SIZE} --height {SIZE}" in g["reproduce"]
     r = _reproduce(g["reproduce"], tmp_path / "r")
     assert r.returncode == 0, r.stderr
-    rep = read_image_u8(tmp_path / "r" / "rules.reference.png")[..., :3]
+    # a variant render: named by the rules that differ (minirt.names), the plain name left alone
+    rules = "+".join(f"{k}={v}" for k, v in sorted(g["diagnosis"]["rules"].items()))
+    assert not (tmp_path / "r" / "rules.reference.png").exists()
+    rep = read_image_u8(tmp_path / "r" / f"rules.reference+{rules}.png")[..., :3]
     assert levels_off(rep, img) <= 0.002 * SIZE * SIZE
     # without --size the bundled scene's own size: a one-line error naming both and suggesting --size
     line = one_error_line(run("grade", "rules", tmp_path / "s.png"))

@@ -1,0 +1,307 @@
+"""The JSON documents minirt writes, as pydantic models: the source of the shipped JSON Schemas.
+
+The writers build plain dicts (minirt.harness, minirt.grade, minirt.report, minirt.sweep, minirt.probe,
+the render sidecar in minirt.imageio) and minirt.jsonout writes them; these models describe the result,
+so a reader (or a test) can validate a file with any JSON Schema validator. Each model lists the keys a
+reader can rely on; open parts (a check's figures, a backend's metadata) allow more keys. A number that
+may be absent or non-finite is ``number | null``; beside a null from a non-finite value stands
+``<key>_reason`` (minirt.jsonout).
+
+``python -m minirt.documents`` rewrites ``minirt/schemas/*.schema.json`` from these models (a test checks
+that the shipped files are up to date).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from minirt.jsonout import SCHEMA_VERSION
+
+SCHEMAS = Path(__file__).resolve().parent / "schemas"
+DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+CheckVerdict = Literal["pass", "warn", "fail", "error", "skip"]
+GradeVerdict = Literal["match", "differs", "error"]
+Num = float | None  # absent, or non-finite with a "<key>_reason" beside it
+RuleValues = dict[str, Any]  # rule name -> value (bool, number, text or a pair)
+
+
+class _Open(BaseModel):
+    """A part of a document that may carry more keys than are listed (figures, metadata, reasons)."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+class _Document(_Open):
+    schema_version: Literal[1] = Field(description="The document layout's version; bumped on incompatible changes.")
+
+
+# ---------------------------------------------------------------------------------------------
+# check.json (minirt check --json) and report.json
+
+
+class Check(_Open):
+    """One check of one backend (preflight, geometry, shading, stochastic, samples): its verdict, and its
+    figures as further keys."""
+
+    verdict: CheckVerdict
+    reason: str = ""
+    thresholds: dict[str, str] = Field(default_factory=dict, description="Each threshold applied, with its reason.")
+
+
+class RuleDiagnosis(_Open):
+    """The rule settings that explain the oracle's colour image (absent figures when it did not run)."""
+
+    ran: bool
+    reason: str = ""
+    rules_explaining: dict[str, str] = Field(default_factory=dict)
+    explained: dict[str, int] = Field(default_factory=dict)
+    mismatch_pixels: int = 0
+    pixels: int = 0
+
+
+class BackendCheck(_Open):
+    """One oracle against the reference on one scene; the checks by name, each a Check."""
+
+    verdict: CheckVerdict
+    reason: str = ""
+    preflight: Check | None = None
+    geometry: Check | None = None
+    shading: Check | None = None
+    stochastic: Check | None = None
+    samples: Check | None = None
+    rule_effects: dict[str, int] = Field(default_factory=dict)
+    rule_diagnosis: RuleDiagnosis
+    rules_followed: RuleValues = Field(default_factory=dict)
+    seconds: float
+    version: Any = None
+
+
+class SceneCheck(_Open):
+    scene: str
+    file: str
+    verdict: CheckVerdict
+    description: str = ""
+    reason: str = ""
+    backends: dict[str, BackendCheck]
+
+
+class Threshold(BaseModel):
+    value: float
+    why: str
+
+
+class CheckDocument(_Document):
+    """``minirt check --json FILE``: every scene's verdicts and figures, and the thresholds applied."""
+
+    verdict: CheckVerdict
+    scenes: list[SceneCheck]
+    thresholds: dict[str, Threshold]
+
+
+class ReportMeta(_Open):
+    command: str
+    date: str
+    machine: Any = None
+    versions: dict[str, Any] = Field(default_factory=dict)
+    assets: list[str] = Field(default_factory=list, description="The report's image files, relative to it.")
+
+
+class ReportDocument(CheckDocument):
+    """``minirt report``'s report.json: the check document, the page's metadata, and the embedded sweep."""
+
+    report: ReportMeta
+    sweep: dict[str, Any] | None = Field(default=None, description="sweep.json as read from --sweep DIR.")
+
+
+# ---------------------------------------------------------------------------------------------
+# minirt grade --json, and grades.json of a class
+
+
+class Explained(_Open):
+    rule: str
+    value: str
+    pixels: int
+    sentence: str
+
+
+class Diagnosis(_Open):
+    rules: dict[str, str] = Field(description="The rule settings, changed from the scene's, that explain the image.")
+    mismatch_pixels: int
+    explained: list[Explained]
+    search: dict[str, Any] = Field(default_factory=dict)
+
+
+class AsGiven(_Open):
+    mismatch_pixels: int
+    rules: dict[str, str]
+
+
+class GradeDocument(_Document):
+    """``minirt grade SCENE IMAGE --json FILE``. A verdict "error" carries the reason and no diagnosis."""
+
+    verdict: GradeVerdict
+    scene: str | None
+    scene_file: str
+    image: str
+    summary: str
+    notes: list[str] = Field(default_factory=list)
+    reason: str = ""
+    size: list[int] | None = Field(default=None, description="[width, height] graded.")
+    pixels: int | None = None
+    image_format: Literal["8-bit", "float"] | None = None
+    tolerance: str | None = None
+    ill_conditioned_pixels: int | None = None
+    as_given: AsGiven | None = None
+    diagnosis: Diagnosis | None = None
+    indistinguishable: list[dict[str, Any]] = Field(default_factory=list)
+    reproduce: str | None = Field(default=None, description="The minirt render command whose PNG is the image.")
+
+
+class ClassRow(_Open):
+    student: str
+    scene: str
+    verdict: GradeVerdict
+    rules: dict[str, str]
+    mismatch_pixels: int | None
+    as_given_pixels: int | None
+    reason: str = ""
+    page: str = Field(default="", description="The image's page, relative to grades.json.")
+
+
+class Mistake(_Open):
+    rule: str
+    value: str
+    students: int
+    images: int
+    differing_images: int
+
+
+class ClassDocument(_Document):
+    """``minirt grade --class DIR``'s grades.json (and its --json): one row per student and scene."""
+
+    students: list[str]
+    scenes: list[str]
+    verdicts: dict[GradeVerdict, int]
+    common_mistakes: list[Mistake]
+    grades: list[ClassRow]
+
+
+# ---------------------------------------------------------------------------------------------
+# sweep.json
+
+
+class SweepRow(_Open):
+    backend: str
+    knob: str | None
+    value: Any = None
+    cost: Any = None
+    status: str
+    reason: str = ""
+    seconds_median: Num = None
+    runs: list[Num] = Field(default_factory=list)
+    metric: str | None = None
+    error: dict[str, Any] = Field(default_factory=dict)
+    pareto: bool = False
+
+
+class SweepDocument(_Document):
+    """``minirt sweep``'s sweep.json: every setting's time and error, fits and the Pareto front."""
+
+    scene: str
+    source: str | None = None
+    size: list[int]
+    repeats: int
+    rules: RuleValues
+    rows: list[SweepRow]
+    slopes: dict[str, Any] = Field(default_factory=dict)
+    pareto: dict[str, Any] = Field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------------------------------
+# render sidecars and probe
+
+
+class RenderSidecar(_Document):
+    """``minirt render``'s SCENE.BACKEND[+VARIANT].json beside the images: the backend's metadata."""
+
+    backend: str
+    status: str
+    reason: str = ""
+    width: int
+    height: int
+    scene: str | None = None
+    rules: RuleValues = Field(default_factory=dict)
+    version: Any = None
+
+
+class ProbeLevel(_Open):
+    depth: int
+    ray: dict[str, list[float]]
+    shapes: list[dict[str, Any]]
+    hit: dict[str, Any] | None
+    terms: dict[str, Any]
+
+
+class ProbeDocument(_Document):
+    """``minirt probe SCENE X Y --json``: one pixel traced step by step."""
+
+    scene: str
+    pixel: list[int]
+    rules: RuleValues
+    levels: list[ProbeLevel]
+    color: list[float]
+    color_clamped: list[float]
+    color8: list[int]
+    image: dict[str, Any] | None = None
+
+
+DOCUMENTS: dict[str, type[_Document]] = {
+    "check": CheckDocument,
+    "report": ReportDocument,
+    "grade": GradeDocument,
+    "grades": ClassDocument,
+    "sweep": SweepDocument,
+    "render": RenderSidecar,
+    "probe": ProbeDocument,
+}
+
+
+def schema(name: str) -> dict[str, Any]:
+    """The JSON Schema of document ``name`` (one of DOCUMENTS), as shipped."""
+    model = DOCUMENTS[name]
+    s = model.model_json_schema()
+    return {
+        "$schema": DIALECT,
+        "$id": f"minirt/{name}.schema.json",
+        "x-minirt-schema-version": SCHEMA_VERSION,
+        **s,
+    }
+
+
+def schema_text(name: str) -> str:
+    return json.dumps(schema(name), indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+
+def shipped(name: str) -> dict[str, Any]:
+    """The shipped schema file of document ``name``."""
+    return json.loads((SCHEMAS / f"{name}.schema.json").read_text(encoding="utf-8"))
+
+
+def write_schemas(folder: Path = SCHEMAS) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name in DOCUMENTS:
+        p = folder / f"{name}.schema.json"
+        p.write_text(schema_text(name), encoding="utf-8")
+        paths.append(p)
+    return paths
+
+
+if __name__ == "__main__":
+    for p in write_schemas():
+        print(f"wrote {p.name}")
