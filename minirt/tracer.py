@@ -299,17 +299,23 @@ class Tracer:
                 is_ball |= on
                 c = dr.select(on, self._vec(s.center), c)
                 r = dr.select(on, self.T.Float(s.radius), r)
-            reproject = self.rules.offset == "error-bound"
-            # pbrt-style under error-bound: put the point back on the sphere, normal from it. Otherwise
-            # a true division (r is a lane value here, so Dr.Jit cannot turn it into a reciprocal).
-            nb = dr.normalize(p - c) if reproject else (p - c) / r
-            # A ball smaller than an ulp of its centre: the hit point can round onto the centre,
-            # and p - C = 0 has no direction. Then the normal faces the ray.
-            degenerate = ~(dr.squared_norm(nb) > 0) | ~dr.isfinite(dr.squared_norm(nb))
-            nb = dr.select(degenerate, -d, nb)
-            n = dr.select(is_ball, nb, n)
-            if reproject:
-                p = dr.select(is_ball, c + r * nb, p)
+            p, n = self._ball_normal(p, d, c, r, is_ball, n)
+        return p, n
+
+    def _ball_normal(self, p, d, c, r, is_ball, n) -> tuple[Any, Any]:
+        """Where is_ball: the normal (p - C) / r of the ball (C, r) hit at p, and under error-bound p put
+        back on it; elsewhere p and n as given."""
+        reproject = self.rules.offset == "error-bound"
+        # pbrt-style under error-bound: put the point back on the sphere, normal from it. Otherwise
+        # a true division (r is a lane value here, so Dr.Jit cannot turn it into a reciprocal).
+        nb = dr.normalize(p - c) if reproject else (p - c) / r
+        # A ball smaller than an ulp of its centre: the hit point can round onto the centre,
+        # and p - C = 0 has no direction. Then the normal faces the ray.
+        degenerate = ~(dr.squared_norm(nb) > 0) | ~dr.isfinite(dr.squared_norm(nb))
+        nb = dr.select(degenerate, -d, nb)
+        n = dr.select(is_ball, nb, n)
+        if reproject:
+            p = dr.select(is_ball, c + r * nb, p)
         return p, n
 
     def _hit_point_and_normal_table(self, shape_id, d, p) -> tuple[Any, Any]:
@@ -322,14 +328,7 @@ class Tracer:
         n = dr.gather(T.Array3, tab.plane_normal, k, hit & ~is_ball)
         c = dr.gather(T.Array3, tab.center, k, is_ball)
         r = dr.select(is_ball, dr.gather(T.Float, tab.radius, k, is_ball), T.Float(1.0))
-        reproject = self.rules.offset == "error-bound"
-        nb = dr.normalize(p - c) if reproject else (p - c) / r
-        degenerate = ~(dr.squared_norm(nb) > 0) | ~dr.isfinite(dr.squared_norm(nb))
-        nb = dr.select(degenerate, -d, nb)
-        n = dr.select(is_ball, nb, n)
-        if reproject:
-            p = dr.select(is_ball, c + r * nb, p)
-        return p, n
+        return self._ball_normal(p, d, c, r, is_ball, n)
 
     def error_bound(self, shape_id, p) -> Any:
         """Absolute error bound of a hit point, per shape (measured to give 0 self-hits; tests/test_hard_cases.py).
