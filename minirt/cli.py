@@ -437,7 +437,7 @@ def export(
     rule: RuleOpt = None,
 ) -> None:
     """Write the scene converted for another renderer, as a user would open it there."""
-    import oracles
+    from minirt import oracles
 
     target = {"mitsuba": "mitsuba", "povray": "povray", "mesh": "embree"}.get(to)
     if target is None:
