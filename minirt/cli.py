@@ -45,7 +45,10 @@ class Precision(StrEnum):
 
 
 SceneArg = Annotated[
-    Path, typer.Argument(metavar="SCENE", help="A scene file (TOML), e.g. scenes/exercise.toml.", show_default=False)
+    Path,
+    typer.Argument(
+        metavar="SCENE", help="A scene file (TOML) or a bundled scene's name, e.g. exercise.", show_default=False
+    ),
 ]
 ProfileOpt = Annotated[
     str | None,
@@ -62,7 +65,10 @@ RuleOpt = Annotated[
 WidthOpt = Annotated[int | None, typer.Option("--width", min=1, help="Image width in pixels (overrides the scene).")]
 HeightOpt = Annotated[int | None, typer.Option("--height", min=1, help="Image height in pixels (overrides the scene).")]
 ScenesArg = Annotated[
-    list[Path] | None, typer.Argument(metavar="SCENE...", help="Scene files or folders (default: scenes/).")
+    list[Path] | None,
+    typer.Argument(
+        metavar="SCENE...", help="Scene files, bundled scenes' names or folders (default: the bundled scenes)."
+    ),
 ]
 OraclesOpt = Annotated[str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")]
 SizeOpt = Annotated[str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")]
@@ -126,8 +132,9 @@ def _parse_rules(items: list[str] | None) -> dict[str, Any]:
 def _load(path: Path, width=None, height=None, samples=None, profile=None, rules=None):
     from minirt import rules as rules_mod
     from minirt.scene import load_scene
+    from minirt.scenes import find_scene
 
-    scene = load_scene(path).with_overrides(width=width, height=height, samples=samples, profile=profile)
+    scene = load_scene(find_scene(path)).with_overrides(width=width, height=height, samples=samples, profile=profile)
     return scene, rules_mod.resolve(scene, profile, _parse_rules(rules))
 
 
@@ -380,21 +387,26 @@ def _print_probe(p: dict[str, Any]) -> None:
 # ---------------------------------------------------------------------------------------------
 @app.command()
 def scenes(
-    folder: Annotated[Path, typer.Argument(help="Folder of scene files.")] = Path("scenes"),
+    folder: Annotated[
+        Path | None,
+        typer.Argument(help="A folder of scene files (default: the bundled scenes, by name).", show_default=False),
+    ] = None,
 ) -> None:
-    """List the bundled scenes, one line each."""
+    """List the bundled scenes (or a folder's), one line each."""
     from minirt.errors import SceneError
     from minirt.scene import load_scene
+    from minirt.scenes import BUNDLED
 
-    files = sorted(folder.glob("*.toml"))
+    files = sorted((folder or BUNDLED).glob("*.toml"))
     if not files:
         raise MinirtError(f"{folder}: no scene files (*.toml)")
     for f in files:
+        shown = str(f) if folder else f.stem  # a bundled scene by the name every command accepts
         try:
             s = load_scene(f)
-            out.print(f"{f!s:<32} {s.camera.width}x{s.camera.height} {len(s.shapes)} shapes  {s.description}")
+            out.print(f"{shown:<32} {s.camera.width}x{s.camera.height} {len(s.shapes)} shapes  {s.description}")
         except SceneError as e:
-            out.print(f"{f!s:<32} INVALID: {e.lines[0]}")
+            out.print(f"{shown:<32} INVALID: {e.lines[0]}")
 
 
 @app.command()
@@ -454,17 +466,17 @@ VERDICT_STYLE = {"pass": "green", "warn": "yellow", "fail": "bold red", "error":
 
 
 def _scene_paths(paths: list[Path] | None) -> list[Path]:
+    """SCENE... of check and report: files, bundled scenes' names and folders; none: every bundled scene."""
+    from minirt.scenes import BUNDLED, find_scene
+
     if not paths:
-        found = sorted(Path("scenes").glob("*.toml"))
-        if not found:
-            raise MinirtError("no scenes given and none in scenes/")
-        return found
+        return sorted(BUNDLED.glob("*.toml"))
     out_: list[Path] = []
     for p in paths:
         if p.is_dir():
             out_ += sorted(p.glob("*.toml"))
         else:
-            out_.append(p)
+            out_.append(find_scene(p))
     return out_
 
 
