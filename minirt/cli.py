@@ -316,7 +316,7 @@ def probe(
     scene, rules = _load(find_scene(scene_path), width, height, None, profile, rule)
     target = notes = None
     if image is not None:
-        from minirt.grade import check_size, load_target
+        from minirt.grading import check_size, load_target
 
         target = load_target(image)
         try:
@@ -760,7 +760,7 @@ def grade(
     for given, option in ((scenes_dir, "--scenes"), (workers, "--workers"), (scheduler, "--scheduler")):
         if given is not None:
             raise MinirtError(f"{option} goes with --class")
-    from minirt import grade as grading
+    from minirt import grading
     from minirt.scenes import find_scene
 
     if json_out not in (None, "-"):
@@ -796,7 +796,7 @@ def _emit_json(dest: str, data: dict[str, Any]) -> None:
 
 
 def _print_grade(g, page: Path | None) -> None:
-    from minirt import grade as grading
+    from minirt import grading
 
     style = {"match": "green", "differs": "yellow", "error": "red"}[g.verdict]
     err.print(f"[bold {style}]{g.verdict.upper()}[/]", end=" ")
@@ -821,8 +821,7 @@ def _print_grade(g, page: Path | None) -> None:
 
 
 def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet, workers, scheduler) -> None:
-    from minirt import grade as grading
-    from minirt import jobs
+    from minirt import grading, jobs
     from minirt.grade_report import write_class_page
     from minirt.imageio import write_json
     from minirt.scenes import BUNDLED
