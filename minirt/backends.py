@@ -19,7 +19,7 @@ REFERENCE = "reference"
 
 
 def oracle_names() -> list[str]:
-    import oracles
+    from minirt import oracles
 
     return oracles.names()
 
@@ -60,7 +60,7 @@ def info(name: str) -> BackendInfo:
 
             why = f"minirt tracer on Dr.Jit {drjit.__version__} ({why})"
         return BackendInfo(name, ok, why, True)
-    import oracles
+    from minirt import oracles
 
     try:
         o = oracles.get(name)
@@ -74,7 +74,7 @@ def rules_for(name: str, rules: Rules) -> Rules:
     """The rules a backend actually follows when asked for `rules`."""
     if name == REFERENCE:
         return rules
-    import oracles
+    from minirt import oracles
 
     return oracles.get(name).adapt(rules)
 
@@ -97,7 +97,7 @@ def render(name: str, scene: Scene, rules: Rules, options: dict[str, Any] | None
                 diagnostics=bool(options.get("diagnostics", False)),
             )
         else:
-            import oracles
+            from minirt import oracles
 
             o = oracles.get(name)
             ok, why = o.available()

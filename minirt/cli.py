@@ -45,7 +45,10 @@ class Precision(StrEnum):
 
 
 SceneArg = Annotated[
-    Path, typer.Argument(metavar="SCENE", help="A scene file (TOML), e.g. scenes/exercise.toml.", show_default=False)
+    Path,
+    typer.Argument(
+        metavar="SCENE", help="A scene file (TOML) or a bundled scene's name, e.g. exercise.", show_default=False
+    ),
 ]
 ProfileOpt = Annotated[
     str | None,
@@ -62,7 +65,10 @@ RuleOpt = Annotated[
 WidthOpt = Annotated[int | None, typer.Option("--width", min=1, help="Image width in pixels (overrides the scene).")]
 HeightOpt = Annotated[int | None, typer.Option("--height", min=1, help="Image height in pixels (overrides the scene).")]
 ScenesArg = Annotated[
-    list[Path] | None, typer.Argument(metavar="SCENE...", help="Scene files or folders (default: scenes/).")
+    list[Path] | None,
+    typer.Argument(
+        metavar="SCENE...", help="Scene files, bundled scenes' names or folders (default: the bundled scenes)."
+    ),
 ]
 OraclesOpt = Annotated[str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")]
 SizeOpt = Annotated[str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")]
@@ -126,8 +132,9 @@ def _parse_rules(items: list[str] | None) -> dict[str, Any]:
 def _load(path: Path, width=None, height=None, samples=None, profile=None, rules=None):
     from minirt import rules as rules_mod
     from minirt.scene import load_scene
+    from minirt.scenes import find_scene
 
-    scene = load_scene(path).with_overrides(width=width, height=height, samples=samples, profile=profile)
+    scene = load_scene(find_scene(path)).with_overrides(width=width, height=height, samples=samples, profile=profile)
     return scene, rules_mod.resolve(scene, profile, _parse_rules(rules))
 
 
@@ -309,7 +316,7 @@ def probe(
     scene, rules = _load(find_scene(scene_path), width, height, None, profile, rule)
     target = notes = None
     if image is not None:
-        from minirt.grade import check_size, load_target
+        from minirt.grading import check_size, load_target
 
         target = load_target(image)
         try:
@@ -380,21 +387,26 @@ def _print_probe(p: dict[str, Any]) -> None:
 # ---------------------------------------------------------------------------------------------
 @app.command()
 def scenes(
-    folder: Annotated[Path, typer.Argument(help="Folder of scene files.")] = Path("scenes"),
+    folder: Annotated[
+        Path | None,
+        typer.Argument(help="A folder of scene files (default: the bundled scenes, by name).", show_default=False),
+    ] = None,
 ) -> None:
-    """List the bundled scenes, one line each."""
+    """List the bundled scenes (or a folder's), one line each."""
     from minirt.errors import SceneError
     from minirt.scene import load_scene
+    from minirt.scenes import BUNDLED
 
-    files = sorted(folder.glob("*.toml"))
+    files = sorted((folder or BUNDLED).glob("*.toml"))
     if not files:
         raise MinirtError(f"{folder}: no scene files (*.toml)")
     for f in files:
+        shown = str(f) if folder else f.stem  # a bundled scene by the name every command accepts
         try:
             s = load_scene(f)
-            out.print(f"{f!s:<32} {s.camera.width}x{s.camera.height} {len(s.shapes)} shapes  {s.description}")
+            out.print(f"{shown:<32} {s.camera.width}x{s.camera.height} {len(s.shapes)} shapes  {s.description}")
         except SceneError as e:
-            out.print(f"{f!s:<32} INVALID: {e.lines[0]}")
+            out.print(f"{shown:<32} INVALID: {e.lines[0]}")
 
 
 @app.command()
@@ -437,7 +449,7 @@ def export(
     rule: RuleOpt = None,
 ) -> None:
     """Write the scene converted for another renderer, as a user would open it there."""
-    import oracles
+    from minirt import oracles
 
     target = {"mitsuba": "mitsuba", "povray": "povray", "mesh": "embree"}.get(to)
     if target is None:
@@ -454,17 +466,17 @@ VERDICT_STYLE = {"pass": "green", "warn": "yellow", "fail": "bold red", "error":
 
 
 def _scene_paths(paths: list[Path] | None) -> list[Path]:
+    """SCENE... of check and report: files, bundled scenes' names and folders; none: every bundled scene."""
+    from minirt.scenes import BUNDLED, find_scene
+
     if not paths:
-        found = sorted(Path("scenes").glob("*.toml"))
-        if not found:
-            raise MinirtError("no scenes given and none in scenes/")
-        return found
+        return sorted(BUNDLED.glob("*.toml"))
     out_: list[Path] = []
     for p in paths:
         if p.is_dir():
             out_ += sorted(p.glob("*.toml"))
         else:
-            out_.append(p)
+            out_.append(find_scene(p))
     return out_
 
 
@@ -748,7 +760,7 @@ def grade(
     for given, option in ((scenes_dir, "--scenes"), (workers, "--workers"), (scheduler, "--scheduler")):
         if given is not None:
             raise MinirtError(f"{option} goes with --class")
-    from minirt import grade as grading
+    from minirt import grading
     from minirt.scenes import find_scene
 
     if json_out not in (None, "-"):
@@ -784,7 +796,7 @@ def _emit_json(dest: str, data: dict[str, Any]) -> None:
 
 
 def _print_grade(g, page: Path | None) -> None:
-    from minirt import grade as grading
+    from minirt import grading
 
     style = {"match": "green", "differs": "yellow", "error": "red"}[g.verdict]
     err.print(f"[bold {style}]{g.verdict.upper()}[/]", end=" ")
@@ -809,8 +821,7 @@ def _print_grade(g, page: Path | None) -> None:
 
 
 def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet, workers, scheduler) -> None:
-    from minirt import grade as grading
-    from minirt import jobs
+    from minirt import grading, jobs
     from minirt.grade_report import write_class_page
     from minirt.imageio import write_json
     from minirt.scenes import BUNDLED

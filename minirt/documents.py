@@ -1,6 +1,6 @@
 """The JSON documents minirt writes, as pydantic models: the source of the shipped JSON Schemas.
 
-The writers build plain dicts (minirt.harness, minirt.grade, minirt.report, minirt.sweep, minirt.probe,
+The writers build plain dicts (minirt.harness, minirt.grading, minirt.report, minirt.sweep, minirt.probe,
 the render sidecar in minirt.imageio) and minirt.jsonout writes them; these models describe the result,
 so a reader (or a test) can validate a file with any JSON Schema validator. Each model lists the keys a
 reader can rely on; open parts (a check's figures, a backend's metadata) allow more keys. A number that

@@ -35,11 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from minirt import bitmap
+from minirt import bitmap, grading
 from minirt import diagnose as dg
-from minirt import grade as grading
 from minirt import rules as rules_mod
-from minirt.grade import ClassRow, Grade
+from minirt.grading import ClassRow, Grade
 from minirt.imageio import atomic_path, write_image
 
 # Okabe-Ito colours, as minirt.report uses them.

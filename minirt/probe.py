@@ -120,8 +120,8 @@ def image_pixel(
 ) -> dict[str, Any]:
     """Another tracer's value at the probed pixel beside the reference's (``p``, from ``probe``).
 
-    ``target`` is a ``minirt.diagnose.Target`` (``minirt.grade.load_target``) whose size
-    ``minirt.grade.check_size`` has accepted. It is brought back to the scene's layout under the
+    ``target`` is a ``minirt.diagnose.Target`` (``minirt.grading.load_target``) whose size
+    ``minirt.grading.check_size`` has accepted. It is brought back to the scene's layout under the
     layout rules of ``rules`` -- or, when it is stored transposed and the rules do not say so (the
     note ``check_size`` gives), read transposed. An 8-bit image is compared with the reference's
     8-bit value written under the output rules (``color8``), a float image with the clamped colour

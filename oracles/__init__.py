@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import importlib
 
-from oracles.base import Oracle
+from minirt.oracles.base import Oracle
 
 REGISTRY: dict[str, str] = {
-    "mitsuba": "oracles.mitsuba:MitsubaOracle",
-    "povray": "oracles.povray:PovrayOracle",
-    "embree": "oracles.embree:EmbreeOracle",
+    "mitsuba": "minirt.oracles.mitsuba:MitsubaOracle",
+    "povray": "minirt.oracles.povray:PovrayOracle",
+    "embree": "minirt.oracles.embree:EmbreeOracle",
 }
 
 

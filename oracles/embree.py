@@ -68,10 +68,10 @@ from typing import Any, ClassVar
 import numpy as np
 
 from minirt import camera
+from minirt.oracles.base import Oracle
 from minirt.result import RenderResult, geometry_from_flat
 from minirt.rules import Rules
 from minirt.scene import Ball, Plane, Scene
-from oracles.base import Oracle
 
 DEFAULT_SUBDIVISIONS = 4
 MAX_SUBDIVISIONS = 7  # 327,680 faces per ball; beyond that float32 (not the tessellation) dominates

@@ -89,10 +89,10 @@ from typing import Any, ClassVar
 import numpy as np
 
 from minirt import camera
+from minirt.oracles.base import Oracle
 from minirt.result import RenderResult, geometry_from_flat, to8
 from minirt.rules import Rules
 from minirt.scene import Ball, Plane, Scene
-from oracles.base import Oracle
 
 BACKEND = "mitsuba"
 PACKAGE_VERSION = "3.9.1"

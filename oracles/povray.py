@@ -89,10 +89,10 @@ import numpy as np
 
 from minirt import camera
 from minirt.imageio import read_image, read_image_u8
+from minirt.oracles.base import Oracle
 from minirt.result import RenderResult
 from minirt.rules import Effects, Rules, effects
 from minirt.scene import Ball, Material, Scene
-from oracles.base import Oracle
 
 NAME = "povray"
 INSTALL_HINT = "povray not found on PATH; install: sudo apt-get install povray"

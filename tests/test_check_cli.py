@@ -69,12 +69,12 @@ def test_missing_povray_is_a_skip_and_the_others_render(tmp_path):
 
 
 def test_crashing_oracle_is_an_error_and_the_others_run(monkeypatch):
-    import oracles.embree
+    import minirt.oracles.embree
 
     def boom(self, scene, rules, options=None):
         raise RuntimeError("segfault in the intersector")
 
-    monkeypatch.setattr(oracles.embree.EmbreeOracle, "render", boom)
+    monkeypatch.setattr(minirt.oracles.embree.EmbreeOracle, "render", boom)
     sc = harness.check_scene(ROOT / "scenes" / "exercise.toml", ["embree", "mitsuba"], (24, 24))
     assert sc.backends["embree"].verdict == "error"
     assert "segfault in the intersector" in sc.backends["embree"].reason

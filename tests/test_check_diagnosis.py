@@ -16,8 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import oracles
-from minirt import bitmap, harness, report
+from minirt import bitmap, harness, oracles, report
 from minirt.rules import format_rule_value, resolve
 from minirt.scene import load_scene
 from minirt.tracer import render

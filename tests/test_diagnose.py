@@ -27,9 +27,8 @@ import numpy as np
 import pytest
 from students import levels_off, small_scene, student_color, student_image
 
-from minirt import band, bitmap, camera
+from minirt import band, bitmap, camera, grading
 from minirt import diagnose as dg
-from minirt import grade as grading
 from minirt import rules as R
 from minirt.imageio import write_image
 from minirt.tracer import render

@@ -18,11 +18,10 @@ import numpy as np
 import pytest
 from test_report import run_browser
 
-from minirt import bitmap
-from minirt import grade as grading
+from minirt import bitmap, grading
 from minirt import rules as R
-from minirt.grade import ClassRow, Grade
 from minirt.grade_report import safe_stem, write_class_page, write_grade_page
+from minirt.grading import ClassRow, Grade
 from minirt.imageio import read_image_u8, write_image
 from minirt.scene import load_scene
 from minirt.tracer import render

@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 from minirt import band, camera, tracer
+from minirt.oracles import get
+from minirt.oracles.embree import EmbreeOracle, scene_to_mesh, tessellation
 from minirt.rules import resolve
 from minirt.scene import Ball, load_scene
-from oracles import get
-from oracles.embree import EmbreeOracle, scene_to_mesh, tessellation
 
 SIZE = 64
 SNAPSHOTS = Path(__file__).resolve().parent / "snapshots" / "embree"
@@ -239,7 +239,7 @@ def test_unavailable_is_a_skip(monkeypatch):
 
 
 def test_failures_are_results_not_exceptions(monkeypatch):
-    import oracles.embree as mod
+    import minirt.oracles.embree as mod
 
     scene = _small(Path(__file__).resolve().parent.parent / "scenes" / "exercise.toml")
     orc = EmbreeOracle()

@@ -24,9 +24,9 @@ import numpy as np
 import pytest
 
 from minirt import band, camera, tracer
+from minirt.oracles import mitsuba as om
 from minirt.rules import resolve
 from minirt.scene import Ball, load_scene, parse_scene
-from oracles import mitsuba as om
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = sorted((ROOT / "scenes").glob("*.toml"))
@@ -288,7 +288,7 @@ def test_scalar_fallback_variant_renders(tmp_path):
     import sys
 
     code = (
-        "import numpy as np, oracles.mitsuba as om\n"
+        "import numpy as np, minirt.oracles.mitsuba as om\n"
         "om.VARIANTS = ('scalar_rgb',)\n"
         "from minirt.scene import load_scene\nfrom minirt.rules import resolve\nfrom minirt import tracer\n"
         "o = om.MitsubaOracle()\n"

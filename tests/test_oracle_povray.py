@@ -27,13 +27,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import oracles
-from minirt import band, camera, tracer
+from minirt import band, camera, oracles, tracer
 from minirt import rules as R
 from minirt.imageio import read_image_u8
+from minirt.oracles import povray
+from minirt.oracles.povray import PovrayOracle
 from minirt.scene import Scene, load_scene, parse_scene
-from oracles import povray
-from oracles.povray import PovrayOracle
 
 ROOT = Path(__file__).resolve().parent.parent
 SNAPSHOTS = Path(__file__).resolve().parent / "snapshots" / "povray"

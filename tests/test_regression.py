@@ -12,7 +12,7 @@ import pytest
 from evidence import dump_check
 
 from minirt import harness
-from oracles import names as oracle_names
+from minirt.oracles import names as oracle_names
 
 SIZE = (64, 64)
 # (scene, backend) -> a phrase the SKIP reason must contain

@@ -402,9 +402,9 @@ def test_cli_accepts_new_rules(tmp_path):
 
 # ---- oracles: what they declare is valid ---------------------------------------------------------
 def test_oracle_tables_are_valid():
-    from oracles.embree import EmbreeOracle
-    from oracles.mitsuba import MitsubaOracle
-    from oracles.povray import PovrayOracle
+    from minirt.oracles.embree import EmbreeOracle
+    from minirt.oracles.mitsuba import MitsubaOracle
+    from minirt.oracles.povray import PovrayOracle
 
     for cls in (PovrayOracle, MitsubaOracle, EmbreeOracle):
         o = cls()
@@ -421,7 +421,7 @@ def test_oracle_tables_are_valid():
 @pytest.mark.parametrize("shift", [(2.0, -1.0), (0.5, 0.5)])
 def test_mitsuba_sensor_follows_pixel_shift(shift):
     """Mitsuba's own sensor (not minirt.camera's rays) takes the shift through its principal point."""
-    from oracles.mitsuba import MitsubaOracle
+    from minirt.oracles.mitsuba import MitsubaOracle
 
     o = MitsubaOracle()
     ok, why = o.available()

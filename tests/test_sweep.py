@@ -19,9 +19,9 @@ import pytest
 from conftest import ROOT
 
 from minirt import sweep
+from minirt.oracles.embree import EmbreeOracle
 from minirt.rules import resolve
 from minirt.scene import load_scene
-from oracles.embree import EmbreeOracle
 
 SIZE = 16
 KNOBS = sweep.Knobs(
@@ -239,7 +239,7 @@ def test_oracles_sweep_small(exercise, tmp_path):
 
 
 def test_povray_antialias_command_line(exercise):
-    from oracles import povray
+    from minirt.oracles import povray
 
     sc, _ = exercise
     assert "-A" in povray.command(sc, 1, 1, 1, "exr")

@@ -23,7 +23,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from minirt import harness
-from oracles import names as oracle_names
+from minirt.oracles import names as oracle_names
 
 
 def _vec(rng: random.Random, lo: float, hi: float) -> list[float]:

@@ -1,0 +1,110 @@
+"""minirt's pytest plugin: your scenes pass against every oracle, as tests in your own suite.
+
+pytest loads it by itself once minirt is installed (the ``pytest11`` entry point ``minirt`` in
+pyproject.toml; ``-p no:minirt`` turns it off). It offers:
+
+- the fixture ``minirt_check``: ``minirt_check("scenes/my.toml")`` is
+  ``minirt.testing.assert_scene_passes`` with the run's backends and size;
+- scene files as tests: with the ini key ``minirt_scenes`` set to glob patterns relative to the
+  rootdir (``minirt_scenes = ["scenes/*.toml"]`` in ``[tool.pytest.ini_options]``), every matching
+  file that pytest visits (its folder among the test paths) becomes one test, ``scenes/my.toml::check``.
+
+Backends and size: ``--minirt-backends LIST`` and ``--minirt-size WxH``, or the ini keys
+``minirt_backends`` (default ``all``) and ``minirt_size`` (default: each scene's own size).
+This module imports nothing heavy: the renderers load when a check runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("minirt", "minirt scene checks")
+    group.addoption(
+        "--minirt-backends",
+        default=None,
+        metavar="LIST",
+        help="Backends the scene checks compare with: all, or a comma list (default: ini minirt_backends, all).",
+    )
+    group.addoption(
+        "--minirt-size",
+        default=None,
+        metavar="WxH",
+        help="Render the checked scenes at WxH (default: ini minirt_size, else each scene's own size).",
+    )
+    parser.addini(
+        "minirt_backends", "Backends minirt's scene checks compare with (all, or a comma list).", default="all"
+    )
+    parser.addini("minirt_size", "Size minirt's scene checks render at (WxH; empty: the scene's own).", default="")
+    parser.addini("minirt_scenes", "Glob patterns (from the rootdir) of scene files to collect as tests.", type="args")
+
+
+def _settings(config: pytest.Config) -> tuple[str, str]:
+    backends = config.getoption("minirt_backends") or config.getini("minirt_backends") or "all"
+    size = config.getoption("minirt_size") or config.getini("minirt_size") or ""
+    return backends, size
+
+
+@pytest.fixture
+def minirt_check(request: pytest.FixtureRequest) -> Callable[..., Any]:
+    """``minirt_check(scene, backends=None, size=None, allow_skip=False)``: assert that the scene (a
+    file, a bundled scene's name, a folder, or a list) passes against the backends; None: the run's
+    --minirt-backends / --minirt-size. Returns the CheckResult."""
+    from minirt.testing import assert_scene_passes
+
+    run_backends, run_size = _settings(request.config)
+
+    def check(scene, backends=None, size=None, allow_skip=False):
+        __tracebackhide__ = True
+        return assert_scene_passes(
+            scene, backends or run_backends, size=size or run_size or None, allow_skip=allow_skip
+        )
+
+    return check
+
+
+def pytest_collect_file(file_path: Path, parent: pytest.Collector) -> pytest.Collector | None:
+    if file_path.suffix != ".toml":
+        return None
+    patterns = parent.config.getini("minirt_scenes")
+    if not patterns:
+        return None
+    try:
+        rel = file_path.relative_to(parent.config.rootpath)
+    except ValueError:
+        return None
+    if any(rel.match(p) for p in patterns):  # PurePath.match: "scenes/*.toml" matches from the right
+        return SceneFile.from_parent(parent, path=file_path)
+    return None
+
+
+class SceneFile(pytest.File):
+    """A scene file collected as a test (ini minirt_scenes)."""
+
+    def collect(self):
+        yield SceneItem.from_parent(self, name="check")
+
+
+class SceneItem(pytest.Item):
+    """``minirt check`` on one scene file: passes when every backend passes."""
+
+    def runtest(self) -> None:
+        from minirt.testing import assert_scene_passes
+
+        backends, size = _settings(self.config)
+        assert_scene_passes(self.path, backends, size=size or None)
+
+    def repr_failure(self, excinfo, style=None):
+        from minirt.errors import MinirtError
+
+        if isinstance(excinfo.value, AssertionError | MinirtError):
+            return str(excinfo.value)  # the checks' own words; no traceback into minirt
+        return super().repr_failure(excinfo, style=style)
+
+    def reportinfo(self):
+        return self.path, None, f"minirt check {self.path.name}"
