@@ -271,11 +271,6 @@ def _slab(T: Any, tab: ShapeTable, node: Any, o: Any, inv: Any, pad: Any, active
     return t_near, t_far
 
 
-def _ray_pad(T: Any, tab: ShapeTable, o: Any) -> tuple[Any, Any]:
-    lo = dr.norm(o)
-    return tab.pad_a * lo, dr.sqrt(lo)
-
-
 def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any, blocks=None) -> tuple[Any, Any]:
     """Closest hit among the table's balls, merged into (t_best, id_best) by the lower-id tie rule.
 
@@ -287,7 +282,8 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
     U, Int = T.UInt, T.Int
     n = dr.width(d)
     inv = _inverse(T, d)
-    pa, ps = _ray_pad(T, tab, o)
+    lo = dr.norm(o)
+    pa, ps = tab.pad_a * lo, dr.sqrt(lo)  # the per-ray parts of _Pad: a |o| and sqrt|o|
     stack = dr.alloc_local(U, STACK)
     node = dr.zeros(U, n)
     sp = dr.zeros(U, n)

@@ -104,12 +104,16 @@ def render(name: str, scene: Scene, rules: Rules, options: dict[str, Any] | None
             if not ok:
                 return RenderResult.failed(name, w, h, "skip", why)
             result = o.render(scene, o.adapt(rules), options)
-    except MinirtError as e:
-        result = RenderResult.failed(name, w, h, "error", str(e).splitlines()[0])
     except Exception as e:  # a crashing backend is an ERROR verdict, not a crash of minirt
-        result = RenderResult.failed(name, w, h, "error", f"{type(e).__name__}: {e}".splitlines()[0])
+        result = _failure(name, w, h, e)
     result.meta.setdefault("timings", {})["wall"] = time.perf_counter() - t0
     return result
+
+
+def _failure(name: str, w: int, h: int, e: Exception) -> RenderResult:
+    """A backend's exception as an ERROR result with a one-line reason (our own errors say it all)."""
+    why = str(e) if isinstance(e, MinirtError) else f"{type(e).__name__}: {e}"
+    return RenderResult.failed(name, w, h, "error", (why.splitlines() or [""])[0])
 
 
 def render_to_files(
@@ -147,12 +151,11 @@ def render_to_files(
                     yield y0, tile
 
             paths, last = write_tiles(tiles(), w, h, out_dir, stem, timings=timings)
-        except MinirtError as e:
-            return RenderResult.failed(name, w, h, "error", str(e).splitlines()[0]), None
-        except MemoryError as e:
-            return RenderResult.failed(name, w, h, "error", f"out of memory: {e}".splitlines()[0]), None
+        except Exception as e:  # as render(): an ERROR result, never a crash of minirt
+            return _failure(name, w, h, e), None
         res = RenderResult(backend=name, width=w, height=h, meta=dict(last.meta))
-        res.meta["timings"] = {"total": time.perf_counter() - t0, "wall": time.perf_counter() - t0}
+        took = time.perf_counter() - t0
+        res.meta["timings"] = {"total": took, "wall": took}
         return res, paths
     res = render(name, scene, rules, options, progress)
     if not res.ok:

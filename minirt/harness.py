@@ -820,11 +820,13 @@ def check_scene(
     progress=None,
     variants=None,
     rendered: dict | None = None,
+    loaded: tuple[Scene, Rules] | None = None,
 ) -> SceneCheck:
     """Check one scene file against the given backends (the reference itself is always rendered).
     ``variants``: the run's minirt.diagnose.VariantCache (default: the process's, ``shared_variants``);
-    ``rendered``: backend name -> its render started earlier (see ``run``)."""
-    scene, rules = _scene_and_rules(path, size)
+    ``rendered``: backend name -> its render started earlier, ``loaded``: the file's scene and rules
+    already parsed (both from ``run``)."""
+    scene, rules = loaded or _scene_and_rules(path, size)
     sc = SceneCheck(scene=scene.name, file=str(path), verdict="skip", description=scene.description)
     refs = _ReferenceCache(scene)
     sc.reference = refs.get(rules)
@@ -848,15 +850,13 @@ def run(paths: list[Path], names: list[str], size: tuple[int, int] | None = None
     # a thread of their own, and overlap the reference's, Mitsuba's and Embree's work in this process
     # (the cores are otherwise idle while Python waits for POV-Ray). The same results, in less time.
     ahead = [n for n in names if n in CONCURRENT_BACKENDS and backends.info(n).available]
+    loaded = [_scene_and_rules(p, size) for p in paths]  # each file parsed once, for both uses
     with ThreadPoolExecutor(max_workers=1) as pool:
-        rendered = [
-            {n: pool.submit(lambda p=p, n=n: backends.render(n, *_scene_and_rules(p, size))) for n in ahead}
-            for p in paths
-        ]
+        rendered = [{n: pool.submit(backends.render, n, *sr) for n in ahead} for sr in loaded]
         scenes = []
-        for i, (p, r) in enumerate(zip(paths, rendered, strict=True)):
+        for i, (p, r, sr) in enumerate(zip(paths, rendered, loaded, strict=True)):
             tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
-            scenes.append(check_scene(p, names, size, tick, variants, r))
+            scenes.append(check_scene(p, names, size, tick, variants, r, sr))
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
 
 
