@@ -20,6 +20,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from rich.table import Table
 
 from minirt.errors import MinirtError
+from minirt.untrusted import terminal_text
 
 try:  # Typer >= 0.20 raises the exceptions of the Click it vendors; older ones use Click itself
     from typer._click import exceptions as click_errors
@@ -35,8 +36,9 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 # Tables in logs and pipes get room to breathe; a terminal keeps its own width.
-err = Console(stderr=True, highlight=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
-out = Console(highlight=False, soft_wrap=True)
+err = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
+out = Console(highlight=False, emoji=False, soft_wrap=True)
+MAX_MESSAGE = 2000  # characters of one message line built from untrusted parts (a file name, a key)
 
 
 class Precision(StrEnum):
@@ -156,12 +158,7 @@ def _progress(enabled: bool = True):
         yield p
 
 
-def _bar_text(text: str) -> str:
-    """Untrusted text (a folder or file name, a backend's message) inside Rich markup: control characters
-    shown as '?' and markup escaped, so a student folder named '[red]x' or holding an escape code prints as text."""
-    from rich.markup import escape
-
-    return escape("".join(c if c.isprintable() else "?" for c in text))
+_bar_text = terminal_text  # untrusted text (a name, a backend's message) inside markup: see minirt.untrusted
 
 
 # ---------------------------------------------------------------------------------------------
@@ -210,10 +207,12 @@ def render(
     scene, rules = _load(scene_path, width, height, samples, profile, rule)
     tag = naming.variant_tag(_load(scene_path)[0], scene, rules)
     names = backends.parse_backends(backend)
-    dest = _out_dir(out_dir or Path("renders") / scene.name)
+    dest = _out_dir(out_dir or Path("renders") / naming.scene_stem(scene))
     w, h = scene.camera.width, scene.camera.height
     if not quiet:
-        err.print(f"[bold]{scene.name}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}")
+        err.print(
+            f"[bold]{terminal_text(scene.name)}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}"
+        )
     results = []
     with _progress(not quiet) as bar:
         for name in names:
@@ -245,9 +244,9 @@ def render(
         sheet = contact_sheet(results, dest / naming.contact_sheet_name(scene, tag))
         if not quiet:
             _render_table(results)
-        out.print(f"wrote {dest}/ ({sheet.name} and {sum(r.ok for r in results)} backend(s))")
+        out.print(f"wrote {terminal_text(dest)}/ ({sheet.name} and {sum(r.ok for r in results)} backend(s))")
     else:
-        out.print(f"wrote {dest}/")
+        out.print(f"wrote {terminal_text(dest)}/")
     if not any(r.ok for r in results):
         raise typer.Exit(2)
 
@@ -274,7 +273,9 @@ def _render_table(results) -> None:
             r.backend,
             r.status,
             f"{r.meta.get('timings', {}).get('wall', 0.0):.2f}",
-            r.reason if not r.ok else str(passes or ", ".join(r.meta.get("effects", {}).get("simulated", []))),
+            terminal_text(r.reason)
+            if not r.ok
+            else str(passes or ", ".join(r.meta.get("effects", {}).get("simulated", []))),
         )
     err.print(t)
 
@@ -345,7 +346,7 @@ def _fmt(v) -> str:
 
 def _print_probe(p: dict[str, Any]) -> None:
     x, y = p["pixel"]
-    out.print(f"pixel ({x}, {y}) of {p['scene']}")
+    out.print(f"pixel ({x}, {y}) of {terminal_text(p['scene'])}")
     for lvl in p["levels"]:
         ind = "  " * lvl["depth"]
         head = "primary ray" if lvl["depth"] == 0 else f"reflection {lvl['depth']}"
@@ -357,7 +358,7 @@ def _print_probe(p: dict[str, Any]) -> None:
             out.print(f"{ind}  -> no hit")
         else:
             out.print(
-                f"{ind}  -> hit shape {hit['id']} ({hit['material']}) at t = {_fmt(hit['t'])}, "
+                f"{ind}  -> hit shape {hit['id']} ({terminal_text(hit['material'])}) at t = {_fmt(hit['t'])}, "
                 f"point {_fmt(hit['point'])}, normal {_fmt(hit['normal'])}"
             )
             sh = lvl.get("shadow")
@@ -373,7 +374,7 @@ def _print_probe(p: dict[str, Any]) -> None:
     im = p.get("image")
     if im:
         for note in im["notes"]:
-            out.print(f"note: {note}", markup=False)
+            out.print(f"note: {terminal_text(note)}")
         if im["format"] == "float":
             yours, ref = _fmt(im["value"]), _fmt(im["reference"])
             diff = "the same" if im["difference"] == 0 else f"differs by {im['difference']:.6g}"
@@ -381,7 +382,7 @@ def _print_probe(p: dict[str, Any]) -> None:
             yours, ref = str(tuple(im["value"])), str(tuple(im["reference"]))
             n = im["difference"]
             diff = "the same" if n == 0 else f"differs by {n} level{'s' if n != 1 else ''}"
-        out.print(f"your image: {yours} [{im['format']}]  reference: {ref} -> {diff}", markup=False)
+        out.print(terminal_text(f"your image: {yours} [{im['format']}]  reference: {ref} -> {diff}"))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -404,9 +405,11 @@ def scenes(
         shown = str(f) if folder else f.stem  # a bundled scene by the name every command accepts
         try:
             s = load_scene(f)
-            out.print(f"{shown:<32} {s.camera.width}x{s.camera.height} {len(s.shapes)} shapes  {s.description}")
+            out.print(
+                terminal_text(f"{shown:<32} {s.camera.width}x{s.camera.height} {len(s.shapes)} shapes  {s.description}")
+            )
         except SceneError as e:
-            out.print(f"{shown:<32} INVALID: {e.lines[0]}")
+            out.print(terminal_text(f"{shown:<32} INVALID: {e.lines[0]}"))
 
 
 @app.command()
@@ -458,7 +461,7 @@ def export(
     o = oracles.get(target)
     files = o.export(scene, o.adapt(rules), _out_dir(out_dir))
     for f in files:
-        out.print(f"wrote {f}")
+        out.print(f"wrote {terminal_text(f)}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -484,8 +487,8 @@ def _parse_size(size: str | None) -> tuple[int, int] | None:
     if not size:
         return None
     try:
-        w, _, h = size.lower().partition("x")
-        wh = (int(w), int(h or w))
+        w, sep, h = size.lower().partition("x")
+        wh = (int(w), int(h if sep else w))  # "64" is 64x64; "10x" is a mistake, not 10x10
     except ValueError:
         raise MinirtError(f"--size {size}: expected WIDTHxHEIGHT, e.g. 128x128") from None
     if min(wh) < 1:
@@ -508,7 +511,7 @@ def run_checks(paths, backend: str, size: str | None, quiet: bool):
 
         def tick(i: int, scene: str, name: str, j: int, n: int) -> None:
             if bar:
-                bar.update(task, completed=i * oracle_count + j, description=f"{scene}: {name}")
+                bar.update(task, completed=i * oracle_count + j, description=f"{terminal_text(scene, 40)}: {name}")
 
         result = harness.run(scenes_, names, wh, tick)
         if bar:
@@ -555,7 +558,7 @@ def _print_check(result) -> None:
                     rules_ += f" ({rd.mismatch_pixels} px unexplained)"
             else:  # what each rule the oracle cannot follow would change in the reference
                 rules_ = ", ".join(f"{k} changes {n} px" for k, n in b.rules.items() if n) or "-"
-            t.add_row(s.scene, name, verdict, geo, shade, rules_, f"{b.seconds:.1f}")
+            t.add_row(terminal_text(s.scene), name, verdict, geo, shade, rules_, f"{b.seconds:.1f}")
     err.print(t)
 
 
@@ -590,7 +593,7 @@ def check(
     for s in result.scenes:
         for b in s.backends.values():
             counts[b.verdict] += 1
-    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
+    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n) or "no oracle to compare with (--backend)"
     (err if json_out == "-" else out).print(f"{result.verdict.upper()}: {summary}")
     raise typer.Exit(result.exit_code())
 
@@ -642,8 +645,8 @@ def sweep(
         if isinstance(sl, dict) and sl.get("slope_cost") is not None:
             err.print(f"  {name:<28} error ~ cost^{sl['slope_cost']:.2f}")
     for line in result.get("answer_lines", []):
-        out.print(line, markup=False)
-    out.print(f"wrote {out_dir}/sweep.md, sweep.csv, sweep.json, sweep.png")
+        out.print(terminal_text(line))
+    out.print(f"wrote {terminal_text(out_dir)}/sweep.md, sweep.csv, sweep.json, sweep.png")
 
 
 @app.command()
@@ -676,7 +679,7 @@ def report(
     _print_check(result)
     command = "minirt " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["report"] else "minirt report"
     index = write_report(result, out_dir, command=command, sweep=sweep_data, sweep_dir=sweep_dir)
-    out.print(f"{result.verdict.upper()}: wrote {index}")
+    out.print(f"{result.verdict.upper()}: wrote {terminal_text(index)}")
     raise typer.Exit(result.exit_code())
 
 
@@ -800,24 +803,24 @@ def _print_grade(g, page: Path | None) -> None:
 
     style = {"match": "green", "differs": "yellow", "error": "red"}[g.verdict]
     err.print(f"[bold {style}]{g.verdict.upper()}[/]", end=" ")
-    err.print(f"{g.scene.name}: {g.summary()}", markup=False)
+    err.print(terminal_text(f"{g.scene.name}: {g.summary()}", MAX_MESSAGE))
     for note in g.notes:
-        err.print(f"  note: {note}", markup=False)
+        err.print(f"  note: {terminal_text(note, MAX_MESSAGE)}")
     d = g.diagnosis
     for e in d.explained:
         s = grading.sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule))
-        err.print(f"  {e.rule}={e.value} ({e.pixels} pixels): {s}", markup=False)
+        err.print(terminal_text(f"  {e.rule}={e.value} ({e.pixels} pixels): {s}", MAX_MESSAGE))
     for i in d.indistinguishable:
         tell = (
             f"scene {i['scene_that_tells']} tells them apart"
             if i["scene_that_tells"]
             else "no bundled scene tells them apart"
         )
-        err.print(f"  cannot tell {i['rule']}={i['value']} from {i['as']} in this scene ({tell})", markup=False)
+        err.print(terminal_text(f"  cannot tell {i['rule']}={i['value']} from {i['as']} in this scene ({tell})"))
     if d.changed:
-        err.print(f"  reproduce: {g.reproduce()}", markup=False)
+        err.print(f"  reproduce: {terminal_text(g.reproduce(), MAX_MESSAGE)}")
     if page is not None:
-        out.print(f"wrote {page}", markup=False)
+        out.print(f"wrote {terminal_text(page)}")
 
 
 def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet, workers, scheduler) -> None:
@@ -863,8 +866,7 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
     v = summary["verdicts"]
     (err if json_out == "-" else out).print(
         f"graded {len(people)} students x {len(files)} scenes: {v['match']} match, {v['differs']} differ, "
-        f"{v['error']} error; wrote {index}",
-        markup=False,
+        f"{v['error']} error; wrote {terminal_text(index)}"
     )
 
 
@@ -906,7 +908,7 @@ def main() -> None:
         sys.exit(rv if isinstance(rv, int) else 0)
     except MinirtError as e:
         for line in e.lines or [str(e)]:
-            err.print(f"minirt: error: {line}", markup=False)
+            err.print(f"minirt: error: {terminal_text(line, MAX_MESSAGE)}")
         sys.exit(2)
     except typer.Exit as e:
         sys.exit(e.exit_code)
@@ -917,21 +919,21 @@ def main() -> None:
         e.show()
         sys.exit(2)
     except click_errors.UsageError as e:  # a bad option or argument: one line, like every other bad input
-        err.print(f"minirt: error: {_one_line(e.format_message())}", markup=False)
+        err.print(f"minirt: error: {terminal_text(_one_line(e.format_message()), MAX_MESSAGE)}")
         if e.ctx is not None:
-            err.print(f"try: {_command_path(e.ctx)} --help", markup=False)
+            err.print(f"try: {terminal_text(_command_path(e.ctx))} --help")
         sys.exit(2)
     except click_errors.ClickException as e:  # Click's other errors (a file it could not open): the same line
-        err.print(f"minirt: error: {_one_line(e.format_message())}", markup=False)
+        err.print(f"minirt: error: {terminal_text(_one_line(e.format_message()), MAX_MESSAGE)}")
         sys.exit(2 if e.exit_code in (0, 1) else e.exit_code)
     except OSError as e:  # an output folder that cannot be made or written, a disk that is full: bad input
         if os.environ.get("MINIRT_DEBUG"):
             raise
         where = e.filename if e.filename is not None else "output"
-        err.print(f"minirt: error: {where}: {e.strerror or e}", markup=False)
+        err.print(f"minirt: error: {terminal_text(where)}: {terminal_text(e.strerror or e)}")
         sys.exit(2)
     except Exception as e:
         if os.environ.get("MINIRT_DEBUG"):
             raise
-        err.print(f"minirt: internal error: {type(e).__name__}: {e} (set MINIRT_DEBUG=1 for details)", markup=False)
+        err.print(f"minirt: internal error: {type(e).__name__}: {terminal_text(e)} (set MINIRT_DEBUG=1 for details)")
         sys.exit(1)

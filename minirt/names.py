@@ -16,6 +16,7 @@ import re
 
 from minirt.rules import Rules, format_rule_value, resolve
 from minirt.scene import Scene
+from minirt.untrusted import file_stem
 
 UNSAFE = re.compile(r"[^A-Za-z0-9._,=-]")  # portable file-name characters ('+' separates parts)
 MAX_TAG = 96  # a longer tag is cut, and a hash of the whole keeps it unique
@@ -37,8 +38,18 @@ def variant_tag(plain: Scene, scene: Scene, rules: Rules) -> str:
 
 def render_stem(scene: Scene, backend: str, tag: str = "") -> str:
     """``SCENE.BACKEND`` or ``SCENE.BACKEND+TAG``: the stem of a render's .png, .exr and .json."""
-    return f"{scene.name}.{backend}" + (f"+{tag}" if tag else "")
+    return f"{scene_stem(scene)}.{backend}" + (f"+{tag}" if tag else "")
 
 
 def contact_sheet_name(scene: Scene, tag: str = "") -> str:
-    return f"{scene.name}.contact" + (f"+{tag}" if tag else "") + ".png"
+    return f"{scene_stem(scene)}.contact" + (f"+{tag}" if tag else "") + ".png"
+
+
+def scene_stem(scene: Scene) -> str:
+    """The scene's part of every output name: its name made a safe file stem (see minirt.untrusted), so a
+    name like ``../../x`` or ``/etc/x`` still writes inside --out; an unusable name falls back to the
+    file's stem."""
+    from pathlib import Path
+
+    fallback = file_stem(Path(scene.source).stem) if scene.source else "scene"
+    return file_stem(scene.name, fallback)

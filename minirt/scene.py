@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -285,8 +286,12 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{source}: TOML syntax error: {e}") from None
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise SceneError(f"{source}: TOML nested too deeply (no scene key nests more than 3 levels)") from None
     try:
         f = _SceneFile.model_validate(raw)
+    except RecursionError:
+        raise SceneError(f"{source}: values nested too deeply (no scene key nests more than 3 levels)") from None
     except ValidationError as e:
         lines = []
         for err in e.errors(include_url=False):
@@ -340,10 +345,21 @@ def _floats(v: tuple[float, ...]) -> Vec3:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
+# 256 MiB: room for a scene of a million balls (about 100 MB of TOML); a larger file is a mistake
+MAX_SCENE_BYTES = 256 * 2**20
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read a scene file. Errors (missing file, syntax, validation) raise SceneError."""
     p = Path(path)
     try:
+        st = p.stat()
+        if stat.S_ISDIR(st.st_mode):
+            raise IsADirectoryError
+        if not stat.S_ISREG(st.st_mode):  # a FIFO or a device would block or never end
+            raise SceneError(f"{p}: not a regular file (a scene is a TOML file)")
+        if st.st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"{p}: {st.st_size} bytes, more than a scene may have ({MAX_SCENE_BYTES})")
         data = p.read_bytes()
     except FileNotFoundError:
         raise SceneError(f"{p}: no such scene file") from None

@@ -15,6 +15,7 @@ import numpy as np
 
 from minirt.imageio import atomic_path
 from minirt.result import RenderResult
+from minirt.untrusted import printable
 
 
 def preview(r: RenderResult) -> tuple[np.ndarray, str]:
@@ -64,8 +65,9 @@ def contact_sheet(results: list[RenderResult], path: Path) -> Path:
         # No timings on the sheet: the same command must write the same bytes (they are on stderr).
         ax.set_title(f"{r.backend}\n{what}", fontsize=9)
         if not r.ok:
-            ax.text(0.5, 0.5, r.reason[:60], ha="center", va="center", wrap=True, fontsize=6, color="w",
-                    transform=ax.transAxes)  # fmt: skip
+            # a renderer's own words: control bytes escaped (no "Glyph missing"), '$' not read as mathtext
+            ax.text(0.5, 0.5, printable(r.reason, 60), ha="center", va="center", wrap=True, fontsize=6, color="w",
+                    transform=ax.transAxes, parse_math=False)  # fmt: skip
     if rows == 2:
         for ax, r in zip(axes[1], results, strict=True):
             d = None if r is ref else _difference(r, ref)
