@@ -8,6 +8,7 @@ never a traceback (set MINIRT_DEBUG=1 to see one for an unexpected internal erro
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from contextlib import contextmanager
 from enum import StrEnum
@@ -902,9 +903,34 @@ def _command_path(ctx) -> str:
     return " ".join(["minirt", *reversed(names)])
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, unwinding like Ctrl-C: the same clean-up on the way out."""
+
+
+_stopped_by: list[int] = []  # the signal that stopped this run (Typer may turn the interrupt into a status)
+
+
+def _on_signal(signum, frame) -> None:
+    from minirt import processes
+
+    _stopped_by.append(signum)
+    processes.kill_all()  # the renderers first, so the threads waiting for them return at once
+    raise (KeyboardInterrupt if signum == signal.SIGINT else Terminated)(signum)
+
+
+def _stopped(signum: int) -> None:
+    """Every clean-up has run on the way here (the interrupt unwound through them): say so and exit."""
+    err.print("minirt: aborted" if signum == signal.SIGINT else f"minirt: stopped by {signal.Signals(signum).name}")
+    sys.exit(128 + signum)
+
+
 def main() -> None:
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _on_signal)
     try:
         rv = app(standalone_mode=False)
+        if _stopped_by:
+            _stopped(_stopped_by[0])
         sys.exit(rv if isinstance(rv, int) else 0)
     except MinirtError as e:
         for line in e.lines or [str(e)]:
@@ -912,9 +938,8 @@ def main() -> None:
         sys.exit(2)
     except typer.Exit as e:
         sys.exit(e.exit_code)
-    except typer.Abort:
-        err.print("minirt: aborted")
-        sys.exit(130)
+    except (typer.Abort, KeyboardInterrupt):  # Click turns Ctrl-C into Abort
+        _stopped(_stopped_by[0] if _stopped_by else signal.SIGINT)
     except click_errors.NoArgsIsHelpError as e:  # `minirt` or a command alone: its help
         e.show()
         sys.exit(2)

@@ -21,9 +21,16 @@ from minirt.result import TERMS, RenderResult
 
 @contextlib.contextmanager
 def atomic_path(path: Path):
-    """Yield a temporary path beside `path` (same extension); rename it into place on success."""
+    """Yield a temporary path beside `path` (same extension); rename it into place on success. The
+    temporary file ``.STEM.tmp<pid>-XXXX.EXT`` is removed on every exit Python sees (an error, Ctrl-C,
+    SIGTERM); one left by a killed run is removed by the next write of the same file."""
+    from minirt.processes import stale
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    prefix = f".{path.stem}.tmp"
+    for q in stale(path.parent, prefix):
+        q.unlink(missing_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f"{prefix}{os.getpid()}-", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -82,6 +89,16 @@ def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, 
         for key in ("png", "exr"):
             tmp = stack.enter_context(atomic_path(paths[key]))
             outs[key] = (tmp, None)
+
+        def abandon(exc_type, exc, tb) -> bool:  # an error or Ctrl-C mid-image: close before the unlink,
+            if exc_type is not None:  # quietly (libpng complains about an image without its rows)
+                with _quiet_stderr():
+                    for _, out in outs.values():
+                        if out is not None:
+                            out.close()
+            return False
+
+        stack.push(abandon)
         for y0, tile in tiles:
             blocks = {"png": (tile.color8(), None), "exr": exr_channels(tile)}
             for key, (data, names) in blocks.items():
@@ -117,12 +134,21 @@ def read_image(path: str | Path) -> tuple[np.ndarray, list[str]]:
         raise MinirtError(f"{path}: cannot read image: {oiio.geterror()}")
     try:
         spec = inp.spec()
-        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        if data is None:
-            raise MinirtError(f"{path}: cannot read image: {inp.geterror()}")
-        return np.asarray(data).reshape(spec.height, spec.width, spec.nchannels), list(spec.channelnames)
+        with _quiet_stderr():
+            data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        return _pixels(path, inp, spec, data), list(spec.channelnames)
     finally:
         inp.close()
+
+
+def _pixels(path, inp, spec, data) -> np.ndarray:
+    """The pixels OpenImageIO read, or one line saying why there are none (a truncated or corrupt file
+    reads as None or as fewer values than its header promises)."""
+    a = None if data is None else np.asarray(data)
+    if a is None or a.size != spec.height * spec.width * spec.nchannels:
+        why = " ".join((inp.geterror() or "").split())[:200] or "fewer pixels than its header says"
+        raise MinirtError(f"{path}: truncated or corrupt image ({why})")
+    return a.reshape(spec.height, spec.width, spec.nchannels)
 
 
 def read_image_u8(path: str | Path) -> np.ndarray:
@@ -132,8 +158,9 @@ def read_image_u8(path: str | Path) -> np.ndarray:
         raise MinirtError(f"{path}: cannot read image: {oiio.geterror()}")
     try:
         spec = inp.spec()
-        data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UINT8)
-        return np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
+        with _quiet_stderr():
+            data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UINT8)
+        return _pixels(path, inp, spec, data)
     finally:
         inp.close()
 

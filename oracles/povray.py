@@ -78,7 +78,6 @@ import re
 import shlex
 import shutil
 import subprocess
-import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -87,7 +86,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from minirt import camera
+from minirt import camera, processes
+from minirt.errors import MinirtError
 from minirt.imageio import read_image, read_image_u8
 from minirt.oracles.base import Oracle
 from minirt.result import RenderResult
@@ -659,16 +659,21 @@ def _timings(stderr: str) -> dict[str, float]:
     return out
 
 
+def default_timeout(scene: Scene, frames: int, samples: int = 1) -> float:
+    """Seconds one POV-Ray pass may take before it counts as hung: 30 s of start-up and parsing, plus
+    10 us per pixel, frame and sample. Measured: three_balls at 1024x1024, 4 frames, 1 sample, traces
+    4.2 M pixel-frames in 3.2 s (about 0.75 us each, 2 cores), so this allows a machine or a scene 13x
+    slower; a 16384x16384 render gets about 3 hours. The render option "timeout" overrides it."""
+    return 30.0 + 1e-5 * scene.camera.width * scene.camera.height * frames * max(1, samples)
+
+
 def _run(cmd: list[str], cwd: Path, timeout: float) -> tuple[str, dict[str, float]]:
     exe = shutil.which(cmd[0])
     if exe is None:
         raise FileNotFoundError(INSTALL_HINT)
     t0 = time.perf_counter()
     try:
-        p = subprocess.run(
-            [exe, *cmd[1:]], cwd=cwd, capture_output=True, text=True, errors="replace", timeout=timeout,
-            stdin=subprocess.DEVNULL,
-        )  # fmt: skip
+        p = processes.run([exe, *cmd[1:]], cwd=cwd, timeout=timeout)  # dies with minirt (see processes)
     except subprocess.TimeoutExpired:
         raise PovrayError(f"POV-Ray timed out after {timeout:g} s") from None
     wall = time.perf_counter() - t0
@@ -682,14 +687,21 @@ def _run(cmd: list[str], cwd: Path, timeout: float) -> tuple[str, dict[str, floa
 
 
 @functools.lru_cache(maxsize=8)
-def _version(exe: str, mtime_ns: int, size: int) -> str:
+def _version(exe: str, mtime_ns: int, size: int) -> str | RuntimeError:
     """``povray --version`` of one executable, once per process (each call is a ~0.6 s start-up, and a
     check asks for every scene and pass); keyed by the file's path, time and size, so another povray
-    on PATH is asked again."""
-    p = subprocess.run([exe, "--version"], capture_output=True, text=True, timeout=30, stdin=subprocess.DEVNULL)
+    on PATH is asked again. A failure is cached too (returned, not raised): a --version that hangs costs
+    its time-out once per run, not once per scene."""
+    try:  # a --version that hangs is a broken install: 10 s is 15x POV-Ray's own start-up
+        p = processes.run([exe, "--version"], timeout=10)
+    except subprocess.TimeoutExpired:
+        return RuntimeError(f"'{exe} --version' did not answer in 10 s")
+    except OSError as e:
+        return RuntimeError(f"cannot run '{exe} --version': {e.strerror or e}")
     m = re.search(r"POV-Ray\s+(\d+(?:\.\d+)+)", p.stdout + p.stderr)
     if not m:
-        raise RuntimeError("cannot read the version from 'povray --version'")
+        said = " ".join((p.stdout + p.stderr).split())[:80]
+        return RuntimeError(f"'{exe} --version' does not say it is POV-Ray (it said: {said!r})")
     return f"POV-Ray {m.group(1)}"
 
 
@@ -738,7 +750,10 @@ class PovrayOracle(Oracle):
         if exe is None:
             raise FileNotFoundError(INSTALL_HINT)
         st = os.stat(exe)
-        return _version(exe, st.st_mtime_ns, st.st_size)
+        v = _version(exe, st.st_mtime_ns, st.st_size)
+        if isinstance(v, Exception):
+            raise v
+        return v
 
     # ---- render -------------------------------------------------------------------------
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
@@ -779,11 +794,11 @@ class PovrayOracle(Oracle):
 
     def _render(self, scene: Scene, rules: Rules, opts: dict[str, Any], meta: dict[str, Any]) -> RenderResult:
         w, h = scene.camera.width, scene.camera.height
-        timeout = float(opts.get("timeout", 120.0))
+        samples = opts.get("samples", 1)
+        timeout = float(opts.get("timeout") or default_timeout(scene, len(color_frames(scene, rules)) + 3, samples))
         threads = opts.get("threads")
         geometry = bool(opts.get("geometry", True))
         antialias = opts.get("antialias")
-        samples = opts.get("samples", 1)
         if samples > 1:
             # The exercise's samples: colour only (an average of positions is no position), like antialias.
             geometry = False
@@ -818,8 +833,7 @@ class PovrayOracle(Oracle):
         )  # fmt: skip
         passes: list[dict[str, Any]] = []
         timings: dict[str, Any] = {"export": time.perf_counter() - t_start}
-        with tempfile.TemporaryDirectory(prefix="minirt-povray-") as tmp:
-            cwd = Path(tmp)
+        with processes.temporary_folder("minirt-povray-") as cwd:
             (cwd / "scene.pov").write_text(text)
             n = len(frames)
             # One EXR animation: float colour frames and geometry frames, +UA for the hit mask.
@@ -849,14 +863,22 @@ class PovrayOracle(Oracle):
                 raise PovrayError(f"POV-Ray wrote no output for frame(s) {sorted(set(missing))}")
             first = 1 if mesh else 0  # the mesh camera's extra first row (see command)
 
-            def read(path: Path) -> np.ndarray:
-                return read_image(path)[0][first:]
+            def read(path: Path, u8: bool = False) -> np.ndarray:
+                try:
+                    img = (read_image_u8(path) if u8 else read_image(path)[0])[first:]
+                except MinirtError as e:  # the file POV-Ray left is cut short or is not an image
+                    said = str(e).replace(str(path), path.name)
+                    raise PovrayError(f"POV-Ray wrote a truncated or corrupt {path.name} ({said})") from None
+                if img.shape[:2] != (h, w):
+                    got = f"{img.shape[1]}x{img.shape[0] + first}"
+                    raise PovrayError(f"POV-Ray wrote {path.name} at {got}, not the {w}x{h + first} asked for")
+                return img
 
             color = np.zeros((h, w, 3))
             color8: np.ndarray | None = np.zeros((h, w, 3), dtype=np.uint8) if png_pass else None
             for i, f in enumerate(cframes, start=1):
                 img = read(exr[i])
-                img8 = read_image_u8(png[i])[first:] if png_pass else None
+                img8 = read(png[i], u8=True) if png_pass else None
                 if f.index < 0:
                     color = img[..., :3].astype(np.float64)
                     if img8 is not None:
