@@ -200,6 +200,17 @@ def render(
     quiet: Annotated[
         bool, typer.Option("--quiet", "-q", help="No progress bar and no per-backend lines (failures still print).")
     ] = False,
+    timeout: Annotated[
+        float | None,
+        typer.Option(
+            "--timeout",
+            metavar="SECONDS",
+            min=0.1,
+            help="Longest a POV-Ray pass may run before it counts as hung (default: 30 s + 10 us per pixel, "
+            "frame and sample).",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
     """Render a scene (help text: RENDER_HELP, paragraphs Rich wraps to the terminal)."""
     from minirt import backends
@@ -226,6 +237,8 @@ def render(
             opts = {"precision": precision.value}
             if samples and name == "mitsuba":
                 opts.update(mode="sensor", spp=samples)
+            if timeout is not None and name == "povray":
+                opts["timeout"] = timeout
             # One backend alone: a large reference image is written tile by tile (bounded memory).
             stem = naming.render_stem(scene, name, tag)
             res, paths = backends.render_to_files(

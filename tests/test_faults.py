@@ -166,3 +166,12 @@ def test_stale_temporaries_are_swept(tmp_path):
 
     write_image(tmp_path / "img.png", np.zeros((2, 2, 3), np.uint8))
     assert not left.exists() and alive.exists()
+
+
+def test_render_timeout_option(fake_povray, tmp_path):
+    p, _ = _minirt(
+        "render", "exercise", "--backend", "povray", "--timeout", "1", "--width", "8", "--height", "8",
+        "--out", "out", env=fake_povray("hang"), cwd=tmp_path, timeout=60,
+    )  # fmt: skip
+    assert p.returncode == 2  # no backend rendered
+    assert "POV-Ray timed out after 1 s" in p.stderr and "Traceback" not in p.stderr
