@@ -159,9 +159,6 @@ def _progress(enabled: bool = True):
         yield p
 
 
-_bar_text = terminal_text  # untrusted text (a name, a backend's message) inside markup: see minirt.untrusted
-
-
 # ---------------------------------------------------------------------------------------------
 RENDER_HELP = "\n\n".join([
     "Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend.",
@@ -251,7 +248,7 @@ def render(
                 if not quiet:
                     _report_render(res, paths)
             else:
-                err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {_bar_text(res.reason)}")
+                err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {terminal_text(res.reason)}")
     if len(results) > 1:
         from minirt.sheet import contact_sheet
 
@@ -564,7 +561,7 @@ def _print_check(result) -> None:
             v = b.verdict
             verdict = f"[{VERDICT_STYLE[v]}]{v.upper()}[/]"
             if v in ("skip", "error", "fail", "warn") and b.reason:
-                verdict += f" {_bar_text(b.reason)}"  # a backend's own words: no markup
+                verdict += f" {terminal_text(b.reason)}"  # a backend's own words: no markup
             rd = b.rule_diagnosis
             if rd.ran:  # the diagnosis: which settings reproduce the oracle's image
                 rules_ = ", ".join(f"{k}={v}" for k, v in rd.rules_explaining.items()) or "the scene's own"
@@ -866,7 +863,7 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
 
         def done(job, row) -> None:
             if bar:
-                bar.update(task, description=_bar_text(f"{row.student[:16]:<16} {row.scene[:12]:<12}"))
+                bar.update(task, description=terminal_text(f"{row.student[:16]:<16} {row.scene[:12]:<12}"))
                 bar.advance(task)
 
         rows = grading.grade_class(people, loaded, out_dir, workers=workers, scheduler=scheduler, on_done=done)
