@@ -913,10 +913,6 @@ def _command_path(ctx) -> str:
     return " ".join(["minirt", *reversed(names)])
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, unwinding like Ctrl-C: the same clean-up on the way out."""
-
-
 _stopped_by: list[int] = []  # the signal that stopped this run (Typer may turn the interrupt into a status)
 
 
@@ -925,7 +921,7 @@ def _on_signal(signum, frame) -> None:
 
     _stopped_by.append(signum)
     processes.kill_all()  # the renderers first, so the threads waiting for them return at once
-    raise (KeyboardInterrupt if signum == signal.SIGINT else Terminated)(signum)
+    raise KeyboardInterrupt  # SIGTERM and SIGHUP unwind like Ctrl-C: the same clean-up on the way out
 
 
 def _stopped(signum: int) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -18,19 +19,30 @@ import OpenImageIO as oiio
 from minirt.errors import MinirtError
 from minirt.result import TERMS, RenderResult
 
+TEMP_FILE = re.compile(r"\..*\.tmp(\d+)-")  # atomic_path's temporary files; the group is the writer's pid
+_swept: set[Path] = set()
+
+
+def _sweep_once(folder: Path) -> None:
+    """Remove the temporary files of killed runs from ``folder``, once per folder and process (a class
+    of students writes thousands of files into one folder: one listing, not one per file)."""
+    from minirt.processes import stale
+
+    key = folder.resolve()
+    if key not in _swept:
+        _swept.add(key)
+        for q in stale(folder, TEMP_FILE):
+            q.unlink(missing_ok=True)
+
 
 @contextlib.contextmanager
 def atomic_path(path: Path):
     """Yield a temporary path beside `path` (same extension); rename it into place on success. The
     temporary file ``.STEM.tmp<pid>-XXXX.EXT`` is removed on every exit Python sees (an error, Ctrl-C,
-    SIGTERM); one left by a killed run is removed by the next write of the same file."""
-    from minirt.processes import stale
-
+    SIGTERM); those a killed run left in a folder are removed by this process's first write there."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    prefix = f".{path.stem}.tmp"
-    for q in stale(path.parent, prefix):
-        q.unlink(missing_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f"{prefix}{os.getpid()}-", suffix=path.suffix, dir=path.parent)
+    _sweep_once(path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp{os.getpid()}-", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -129,38 +141,30 @@ def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, 
 
 def read_image(path: str | Path) -> tuple[np.ndarray, list[str]]:
     """Read any image as float32 (H, W, C) with its channel names."""
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise MinirtError(f"{path}: cannot read image: {oiio.geterror()}")
-    try:
-        spec = inp.spec()
-        with _quiet_stderr():
-            data = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        return _pixels(path, inp, spec, data), list(spec.channelnames)
-    finally:
-        inp.close()
-
-
-def _pixels(path, inp, spec, data) -> np.ndarray:
-    """The pixels OpenImageIO read, or one line saying why there are none (a truncated or corrupt file
-    reads as None or as fewer values than its header promises)."""
-    a = None if data is None else np.asarray(data)
-    if a is None or a.size != spec.height * spec.width * spec.nchannels:
-        why = " ".join((inp.geterror() or "").split())[:200] or "fewer pixels than its header says"
-        raise MinirtError(f"{path}: truncated or corrupt image ({why})")
-    return a.reshape(spec.height, spec.width, spec.nchannels)
+    return _read(path, oiio.FLOAT)
 
 
 def read_image_u8(path: str | Path) -> np.ndarray:
     """Read an 8-bit image's integer values (H, W, C) exactly."""
+    return _read(path, oiio.UINT8)[0]
+
+
+def _read(path: str | Path, fmt) -> tuple[np.ndarray, list[str]]:
+    """The pixels as ``fmt`` and the channel names, or one line saying why there are none (a truncated or
+    corrupt file reads as None or as fewer values than its header promises; libpng's own complaint is
+    silenced)."""
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise MinirtError(f"{path}: cannot read image: {oiio.geterror()}")
     try:
         spec = inp.spec()
         with _quiet_stderr():
-            data = inp.read_image(0, 0, 0, spec.nchannels, oiio.UINT8)
-        return _pixels(path, inp, spec, data)
+            data = inp.read_image(0, 0, 0, spec.nchannels, fmt)
+        a = None if data is None else np.asarray(data)
+        if a is None or a.size != spec.height * spec.width * spec.nchannels:
+            why = " ".join((inp.geterror() or "").split())[:200] or "fewer pixels than its header says"
+            raise MinirtError(f"{path}: truncated or corrupt image ({why})")
+        return a.reshape(spec.height, spec.width, spec.nchannels), list(spec.channelnames)
     finally:
         inp.close()
 

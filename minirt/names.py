@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from pathlib import Path
 
 from minirt.rules import Rules, format_rule_value, resolve
 from minirt.scene import Scene
@@ -49,7 +50,5 @@ def scene_stem(scene: Scene) -> str:
     """The scene's part of every output name: its name made a safe file stem (see minirt.untrusted), so a
     name like ``../../x`` or ``/etc/x`` still writes inside --out; an unusable name falls back to the
     file's stem."""
-    from pathlib import Path
-
     fallback = file_stem(Path(scene.source).stem) if scene.source else "scene"
     return file_stem(scene.name, fallback)

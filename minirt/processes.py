@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -81,16 +82,15 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def stale(folder: Path, prefix: str) -> list[Path]:
-    """Entries ``PREFIX<pid>-...`` in ``folder`` whose process is gone (and that this user owns)."""
+def stale(folder: Path, pattern: re.Pattern[str]) -> list[Path]:
+    """Entries of ``folder`` whose name ``pattern`` matches, its first group being the pid of the run
+    that made it, where that process is gone (and this user owns the entry)."""
     found = []
     with contextlib.suppress(OSError):
         for q in folder.iterdir():
-            if not q.name.startswith(prefix):
-                continue
-            pid, sep, _ = q.name[len(prefix) :].partition("-")
+            m = pattern.match(q.name)
             with contextlib.suppress(OSError):
-                if sep and pid.isdigit() and q.lstat().st_uid == os.getuid() and not _alive(int(pid)):
+                if m and q.lstat().st_uid == os.getuid() and not _alive(int(m.group(1))):
                     found.append(q)
     return found
 
@@ -100,7 +100,7 @@ def temporary_folder(prefix: str) -> Iterator[Path]:
     """A temporary folder ``PREFIX<pid>-XXXX`` removed on every exit path Python sees; those of killed
     runs (SIGKILL, a crash) are removed by the next call."""
     base = Path(tempfile.gettempdir())
-    for q in stale(base, prefix):
+    for q in stale(base, re.compile(re.escape(prefix) + r"(\d+)-")):
         shutil.rmtree(q, ignore_errors=True)
     with tempfile.TemporaryDirectory(prefix=f"{prefix}{os.getpid()}-") as tmp:
         yield Path(tmp)

@@ -795,7 +795,6 @@ class PovrayOracle(Oracle):
     def _render(self, scene: Scene, rules: Rules, opts: dict[str, Any], meta: dict[str, Any]) -> RenderResult:
         w, h = scene.camera.width, scene.camera.height
         samples = opts.get("samples", 1)
-        timeout = float(opts.get("timeout") or default_timeout(scene, len(color_frames(scene, rules)) + 3, samples))
         threads = opts.get("threads")
         geometry = bool(opts.get("geometry", True))
         antialias = opts.get("antialias")
@@ -814,6 +813,7 @@ class PovrayOracle(Oracle):
         cframes = color_frames(scene, rules)
         gframes = geometry_frames() if geometry and scene.shapes else []
         frames = cframes + gframes
+        timeout = float(opts.get("timeout") or default_timeout(scene, len(frames), samples))
         ranges = encoding_ranges(scene, rules) if gframes else None
         text = scene_to_pov(scene, rules, frames, ranges, samples)
         mesh = uses_mesh_camera(scene, rules, samples)

@@ -152,7 +152,7 @@ def test_a_signal_cleans_up(fake_povray, tmp_path, sig):
 
 def test_stale_temporaries_are_swept(tmp_path):
     """What a SIGKILLed run leaves (its pid is gone) is removed by the next run; a live run's is kept."""
-    from minirt.imageio import write_image
+    from minirt.imageio import TEMP_FILE, write_image
     from minirt.processes import stale
 
     dead = subprocess.Popen(["true"])
@@ -161,7 +161,7 @@ def test_stale_temporaries_are_swept(tmp_path):
     left.write_bytes(b"")
     alive = tmp_path / f".img.tmp{os.getpid()}-efgh.png"
     alive.write_bytes(b"")
-    assert stale(tmp_path, ".img.tmp") == [left]
+    assert stale(tmp_path, TEMP_FILE) == [left]
     import numpy as np
 
     write_image(tmp_path / "img.png", np.zeros((2, 2, 3), np.uint8))
