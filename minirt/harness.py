@@ -268,7 +268,7 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderResult) -> Check:
     o, d = camera.primary_rays(scene, rules)
     margins = band.margins(scene, o, d)
-    tol = geometry_tolerance(res, ref, margins)
+    tol = geometry_tolerance(res, ref, margins, start=lambda **kw: band.start_band(scene, o, d, **kw))
     mism = ref.hit != res.hit
     inside, outside = mism & tol.band, mism & ~tol.band
     both = ref.hit & res.hit
@@ -798,7 +798,9 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache) -
         return Check("skip" if res.status == "skip" else "error", reason=res.reason)
     ref = refs.get(rules)
     p = res.meta.get("precision") or {}
-    band_px = band.sample_band(scene, rules, n, p.get("band_threshold", 0.0), p.get("min_depth", 0.0))
+    band_px = band.sample_band(
+        scene, rules, n, p.get("band_threshold", 0.0), p.get("min_distance", 0.0), p.get("start_err", 0.0)
+    )
     classes = edge_classes(ref)
     edges = _edges(classes, band_px)
     check = _shading_exercise(ref, res, classes, edges)
