@@ -591,6 +591,9 @@ def check(
         for b in s.backends.values():
             counts[b.verdict] += 1
     summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
+    vague = sum(b.inconclusive for s in result.scenes for b in s.backends.values())
+    if vague:
+        summary += f" ({vague} inconclusive: the oracle cannot judge the scene)"
     (err if json_out == "-" else out).print(f"{result.verdict.upper()}: {summary}")
     raise typer.Exit(result.exit_code())
 

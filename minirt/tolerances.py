@@ -74,6 +74,15 @@ THRESHOLDS: dict[str, Threshold] = {
     "shape_mean_sigma": Threshold(
         4.0, "Per-shape mean shading: the two means must agree within 4 combined standard errors."
     ),
+    "inconclusive_fraction": Threshold(
+        0.5,
+        "A geometry check speaks for a scene only where it could fail. It is inconclusive (WARN, not PASS) when "
+        "more than this fraction of the hit pixels (either side) lie in the band, where hit/miss and ids are not "
+        "judged; or of the judged pixels, more than this fraction have a t tolerance at least the view's depth "
+        "range (max - min t over the reference's hits: any visible depth would pass; an infinite tolerance "
+        "included) or a normal tolerance of 90 degrees or more (any normal facing the same half-space would "
+        "pass). One half: a check that judges fewer than half of what it is about is mostly not a check.",
+    ),
     "delta_e_p95": Threshold(
         1.0, "CIEDE2000 95th percentile on the 8-bit images: 1.0 is the just-noticeable difference (WARN above)."
     ),

@@ -137,3 +137,21 @@ def test_shadow_decisions_within_the_oracles_position_error_are_not_judged():
     assert b.verdict == "pass", b.reason
     fig = b.checks["shading"].figures
     assert fig["lit_mismatch"] == 0 and fig["lit_mismatch_within_position_error"] >= 1
+
+
+# Checks that could not fail, formerly reported as PASS: now an inconclusive WARN, with the figures.
+PLANET = _BALL + _BALL.replace("0.0, 0.0, 3.0", "0.0, -100000001.0, 0.0").replace("1.0\n", "100000000.0\n")
+
+
+@pytest.mark.slow
+def test_a_planet_sized_ground_is_inconclusive_not_pass(tmp_path):
+    """A ground that is a ball of radius 1e8 puts every pixel in every oracle's band (relative silhouette
+    margins ~1e-8 against float32 / tessellation / bounding-box precision): hit/miss is judged nowhere."""
+    path = tmp_path / "planet.toml"
+    path.write_text(f"[camera]\ndistance = 2.0\nwidth = 24\nheight = 24\n{_EDGE_MATERIAL}{PLANET}")
+    sc = harness.check_scene(path, ["reference", *oracle_names()])
+    for name, b in sc.backends.items():
+        assert b.verdict == "warn" and b.inconclusive, (name, b.verdict, b.reason)
+        assert b.reason.startswith("inconclusive: this oracle cannot judge this scene (the band holds")
+        fig = b.checks["geometry"].figures["inconclusive"]
+        assert fig["band_fraction"] > 0.5 and fig["limit"] == 0.5
