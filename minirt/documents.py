@@ -257,12 +257,25 @@ class RenderSidecar(_Document):
     version: Any = None
 
 
+class ProbeOffset(_Open):
+    """Where a secondary ray starts at this hit, and what could go wrong there (minirt.hazards.offset_at)."""
+
+    offset: float | Literal["error-bound"]
+    along: str = "normal"
+    rounding: float | None = Field(default=None, description="The hit point's rounding u·‖p‖₁ in the traced precision.")
+    below_rounding: bool = Field(default=False, description="The offset's normal part is below it: acne risk.")
+    jumps: list[dict[str, Any]] = Field(
+        default_factory=list, description="Other shapes' surfaces between the point and a secondary ray's origin."
+    )
+
+
 class ProbeLevel(_Open):
     depth: int
     ray: dict[str, list[float]]
     shapes: list[dict[str, Any]]
     hit: dict[str, Any] | None
     terms: dict[str, Any]
+    offset: ProbeOffset | None = None
 
 
 class ProbeDocument(_Document):
@@ -275,6 +288,7 @@ class ProbeDocument(_Document):
     color: list[float]
     color_clamped: list[float]
     color8: list[int]
+    offset: ProbeOffset | None = None
     image: dict[str, Any] | None = None
 
 
