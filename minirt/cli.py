@@ -190,7 +190,10 @@ def _hazard_warnings(scene, rules, reference=None, precision: str = "f64", float
         if k < 1:
             scene = scene.with_overrides(width=max(1, int(w * k)), height=max(1, int(h * k)))
             note = f" (counted on a {scene.camera.width}x{scene.camera.height} render of the scene)"
-        reference = tracer.render(scene, rules, precision=precision)
+        try:
+            reference = tracer.render(scene, rules, precision=precision)
+        except MinirtError:  # the render itself reported why it cannot trace this scene
+            return
     for line in hazards.offset_warnings(scene, rules, reference, precision):
         _warn(scene.name, line + note)
 

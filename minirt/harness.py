@@ -536,6 +536,11 @@ def _shading_physical(scene, ref, res, classes, edges) -> Check:
     # occluder's silhouette (the reference's aux shadow_margin): such pixels are not judged on lit/unlit.
     margin = ref.aux.get("shadow_margin")
     unsure = both_hit & (shift > 0) & (margin < 2 * shift) if margin is not None else np.zeros_like(both_hit)
+    # The oracle's finite stand-ins for planes did not cover every point a shadow ray crosses (Mitsuba's
+    # rectangles after their last growth, meta plane_coverage_complete): no shadow decision is its to make.
+    uncovered = res.meta.get("plane_coverage_complete") is False
+    if uncovered:
+        unsure = both_hit.copy()
     flips = lit_a != lit_b
     lit_flip = judged & flips & ~unsure
     allowed = (THRESHOLDS["diffuse_rel"].value + turn[..., None]) * np.maximum(lc_dc, 1e-12)
@@ -549,6 +554,7 @@ def _shading_physical(scene, ref, res, classes, edges) -> Check:
         "lit_mismatch": int(lit_flip.sum()),
         "lit_mismatch_on_edges": int((both_hit & edges & (lit_a != lit_b)).sum()),
         "lit_mismatch_within_position_error": int((judged & flips & unsure).sum()),
+        "plane_coverage_complete": not uncovered,
         "not_compared_terms": res.meta.get("unsupported_terms", []),
     }
     bad = []

@@ -268,3 +268,27 @@ def test_a_backend_is_inconclusive_only_when_all_its_warnings_are():
     assert not b.inconclusive  # the shading warning is a finding of its own
     b.checks.pop("shading")
     assert b.inconclusive and b.as_dict()["inconclusive"] is True
+
+
+def test_shadow_decisions_are_not_judged_where_an_oracles_planes_did_not_cover_the_segments(setup):
+    """A physical oracle whose finite stand-ins for planes still missed points after their last growth
+    (Mitsuba's meta plane_coverage_complete False) cannot decide shadows: lit flips are not counted."""
+    scene, rules, ref = setup
+    cand = candidate(ref)
+    diffuse = ref.terms["diffuse"].copy()
+    lit = (diffuse > 0).all(-1)
+    inner = lit.copy()  # lit pixels whose 7x7 neighbourhood is lit: far from terminators and shadow edges
+    for dy in range(-3, 4):
+        for dx in range(-3, 4):
+            inner &= np.roll(np.roll(lit, dy, 0), dx, 1)
+    ys, xs = np.nonzero(inner)
+    y, x = ys[len(ys) // 2], xs[len(xs) // 2]
+    diffuse[y - 1 : y + 2, x - 1 : x + 2] = 0.0  # a 3x3 patch shadowed in the oracle only
+    cand.aux = {"diffuse_exercise": diffuse}
+    geom = harness.check_geometry(scene, rules, ref, cand)  # as a precise oracle's: tiny band
+    cand.backend = "mitsuba"  # shading: the physical model's diffuse buffer
+    for complete, verdict in ((True, "fail"), (False, "pass")):
+        cand.meta["plane_coverage_complete"] = complete
+        shading = harness.check_shading(scene, ref, cand, geom)
+        assert shading.verdict == verdict, (complete, shading.reason, shading.figures)
+        assert shading.figures["plane_coverage_complete"] is complete
