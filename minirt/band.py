@@ -16,6 +16,12 @@ exact description) this module gives the relative margin of every such decision:
 for renderers that ignore hits closer than a fixed depth; ``hit_nd`` is |n·d| of the plane holding
 that hit (inf for a ball), the conditioning of a plane's t. A disagreement on a ray with margin < k·e (k from the
 oracle's error analysis, chosen by the harness) is inside the band; elsewhere it is a real defect.
+
+One decision is absolute, not relative: whether a candidate hit counts at all, ``t > t_min`` (the
+reference: t > 0; POV-Ray: t > 1e-4 from its ray's origin). ``start_band`` gives the rays where some
+candidate lies within an oracle's own position error of that minimum distance -- a ray that starts on
+a plane through the image plane (exact t = 0, a miss under t > 0) hit at t ~ 1e-7 by a float32
+intersector, or a hit POV-Ray drops as too near -- a decision the oracle cannot make.
 """
 
 from __future__ import annotations
@@ -89,17 +95,67 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
         "margin": margin,
         "near": near,
         "hit_nd": hit_nd,
+        "origin_norm": np.linalg.norm(o, axis=1),  # |o|, for oracles whose origin rounding scales with it
     }
 
 
-def sample_band(scene: Scene, rules: Rules, samples: int, eps: float, min_depth: float = 0.0) -> np.ndarray:
+def start_band(
+    scene: Scene,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    t_min: float = 0.0,
+    plane_err: float | np.ndarray = 0.0,
+    ball_err: float | np.ndarray = 0.0,
+) -> np.ndarray:
+    """(N,) bool: rays with a candidate hit (any root, in front or behind, signed t) whose "does it count"
+    decision ``t > t_min`` an oracle with this position error cannot make, or makes by another rule.
+
+    Derivation: the oracle's ray origin (or the surface it intersects) is off by at most ``err`` (absolute,
+    per ray or scalar; ``plane_err`` for planes, ``ball_err`` for balls). A shift e along the surface normal
+    moves a candidate's t by e / cos, cos = |n·d| at the candidate (a plane's |n·d|; a ball's root:
+    sqrt(r^2 - h^2) / r, h the ray's distance from the centre). So the oracle may place the candidate on
+    either side of t_min when |t - t_min| cos < err. And when t_min > 0 a candidate with 0 < t <= t_min is
+    counted by the reference but dropped by the oracle's own rule (POV-Ray's minimum distance): also not a
+    defect. Together: -err < t cos < t_min cos + err. For a plane t cos = sign(n·d) n·(Q - o), the origin's
+    signed distance from the plane, computed without dividing (a ray parallel to a plane it starts in is
+    caught too). Tangent ball roots (cos -> 0) fall in the silhouette band anyway."""
+    o = np.asarray(origins, dtype=np.float64)
+    d = np.asarray(directions, dtype=np.float64)
+    out = np.zeros(o.shape[0], dtype=bool)
+    for s in scene.shapes:
+        if isinstance(s, Ball):
+            f = o - np.asarray(s.center)
+            b = np.einsum("ij,ij->i", f, d)
+            h = np.linalg.norm(f - b[:, None] * d, axis=1)
+            disc = (s.radius - h) * (s.radius + h)
+            sq = np.sqrt(np.maximum(disc, 0.0))
+            lf = np.linalg.norm(f, axis=1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                q = -(b + np.copysign(sq, b))
+                c = (lf - s.radius) * (lf + s.radius)
+                roots = (np.where(q != 0, c / q, 0.0), q)
+            cos = sq / s.radius
+            for t in roots:
+                tc = t * cos
+                out |= (disc >= 0) & (tc > -ball_err) & (tc < t_min * cos + ball_err)
+        else:
+            nn = np.asarray(s.normal)
+            nd = d @ nn
+            tc = np.where(nd < 0, -1.0, 1.0) * ((np.asarray(s.point) - o) @ nn)
+            out |= (tc > -plane_err) & (tc < t_min * np.abs(nd) + plane_err)
+    return out
+
+
+def sample_band(
+    scene: Scene, rules: Rules, samples: int, eps: float, t_min: float = 0.0, start_err: float = 0.0
+) -> np.ndarray:
     """(H, W) bool: pixels where any of the ``samples`` stratified rays (camera.sample_offsets) has a
-    margin below ``eps`` or a candidate hit nearer than ``min_depth``."""
+    margin below ``eps`` or lies in ``start_band(t_min, start_err)`` (for planes and balls alike)."""
     w, h = scene.camera.width, scene.camera.height
     out = np.zeros(w * h, dtype=bool)
     for s in range(samples):
         o, d = camera.rays_through(scene, rules, *camera.sample_offsets(samples, s, w * h))
         with np.errstate(invalid="ignore"):
             m = margins(scene, o, d)
-        out |= (m["margin"] < eps) | (m["near"] < min_depth)
+        out |= (m["margin"] < eps) | start_band(scene, o, d, t_min, start_err, start_err)
     return out.reshape(h, w)

@@ -7,6 +7,7 @@ never a traceback (set MINIRT_DEBUG=1 to see one for an unexpected internal erro
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -159,6 +160,39 @@ def _progress(enabled: bool = True):
         yield p
 
 
+def _warn(scene_name: str, line: str) -> None:
+    """A warning: one line on stderr, ``minirt: warning: SCENE: ...`` (as errors are ``minirt: error: ...``)."""
+    err.print(terminal_text(f"minirt: warning: {scene_name}: {line}", MAX_MESSAGE))
+
+
+FLOAT32_BACKENDS = ("mitsuba", "embree")  # oracles that trace in float32 (their own notes)
+HAZARD_PREVIEW_PIXELS = 2**18  # offset hazards of a render without buffers are counted on a render this size
+
+
+def _hazard_warnings(scene, rules, reference=None, precision: str = "f64", float32_by: list[str] = ()) -> None:
+    """Warn about the scene's offset hazards (on ``reference``'s primary hits, else on a reference render of
+    the scene, reduced to HAZARD_PREVIEW_PIXELS when larger) and, for float32 tracers, its coordinates."""
+    from minirt import hazards, tracer
+
+    for line in hazards.float32_warnings(scene, "float32 (" + ", ".join(float32_by) + ")") if float32_by else []:
+        _warn(scene.name, line)
+    if rules.offset == "error-bound":
+        return
+    note = ""
+    if reference is None or not reference.ok or reference.hit is None:
+        w, h = scene.camera.width, scene.camera.height
+        k = math.sqrt(HAZARD_PREVIEW_PIXELS / (w * h))
+        if k < 1:
+            scene = scene.with_overrides(width=max(1, int(w * k)), height=max(1, int(h * k)))
+            note = f" (counted on a {scene.camera.width}x{scene.camera.height} render of the scene)"
+        try:
+            reference = tracer.render(scene, rules, precision=precision)
+        except MinirtError:  # the render itself reported why it cannot trace this scene
+            return
+    for line in hazards.offset_warnings(scene, rules, reference, precision):
+        _warn(scene.name, line + note)
+
+
 # ---------------------------------------------------------------------------------------------
 RENDER_HELP = "\n\n".join([
     "Render a scene with one or more backends; write PNG, EXR (all buffers) and JSON per backend.",
@@ -249,6 +283,9 @@ def render(
                     _report_render(res, paths)
             else:
                 err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {terminal_text(res.reason)}")
+    ref = next((r for r in results if r.backend == backends.REFERENCE), None)
+    f32 = [n for n in names if n in FLOAT32_BACKENDS or (n == backends.REFERENCE and precision.value == "f32")]
+    _hazard_warnings(scene, rules, ref, precision.value, f32)
     if len(results) > 1:
         from minirt.sheet import contact_sheet
 
@@ -355,6 +392,24 @@ def _fmt(v) -> str:
     return f"{v:.12g}" if isinstance(v, float) else str(v)
 
 
+def _offset_text(off: dict[str, Any]) -> str:
+    """probe's line on the secondary rays' offset at a hit (minirt.hazards.offset_at)."""
+    if off["offset"] == "error-bound":
+        return "offset: error-bound (secondary rays start the hit point's error bound away)"
+    text = f"offset {_fmt(off['offset'])} along the {'new ray' if off['along'] == 'ray' else 'normal'}"
+    notes = []
+    if off["below_rounding"]:
+        notes.append(
+            f"below the hit point's rounding {off['rounding']:.3g}: the ray may start behind the surface (acne risk)"
+        )
+    for j in off["jumps"]:
+        notes.append(
+            f"the {j['ray']} ray's origin jumps over shape {j['shape']}'s surface, {j['gap']:.3g} from the point "
+            "(a near contact): it starts beyond it"
+        )
+    return text + (": " + "; ".join(notes) if notes else f" (the hit point's rounding is {off['rounding']:.3g}: safe)")
+
+
 def _print_probe(p: dict[str, Any]) -> None:
     x, y = p["pixel"]
     out.print(f"pixel ({x}, {y}) of {terminal_text(p['scene'])}")
@@ -379,6 +434,9 @@ def _print_probe(p: dict[str, Any]) -> None:
                     f"{ind}  shadow ray from {_fmt(sh['origin'])} towards the light "
                     f"({_fmt(sh['light_distance'])} away): blocked by {blk}"
                 )
+            off = lvl.get("offset")
+            if off:
+                out.print(f"{ind}  {_offset_text(off)}", markup=False)
         for k, v in lvl["terms"].items():
             out.print(f"{ind}  {k:<10} {_fmt(v)}")
     out.print(f"colour {_fmt(p['color'])} -> clamped {_fmt(p['color_clamped'])} -> 8-bit {tuple(p['color8'])}")
@@ -530,6 +588,17 @@ def run_checks(paths, backend: str, size: str | None, quiet: bool):
     return result
 
 
+def _check_warnings(result, backend: str, size: str | None) -> None:
+    """The hazard warnings of every checked scene, on its reference render (rules of the scene)."""
+    from minirt import backends, harness
+
+    names = backends.parse_backends(backend)
+    for sc in result.scenes:
+        scene, rules = harness._scene_and_rules(sc.file, _parse_size(size))
+        f32 = [n for n in sc.backends if n in FLOAT32_BACKENDS and n in names]
+        _hazard_warnings(scene, rules, sc.reference, "f64", f32)
+
+
 def _print_check(result) -> None:
     t = Table(title="minirt check", title_justify="left")
     for col in ("scene", "backend", "verdict", "geometry", "shading", "rules explaining its image", "seconds"):
@@ -593,6 +662,7 @@ def check(
     _out_file(junit, "--junit")
     result = run_checks(scene_paths, backend, size, quiet)
     _print_check(result)
+    _check_warnings(result, backend, size)
     if json_out:
         _emit_json(json_out, result.as_dict())
     if junit:
@@ -605,6 +675,9 @@ def check(
         for b in s.backends.values():
             counts[b.verdict] += 1
     summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n) or "no oracle to compare with (--backend)"
+    vague = sum(b.inconclusive for s in result.scenes for b in s.backends.values())
+    if vague:
+        summary += f" ({vague} inconclusive: the oracle cannot judge the scene)"
     (err if json_out == "-" else out).print(f"{result.verdict.upper()}: {summary}")
     raise typer.Exit(result.exit_code())
 
@@ -688,6 +761,7 @@ def report(
     _out_dir(out_dir)
     result = run_checks(scene_paths, backend, size, quiet)
     _print_check(result)
+    _check_warnings(result, backend, size)
     command = "minirt " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["report"] else "minirt report"
     index = write_report(result, out_dir, command=command, sweep=sweep_data, sweep_dir=sweep_dir)
     out.print(f"{result.verdict.upper()}: wrote {terminal_text(index)}")

@@ -44,12 +44,27 @@ class _Document(_Open):
 # check.json (minirt check --json) and report.json
 
 
+class Inconclusive(BaseModel):
+    """Whether a geometry check could have failed on most of what it judges (THRESHOLDS inconclusive_fraction).
+    Non-empty ``reasons``: the check is WARN with a reason starting "inconclusive: ", never PASS."""
+
+    reasons: list[str] = Field(description="Why the check could not fail on most pixels; empty when conclusive.")
+    hit_pixels: int = Field(description="Pixels either side calls a hit.")
+    judged_pixels: int = Field(description="Pixels both call a hit on the same shape, outside the band.")
+    band_fraction: float = Field(description="Fraction of the hit pixels inside the band (not judged).")
+    depth_range: float = Field(description="max - min t over the reference's hits.")
+    t_wide_fraction: float = Field(description="Fraction of judged pixels whose t tolerance >= depth_range.")
+    normal_wide_fraction: float = Field(description="Fraction of judged pixels whose normal tolerance >= 90 deg.")
+    limit: float = Field(description="The fraction above which the check is inconclusive.")
+
+
 class Check(_Open):
     """One check of one backend (preflight, geometry, shading, stochastic, samples): its verdict, and its
     figures as further keys."""
 
     verdict: CheckVerdict
     reason: str = ""
+    inconclusive: Inconclusive | None = Field(default=None, description="Geometry: could the check have failed.")
     thresholds: dict[str, str] = Field(default_factory=dict, description="Each threshold applied, with its reason.")
 
 
@@ -68,6 +83,9 @@ class BackendCheck(_Open):
     """One oracle against the reference on one scene; the checks by name, each a Check."""
 
     verdict: CheckVerdict
+    inconclusive: bool = Field(
+        default=False, description="WARN only because checks could not fail on most of what they judge."
+    )
     reason: str = ""
     preflight: Check | None = None
     geometry: Check | None = None
@@ -239,12 +257,25 @@ class RenderSidecar(_Document):
     version: Any = None
 
 
+class ProbeOffset(_Open):
+    """Where a secondary ray starts at this hit, and what could go wrong there (minirt.hazards.offset_at)."""
+
+    offset: float | Literal["error-bound"]
+    along: str = "normal"
+    rounding: float | None = Field(default=None, description="The hit point's rounding u·‖p‖₁ in the traced precision.")
+    below_rounding: bool = Field(default=False, description="The offset's normal part is below it: acne risk.")
+    jumps: list[dict[str, Any]] = Field(
+        default_factory=list, description="Other shapes' surfaces between the point and a secondary ray's origin."
+    )
+
+
 class ProbeLevel(_Open):
     depth: int
     ray: dict[str, list[float]]
     shapes: list[dict[str, Any]]
     hit: dict[str, Any] | None
     terms: dict[str, Any]
+    offset: ProbeOffset | None = None
 
 
 class ProbeDocument(_Document):
@@ -257,6 +288,7 @@ class ProbeDocument(_Document):
     color: list[float]
     color_clamped: list[float]
     color8: list[int]
+    offset: ProbeOffset | None = None
     image: dict[str, Any] | None = None
 
 

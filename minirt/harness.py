@@ -65,6 +65,11 @@ class Check:
     thresholds: dict[str, str] = field(default_factory=dict)
     images: dict[str, np.ndarray] = field(default_factory=dict)  # evidence for the report
 
+    @property
+    def inconclusive(self) -> bool:
+        """WARN because the check could not have failed on most of what it judges."""
+        return self.verdict == "warn" and self.reason.startswith(INCONCLUSIVE)
+
     def as_dict(self) -> dict[str, Any]:
         d = {"verdict": self.verdict, **self.figures}
         if self.reason:
@@ -153,8 +158,14 @@ class BackendCheck:
     def rule_effects(self) -> dict[str, int]:
         return self.rules
 
+    @property
+    def inconclusive(self) -> bool:
+        """A WARN whose only cause is checks that could not have failed (the report shows it as inconclusive)."""
+        warned = [c for c in self.checks.values() if c.verdict == "warn"]
+        return self.verdict == "warn" and bool(warned) and all(c.inconclusive for c in warned)
+
     def as_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"verdict": self.verdict}
+        d: dict[str, Any] = {"verdict": self.verdict, "inconclusive": self.inconclusive}
         if self.reason:
             d["reason"] = self.reason
         for name, c in self.checks.items():
@@ -268,7 +279,7 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderResult) -> Check:
     o, d = camera.primary_rays(scene, rules)
     margins = band.margins(scene, o, d)
-    tol = geometry_tolerance(res, ref, margins)
+    tol = geometry_tolerance(res, ref, margins, start=lambda **kw: band.start_band(scene, o, d, **kw))
     mism = ref.hit != res.hit
     inside, outside = mism & tol.band, mism & ~tol.band
     both = ref.hit & res.hit
@@ -297,6 +308,7 @@ def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderRes
         "normal_violations": int(n_viol.sum()),
         "tolerance": tol.summary,
     }
+    figures["inconclusive"] = inconclusive(ref, res, tol.band, judged, tol.t_abs, tol.normal_deg)
     bad = []
     if outside.any():
         bad.append(f"{int(outside.sum())} hit-mask mismatch(es) outside the silhouette band")
@@ -321,7 +333,63 @@ def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderRes
         "t": tol.why["t"],
         "normal": tol.why["normal"],
     }
-    return Check("fail" if bad else "pass", figures, reason="; ".join(bad), thresholds=thresholds, images=images)
+    limit = THRESHOLDS["inconclusive_fraction"]
+    thresholds["inconclusive"] = f"{limit.value}: {limit.why}"
+    if bad:
+        return Check("fail", figures, reason="; ".join(bad), thresholds=thresholds, images=images)
+    why = figures["inconclusive"]["reasons"]
+    if why:  # nothing failed, but the check could not have failed on most of what it judges
+        reason = f"{INCONCLUSIVE}this oracle cannot judge this scene ({'; '.join(why)})"
+        return Check("warn", figures, reason=reason, thresholds=thresholds, images=images)
+    return Check("pass", figures, thresholds=thresholds, images=images)
+
+
+# The reason of a check that could not fail on most of what it judges starts with this (WARN, not PASS).
+INCONCLUSIVE = "inconclusive: "
+
+
+def inconclusive(
+    ref: RenderResult,
+    res: RenderResult,
+    band_px: np.ndarray,
+    judged: np.ndarray,
+    t_abs: np.ndarray,
+    normal_deg: np.ndarray,
+) -> dict[str, Any]:
+    """Whether the geometry check could have failed on most of what it judges (THRESHOLDS
+    "inconclusive_fraction"): the fractions measured, and the reasons it could not (empty: conclusive)."""
+    limit = THRESHOLDS["inconclusive_fraction"].value
+    hits = ref.hit | res.hit
+    n_hits, n_judged = int(hits.sum()), int(judged.sum())
+    band_frac = float((band_px & hits).sum() / n_hits) if n_hits else 0.0
+    depth_range = float(np.ptp(ref.t[ref.hit])) if ref.hit.any() else 0.0
+    with np.errstate(invalid="ignore"):
+        t_wide = judged & ~(t_abs < depth_range)  # NaN or inf tolerances count as wide
+        n_wide = judged & ~(normal_deg < 90.0)
+    t_frac = float(t_wide.sum() / n_judged) if n_judged else 0.0
+    n_frac = float(n_wide.sum() / n_judged) if n_judged else 0.0
+    reasons = []
+    if band_frac > limit:
+        reasons.append(
+            f"the band holds {band_frac:.0%} of the {n_hits} hit pixels, more than {limit:.0%}: "
+            "hit/miss and ids are not judged there"
+        )
+    if t_frac > limit:
+        reasons.append(
+            f"the t tolerance is at least the depth range {depth_range:.3g} on {t_frac:.0%} of the judged pixels"
+        )
+    if n_frac > limit:
+        reasons.append(f"the normal tolerance is 90 degrees or more on {n_frac:.0%} of the judged pixels")
+    return {
+        "reasons": reasons,
+        "hit_pixels": n_hits,
+        "judged_pixels": n_judged,
+        "band_fraction": band_frac,
+        "depth_range": depth_range,
+        "t_wide_fraction": t_frac,
+        "normal_wide_fraction": n_frac,
+        "limit": limit,
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -468,6 +536,11 @@ def _shading_physical(scene, ref, res, classes, edges) -> Check:
     # occluder's silhouette (the reference's aux shadow_margin): such pixels are not judged on lit/unlit.
     margin = ref.aux.get("shadow_margin")
     unsure = both_hit & (shift > 0) & (margin < 2 * shift) if margin is not None else np.zeros_like(both_hit)
+    # The oracle's finite stand-ins for planes did not cover every point a shadow ray crosses (Mitsuba's
+    # rectangles after their last growth, meta plane_coverage_complete): no shadow decision is its to make.
+    uncovered = res.meta.get("plane_coverage_complete") is False
+    if uncovered:
+        unsure = both_hit.copy()
     flips = lit_a != lit_b
     lit_flip = judged & flips & ~unsure
     allowed = (THRESHOLDS["diffuse_rel"].value + turn[..., None]) * np.maximum(lc_dc, 1e-12)
@@ -481,6 +554,7 @@ def _shading_physical(scene, ref, res, classes, edges) -> Check:
         "lit_mismatch": int(lit_flip.sum()),
         "lit_mismatch_on_edges": int((both_hit & edges & (lit_a != lit_b)).sum()),
         "lit_mismatch_within_position_error": int((judged & flips & unsure).sum()),
+        "plane_coverage_complete": not uncovered,
         "not_compared_terms": res.meta.get("unsupported_terms", []),
     }
     bad = []
@@ -761,9 +835,10 @@ def check_backend(
         if scene.samples > 1 and SHADING_MODEL.get(name) == "exercise":
             bc.checks["samples"] = _samples_run(scene, followed, name, refs)
         bc.verdict = worst([c.verdict for c in bc.checks.values()])
-        bc.reason = "; ".join(
-            f"{k}: {c.reason}" for k, c in bc.checks.items() if c.verdict in ("fail", "warn", "error")
-        )
+        # worst first; an inconclusive check's reason as it is ("inconclusive: ..."), ahead of other warnings
+        said = [(k, c) for k, c in bc.checks.items() if c.verdict in ("fail", "warn", "error")]
+        said.sort(key=lambda kc: (-ORDER.index(kc[1].verdict), not kc[1].inconclusive))
+        bc.reason = "; ".join(c.reason if c.inconclusive else f"{k}: {c.reason}" for k, c in said)
     bc.rules, bc.rule_masks = attribute_rules(refs, rules, followed)
     model = SHADING_MODEL.get(name, "exercise" if res.color is not None else None)
     if model != "exercise" or res.color is None:
@@ -798,7 +873,9 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache) -
         return Check("skip" if res.status == "skip" else "error", reason=res.reason)
     ref = refs.get(rules)
     p = res.meta.get("precision") or {}
-    band_px = band.sample_band(scene, rules, n, p.get("band_threshold", 0.0), p.get("min_depth", 0.0))
+    band_px = band.sample_band(
+        scene, rules, n, p.get("band_threshold", 0.0), p.get("min_distance", 0.0), p.get("start_err", 0.0)
+    )
     classes = edge_classes(ref)
     edges = _edges(classes, band_px)
     check = _shading_exercise(ref, res, classes, edges)

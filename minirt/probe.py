@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from minirt import camera
+from minirt import camera, hazards
 from minirt.errors import MinirtError
 from minirt.result import to8
 from minirt.rules import Rules
@@ -81,6 +81,14 @@ def probe(scene: Scene, rules: Rules, x: int, y: int, precision: str = "f64") ->
                 entry["shadow"]["lit"] = not entry["shadow"]["blockers"]
             if rec.get("error_bound") is not None:
                 entry["hit"]["offset_bound"] = _s(rec["error_bound"])
+            # the offset's hazards at this point (minirt.hazards): below the point's rounding, gaps jumped
+            spawns = depth + 1 < len(levels)
+            entry["offset"] = hazards.offset_at(
+                scene, rules, entry["hit"]["point"], entry["hit"]["shading_normal"], sid,
+                shadow=entry["shadow"]["direction"] if "shadow" in entry else None,
+                reflection=_v(rec["reflected"]) if spawns and "reflected" in rec else None,
+                precision=precision,
+            )  # fmt: skip
         out_levels.append(entry)
     c = _v(color)
     lvl0 = out_levels[0]
@@ -98,6 +106,7 @@ def probe(scene: Scene, rules: Rules, x: int, y: int, precision: str = "f64") ->
         if lvl0["hit"] is None
         else {k: lvl0["hit"][k] for k in ("id", "t", "point", "normal", "shading_normal", "material")},
         "shadow": lvl0.get("shadow"),
+        "offset": lvl0.get("offset"),
         "terms": lvl0["terms"],
         "levels": out_levels,
         "color": c,

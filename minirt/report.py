@@ -313,7 +313,19 @@ def _check_view(name: str, c: Check) -> dict[str, Any]:
     for k, text in c.thresholds.items():
         value, why = _split_threshold(text)
         thresholds.append({"name": k, "value": value, "why": why})
-    return {"name": name, "verdict": c.verdict, "reason": c.reason, "figures": figures, "thresholds": thresholds}
+    return {
+        "name": name,
+        "verdict": c.verdict,
+        "label": _label(c.verdict, c.inconclusive),
+        "reason": c.reason,
+        "figures": figures,
+        "thresholds": thresholds,
+    }
+
+
+def _label(verdict: str, inconclusive: bool) -> str:
+    """A badge's text: the verdict, or INCONCLUSIVE for a WARN whose checks could not have failed."""
+    return "INCONCLUSIVE" if inconclusive else verdict.upper()
 
 
 def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _Assets, base8: np.ndarray | None):
@@ -324,6 +336,7 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
         "name": bc.backend,
         "anchor": f"scene-{si}-{b}",
         "verdict": bc.verdict,
+        "label": _label(bc.verdict, bc.inconclusive),
         "reason": bc.reason,
         "seconds": f"{bc.seconds:.2f}",
         "version": _version(res.meta if res else None),
@@ -430,13 +443,15 @@ def _scene_view(si: int, sc: SceneCheck, assets: _Assets) -> dict[str, Any]:
     base8 = None
     if ref is not None and ref.ok:
         base8 = ref.color8() if ref.color is not None else _normals8(ref)
-        tile = {"label": "reference", "what": "colour, scene rules", "verdict": None, "version": _version(ref.meta)}
+        tile = {"label": "reference", "what": "colour, scene rules", "verdict": None, "badge": None}
+        tile["version"] = _version(ref.meta)
         tile["src"] = assets.image8(f"s{si:02d}-reference.png", base8)
         tiles.append(tile)
     order = sorted(enumerate(sc.backends.values()), key=lambda jb: (_rank(jb[1].verdict), jb[0]))
     for j, bc in enumerate(sc.backends.values()):
         r = bc.result
         tile = {"label": bc.backend, "verdict": bc.verdict, "src": None, "version": _version(r.meta if r else None)}
+        tile["badge"] = _label(bc.verdict, bc.inconclusive)
         if r is not None and r.ok and (r.color is not None or r.hit is not None):
             img, what = preview(r)
             tile["what"] = "normals (geometry only)" if what == "normals" else what
@@ -566,7 +581,9 @@ def _matrix_row(i: int, sc: SceneCheck, names: list[str]) -> dict[str, Any]:
     cells = []
     for n in names:
         if n in sc.backends:
-            cells.append({"verdict": sc.backends[n].verdict, "anchor": f"scene-{i}-{_slug(n, f'b{keys.index(n)}')}"})
+            b = sc.backends[n]
+            anchor = f"scene-{i}-{_slug(n, f'b{keys.index(n)}')}"
+            cells.append({"verdict": b.verdict, "label": _label(b.verdict, b.inconclusive), "anchor": anchor})
         else:
             cells.append(None)
     return {"anchor": f"scene-{i}", "name": sc.scene, "verdict": sc.verdict, "cells": cells}

@@ -14,7 +14,7 @@ Trace rules (``TRACE_RULES``) change what is traced:
 | shadow_range      | "any" (anything on the ray)   | "to-light" (only before the light) | "to-light"        |
 | two_sided         | false (normals as given)      | true (normals face the ray)        | false             |
 | clamp             | false (s·n, (r·s)^e raw)      | true (max(0, s·n); spec. if s·n>0) | "specular" (1)    |
-| offset            | 1e-6 (hit + offset·normal)    | "error-bound" (pbrt-style bound)   | 1e-3              |
+| offset            | 1e-6 (hit + offset·normal)    | "error-bound" (pbrt-style) (3)     | 1e-3              |
 | offset_along      | "normal"                      | "normal"                           | "ray" (2)         |
 | ray_origin        | "image-plane"                 | "image-plane" (or "camera")        | "camera"          |
 | pixel_sample      | "corner"                      | "corner" (or "center")             | "center"          |
@@ -22,6 +22,10 @@ Trace rules (``TRACE_RULES``) change what is traced:
 | pixel_shift       | (0, 0) (pixels)               | (0, 0)                             | (0, 0)            |
 
 (1) s·n raw, the specular term only where r·s > 0. (2) hit + offset·(the new ray's direction).
+(3) Offset by the hit point's error bound on the side the new ray leaves to -- except from a ball under
+near_root_only = true, where secondary rays always start outside the ball: started inside (a shadow ray
+from a point facing away from the light), near_root_only would not see the ball and every back-face
+self-shadow would be lost; outside, the ball blocks, as under a numeric offset along the normal.
 
 Output rules (``OUTPUT_RULES``) say how the 8-bit bitmap is written; the tracer ignores them (see
 minirt.bitmap): ``encoding`` "round" (floor(c·255 + 0.5); eth2014: "floor256", min(255,

@@ -9,6 +9,7 @@ are the harness's own and are listed in :data:`THRESHOLDS`. The report prints bo
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -73,6 +74,15 @@ THRESHOLDS: dict[str, Threshold] = {
     "shape_mean_sigma": Threshold(
         4.0, "Per-shape mean shading: the two means must agree within 4 combined standard errors."
     ),
+    "inconclusive_fraction": Threshold(
+        0.5,
+        "A geometry check speaks for a scene only where it could fail. It is inconclusive (WARN, not PASS) when "
+        "more than this fraction of the hit pixels (either side) lie in the band, where hit/miss and ids are not "
+        "judged; or of the judged pixels, more than this fraction have a t tolerance at least the view's depth "
+        "range (max - min t over the reference's hits: any visible depth would pass; an infinite tolerance "
+        "included) or a normal tolerance of 90 degrees or more (any normal facing the same half-space would "
+        "pass). One half: a check that judges fewer than half of what it is about is mostly not a check.",
+    ),
     "delta_e_p95": Threshold(
         1.0, "CIEDE2000 95th percentile on the 8-bit images: 1.0 is the just-noticeable difference (WARN above)."
     ),
@@ -90,9 +100,22 @@ class GeometryTolerance:
     summary: dict[str, float | str] = field(default_factory=dict)  # figures; "<key>_reason" beside a non-finite one
 
 
-def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[str, np.ndarray]) -> GeometryTolerance:
-    """Translate an oracle's recorded precision into per-pixel tolerances (see each oracle's docstring)."""
+def geometry_tolerance(
+    result: RenderResult,
+    ref: RenderResult,
+    margins: dict[str, np.ndarray],
+    start: Callable[..., np.ndarray] | None = None,
+) -> GeometryTolerance:
+    """Translate an oracle's recorded precision into per-pixel tolerances (see each oracle's docstring).
+
+    ``start(t_min=, plane_err=, ball_err=)``: minirt.band.start_band on the checked rays (flat, per ray),
+    the rays whose "does this candidate count" decision lies within the oracle's position error of its
+    minimum distance; without it no such band is applied."""
     h, w = ref.height, ref.width
+
+    def start_band(**kw) -> np.ndarray:
+        return np.zeros((h, w), dtype=bool) if start is None else start(**kw).reshape(h, w)
+
     p = result.meta.get("precision") or {}
     m = {k: v.reshape(h, w) for k, v in margins.items()}
     t_ref = np.where(ref.hit, ref.t, 0.0)
@@ -102,6 +125,13 @@ def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[st
         plane_abs = max([pl.get("abs_error", 0.0) for pl in result.meta.get("planes", {}).values()] or [0.0])
         # A shadow or hit decision moved by the rectangle's absolute error: relative to the smallest radius.
         band = m["margin"] < eps
+        # Rays starting on a plane (t ~ 0): Mitsuba 3 has no minimum distance (Ray3f carries maxt only), and
+        # whether its rectangle lies in front of the origin is decided in float32: the rectangle's own error
+        # plane_abs, plus the origin rounded to float32 and taken to the rectangle's local frame (a few
+        # roundings of terms <= |o|: 4 u32 |o|). Balls: the relative origin margin above (band_eps) covers it.
+        start_err = plane_abs + 4 * U32 * m["origin_norm"]
+        starts = start_band(t_min=0.0, plane_err=start_err.reshape(-1))
+        band = band | starts
         # A plane's t = n·(Q - o)/(n·d): the rectangle's absolute error and the float32 rounding of the ray's
         # direction (dir_err) move t by (plane_abs + t dir_err)/|n·d| -- large where the ray grazes the plane.
         inv_nd = 1.0 / m["hit_nd"]
@@ -111,29 +141,45 @@ def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[st
         t_abs = t_abs + result.aux.get("t_silhouette_bound", 0.0)
         nd = np.full((h, w), p["normal_deg"])
         why = {
-            "band": f"margin < band_k*band_eps = {eps:.3g}: {p.get('why', '')}",
+            "band": f"margin < band_k*band_eps = {eps:.3g}: {p.get('why', '')}; or a ray starting within "
+            f"plane_abs + 4 u32 |o| = {plane_abs:.3g} + 4 u32 |o| of a plane (float32 decides t > 0 there)",
             "t": f"t_rel*t + plane_abs + (plane_abs + dir_err*t)/|n·d| = {p['t_rel']:.3g}*t + {plane_abs:.3g} + "
             f"({plane_abs:.3g} + {dir_err:.3g}*t)/|n·d| (float32 roots; rectangles interpolate their corners; "
             "a plane's t is conditioned by 1/|n·d|, n·d of the hit plane, inf for balls) + per pixel "
             "4 u32 |f|^2/(r sqrt(2m)) near a ball's silhouette (aux t_silhouette_bound)",
             "normal": f"{p['normal_deg']} deg (float32 normals)",
         }
-        summary = {"band_eps": eps, "t_rel": p["t_rel"], "plane_abs": plane_abs, "normal_deg": p["normal_deg"]}
+        summary = {
+            "band_eps": eps,
+            "t_rel": p["t_rel"],
+            "plane_abs": plane_abs,
+            "normal_deg": p["normal_deg"],
+            "start_band_pixels": int(starts.sum()),
+        }
     elif name == "povray":
         eps = p["band_threshold"]
-        min_depth = p.get("min_depth", 0.0)
-        band = (m["margin"] < eps) | (m["near"] < min_depth)
+        # its minimum distance along the harness's rays and its position error there (oracles.povray.start_decision)
+        t_min, start_err = p.get("min_distance", 0.0), p.get("start_err", 0.0)
+        starts = start_band(t_min=t_min, plane_err=start_err, ball_err=start_err)
+        band = (m["margin"] < eps) | starts
         # plus a plane's conditioning: a direction error dir_err moves its t by t dir_err/|n·d|
         t_abs = p["t_abs"] + p.get("dir_err", 0.0) * t_ref / m["hit_nd"]
         deg = math.degrees(math.asin(min(1.0, 2 * p["normal_abs"]))) + 1e-9
         nd = np.full((h, w), deg)
         why = {
             "band": f"margin < {eps:.3g}: single-precision bounding boxes and textbook sphere roots in POV-Ray; "
-            f"or a candidate hit nearer than {min_depth:.3g} (POV-Ray ignores hits within 1e-4 of a ray's origin)",
+            f"or a candidate hit with t cos within {start_err:.3g} of [0, {t_min:.3g}] (POV-Ray drops hits within "
+            "its minimum distance 1e-4 of a mesh-camera ray's origin; its rays are off by start_err there)",
             "t": f"|dt| <= {p['t_abs']:.3g} + {p.get('dir_err', 0.0):.3g}*t/|n·d| (planes): {p.get('derivation', '')}",
             "normal": f"{deg:.3g} deg: normals from decoded positions, |dn| <= {p['normal_abs']:.3g}",
         }
-        summary = {"band_eps": eps, "t_abs": p["t_abs"], "normal_deg": deg}
+        summary = {
+            "band_eps": eps,
+            "t_abs": p["t_abs"],
+            "normal_deg": deg,
+            "min_distance": t_min,
+            "start_band_pixels": int(starts.sum()),
+        }
     elif name == "embree":
         tb = result.aux.get("t_bound", np.full((h, w), p["t_abs"]))
         t_abs = tb + p["eps32_abs"]
@@ -145,15 +191,24 @@ def geometry_tolerance(result: RenderResult, ref: RenderResult, margins: dict[st
             | (m["grazing"] < p["grazing_abs"])
             | (m["tie"] < 2 * tie_rel)
         )
+        # Rays starting on a plane (t ~ 0): Embree's minimum distance is 0 (trimesh casts t in (0, inf)); its
+        # quads are float32 coordinates of the mesh's extent (origins included), 8 ulps: eps32_abs.
+        starts = start_band(t_min=0.0, plane_err=p["eps32_abs"])
+        band = band | starts
         nd = result.aux.get("normal_bound_deg", np.full((h, w), p["normal_deg"]))
         why = {
             "band": f"silhouette < {p['band_abs']:.3g} (tessellation gap + float32), grazing < {p['grazing_abs']:.3g} "
-            "(far plane cut), depth ties within the t bound",
+            f"(far plane cut), depth ties within the t bound, rays starting within {p['eps32_abs']:.3g} of a plane",
             "t": "per pixel: the tessellated shell's thickness along the ray (aux t_bound) "
             "+ float32 of the mesh extent",
             "normal": "per pixel: face-to-vertex normal angle + the shell's tilt (aux normal_bound_deg)",
         }
-        summary = {"band_eps": p["band_abs"], "t_abs_max": float(np.max(t_abs)), "normal_deg_max": float(np.max(nd))}
+        summary = {
+            "band_eps": p["band_abs"],
+            "t_abs_max": float(np.max(t_abs)),
+            "normal_deg_max": float(np.max(nd)),
+            "start_band_pixels": int(starts.sum()),
+        }
         for key in ("t_abs_max", "normal_deg_max"):  # the reason strict JSON writes beside the null (minirt.jsonout)
             if not math.isfinite(summary[key]):
                 summary[key + "_reason"] = "infinite: the bound is unlimited on pixels the oracle misses"

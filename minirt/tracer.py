@@ -350,8 +350,9 @@ class Tracer:
                 vals.append(gamma(4, u) * (lp + abs(s.distance)))
         return self._by_id(shape_id, vals, self.T.Float(0))
 
-    def offset_origin(self, p, n, err, direction) -> Any:
-        """Start of a secondary ray leaving p in `direction` (n: the shading normal)."""
+    def offset_origin(self, p, n, err, direction, outward=None) -> Any:
+        """Start of a secondary ray leaving p in `direction` (n: the shading normal). ``outward`` (error-bound
+        only): where true, offset to n's side whatever the direction (see ``_outward``)."""
         off = self.rules.offset
         if off != "error-bound" and self.runtime:
             along = dr.select(dr.opaque(self.T.Bool, self.rules.offset_along == "ray"), direction, n)
@@ -364,9 +365,32 @@ class Tracer:
         # Offset along n by the error bound, on the side the new ray leaves to, then one more ulp
         # away from p in each component (pbrt-v4's OffsetRayOrigin).
         side = dr.select(dr.dot(n, direction) < 0, self.T.Float(-1.0), self.T.Float(1.0))
+        if outward is not None:
+            side = dr.select(outward, self.T.Float(1.0), side)
         delta = side * err * n
         q = p + delta
         return self.T.Array3(*(self._ulp_away(q[i], delta[i]) for i in range(3)))
+
+    def _outward(self, shape_id) -> Any:
+        """Where secondary rays must start outside the hit ball, whichever way they leave: under
+        near_root_only with the error-bound offset. A shadow ray from a point facing away from the light
+        runs into its own ball; started on the inside (the side the ray leaves to), near_root_only would
+        not see that ball at all and the point would be lit -- every back-face self-shadow lost. Started
+        outside by the error bound, its near root is in front (t ~ err / cos > 0), as under a numeric
+        offset along the normal, and as without near_root_only (the far root from inside). Under
+        near_root_only a ball is only hit from outside, so its shading normal is the outward one.
+        None when the rule does not apply (the offset's side is then that of the new ray)."""
+        nro = self._rule(self.rules.near_root_only)
+        balls = [k for k, s in enumerate(self.scene.shapes) if isinstance(s, Ball)]
+        if self.rules.offset != "error-bound" or nro is False or not balls:
+            return None
+        if self.table is not None:
+            is_ball = dr.gather(self.T.Bool, self.table.is_ball, self.T.UInt(shape_id), shape_id >= 0)
+        else:
+            is_ball = self.T.Bool(False)
+            for k in balls:
+                is_ball |= shape_id == k
+        return is_ball if nro is True else is_ball & nro
 
     def _ulp_away(self, x, delta) -> Any:
         T = self.T
@@ -497,6 +521,7 @@ class Tracer:
             local = local + terms["ambient"]
         r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction
         err = self.error_bound(shape_id, p) if self.rules.offset == "error-bound" else None
+        outward = self._outward(shape_id)
         clamp_all, clamp_specular = self._rule(self.rules.clamp is True), self._rule(self.rules.clamp == "specular")
         if fx.diffuse or fx.specular:
             lpos = self._scene_vec("light")
@@ -509,7 +534,7 @@ class Tracer:
             sn = dr.dot(s, ns)
             lit = hit & ~at_light
             if fx.shadows:
-                so = self.offset_origin(p, ns, err, s)
+                so = self.offset_origin(p, ns, err, s, outward)
                 blocked, shadow_ts = self.shadow_blocked(so, s, light_dist, record)
                 lit = hit & ~blocked
                 if margins:
@@ -566,7 +591,7 @@ class Tracer:
         if record:
             rec.update(shading_normal=ns, reflected=r, error_bound=err)
         if spawn is not None:
-            ro = self.offset_origin(p, ns, err, r)
+            ro = self.offset_origin(p, ns, err, r, outward)
             lvl.record["next"] = (ro, r)
         return lvl, spawn
 

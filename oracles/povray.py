@@ -60,10 +60,10 @@ Conventions bridged (each measured with Debian's povray 3.7.0.10):
   8-bit PNG pass is kept. At most MAX_MESH_RAYS = n x W x H rays (scene text ~130 bytes each, parsed once
   per pass); excludes ``antialias``.
 - Numeric limits: hits beyond 1e7 and nearer than 1e-4 to the ray's origin are dropped (the
-  latter matters for the mesh camera's image-plane origins: the band includes rays with a candidate
-  hit nearer than MIN_DEPTH_BAND); an exactly tangent ray misses a sphere; |n·d| < 1e-10
-  misses a plane; with 3 or more finite objects POV-Ray builds float bounding boxes; coincident surfaces:
-  the first declared object wins.
+  latter matters for the mesh camera's image-plane origins: meta precision ``min_distance`` and
+  ``start_err``, start_decision(), give the band of minirt.band.start_band); an exactly tangent
+  ray misses a sphere; |n·d| < 1e-10 misses a plane; with 3 or more finite objects POV-Ray builds
+  float bounding boxes; coincident surfaces: the first declared object wins.
 - Untrusted input: POV-Ray's language can open, read and write files. The exporter writes only numbers
   (Python floats, checked finite) and fixed keywords: no scene, material or file name ever reaches a
   .pov file.
@@ -98,9 +98,6 @@ NAME = "povray"
 INSTALL_HINT = "povray not found on PATH; install: sudo apt-get install povray"
 MAX_DISTANCE = 1e7  # POV-Ray drops hits beyond this (configbackend.h MAX_DISTANCE)
 MIN_ISECT_DEPTH = 1e-4  # ... and hits nearer than this to the ray's origin (configcore.h MIN_ISECT_DEPTH)
-# Rays with a candidate hit nearer than this may disagree: MIN_ISECT_DEPTH plus 1% for the difference
-# between POV-Ray's t and the reference's (rounding ~1e-16 |o|; the mesh camera's origins ~1e-7).
-MIN_DEPTH_BAND = 1.01 * MIN_ISECT_DEPTH
 SPLIT = 1024  # coarse/fine split of an encoded value
 MAX_ANTIALIAS = 9  # POV-Ray accepts Antialias_Depth 1..9
 ID_SCALE = 2048  # shape id k is the constant (k + 1)/2048: exact in half float for k < 2047
@@ -302,6 +299,25 @@ def precision(
         # of 6. The mesh camera's single-precision rays err by MESH_RAY_ERROR.
         "dir_err": max(2.0**-22, MESH_RAY_ERROR if mesh_camera else 0.0),
     }
+
+
+def start_decision(scene: Scene, rules: Rules, mesh_camera: bool) -> dict[str, Any]:
+    """POV-Ray's minimum distance along the harness's rays and its position error there (minirt.band.start_band).
+
+    - Mesh camera: rays start on the harness's own origins, so hits within MIN_ISECT_DEPTH of them are
+      dropped; the single-precision triangles place a point at distance t off by <= MESH_RAY_ERROR (1 + t)
+      (see MESH_RAY_ERROR), at t = MIN_ISECT_DEPTH: MESH_RAY_ERROR (1 + 1e-4).
+    - Pinhole camera: rays start at the camera, at least the camera distance before the image plane, and no
+      shape lies between the two (else the mesh camera is used), so no candidate of the reference is
+      within 1e-4 of POV-Ray's origin: minimum distance 0. Its double-precision rays cross the image plane
+      within dir_err |o - camera| of the exercise's origin o (dir_err = 2^-22, see precision()): the
+      reference's own t > 0 decision is undecidable for POV-Ray within that distance.
+    """
+    if mesh_camera:
+        return {"min_distance": MIN_ISECT_DEPTH, "start_err": MESH_RAY_ERROR * (1 + MIN_ISECT_DEPTH)}
+    o = camera.primary_rays(scene, rules)[0]
+    reach = float(np.max(np.linalg.norm(o - np.asarray(scene.camera.position), axis=1))) if len(o) else 0.0
+    return {"min_distance": 0.0, "start_err": 2.0**-22 * reach}
 
 
 def band_threshold(scene: Scene, rules: Rules, samples: int = 1) -> float:
@@ -902,7 +918,9 @@ class PovrayOracle(Oracle):
         meta.update(passes=passes, commands=[p["command"] for p in passes], timings=timings)
         if gframes or geometry or samples > 1:  # geometry asked for (even with no shapes), or the exercise's samples
             meta["precision"] = precision(scene, ranges or [None] * len(scene.shapes), mesh)
-            meta["precision"].update(band_threshold=band_threshold(scene, rules, samples), min_depth=MIN_DEPTH_BAND)
+            meta["precision"].update(
+                band_threshold=band_threshold(scene, rules, samples), **start_decision(scene, rules, mesh)
+            )
         if gframes:
             meta["encoding_ranges"] = ranges
             # pixels where the three frames' alpha and the id channel disagree on hit/miss (expected 0)

@@ -115,6 +115,8 @@ class Plain:
         lp = norm(p)
         err = gamma(6) * (shape.radius + lp) if isinstance(shape, Ball) else gamma(4) * (lp + abs(shape.distance))
         side = -1.0 if dot(n, direction) < 0 else 1.0
+        if isinstance(shape, Ball) and self.rules.near_root_only:
+            side = 1.0  # start outside the ball: near_root_only sees nothing of it from inside
         delta = mul(n, side * err)
         q = add(p, delta)
         out = []

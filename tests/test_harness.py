@@ -207,3 +207,88 @@ def test_verdict_order():
     assert harness.CheckResult("fail", []).exit_code() == 1
     assert harness.CheckResult("error", []).exit_code() == 2
     assert harness.CheckResult("warn", []).exit_code() == 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Honest verdicts: a check that cannot fail is not PASS
+
+
+def test_a_check_whose_t_tolerance_is_infinite_cannot_pass(setup):
+    scene, rules, ref = setup
+    cand = candidate(ref, t_abs=np.inf)
+    cand.t = np.where(ref.hit, ref.t * 3.0, np.inf)  # every depth wrong by a factor 3: nothing can catch it
+    geom = harness.check_geometry(scene, rules, ref, cand)
+    assert geom.verdict == "warn" and geom.inconclusive
+    assert geom.reason.startswith("inconclusive: this oracle cannot judge this scene (")
+    assert "t tolerance" in geom.reason
+    fig = geom.figures["inconclusive"]
+    assert fig["t_wide_fraction"] == 1.0 and fig["normal_wide_fraction"] == 0.0 and fig["band_fraction"] < 0.5
+    assert fig["judged_pixels"] > 0.5 * fig["hit_pixels"]
+
+
+def test_a_t_tolerance_wider_than_the_depth_range_cannot_pass(setup):
+    scene, rules, ref = setup
+    depth_range = float(np.ptp(ref.t[ref.hit]))
+    wide = harness.check_geometry(scene, rules, ref, candidate(ref, t_abs=1.01 * depth_range))
+    narrow = harness.check_geometry(scene, rules, ref, candidate(ref, t_abs=0.99 * depth_range))
+    assert wide.verdict == "warn" and wide.inconclusive
+    assert narrow.verdict == "pass" and not narrow.figures["inconclusive"]["reasons"]
+
+
+def test_a_normal_tolerance_of_90_degrees_cannot_pass(setup):
+    scene, rules, ref = setup
+    geom = harness.check_geometry(scene, rules, ref, candidate(ref, normal_deg=90.0))
+    assert geom.verdict == "warn" and "normal tolerance" in geom.reason
+    assert harness.check_geometry(scene, rules, ref, candidate(ref, normal_deg=89.0)).verdict == "pass"
+
+
+def test_a_band_holding_most_hit_pixels_cannot_pass(setup):
+    scene, rules, ref = setup
+    geom = harness.check_geometry(scene, rules, ref, candidate(ref, band_eps=10.0))  # every margin is < 10
+    assert geom.verdict == "warn" and geom.inconclusive
+    assert geom.figures["inconclusive"]["band_fraction"] == 1.0 and "the band holds 100%" in geom.reason
+
+
+def test_an_inconclusive_check_still_fails_on_what_it_can_judge(setup):
+    """A wrong shape id is a defect whatever the t tolerance: FAIL, not an inconclusive WARN."""
+    scene, rules, ref = setup
+    cand = candidate(ref, t_abs=np.inf)
+    cand.shape_id = np.where(ref.shape_id == 0, 1, ref.shape_id)
+    geom = harness.check_geometry(scene, rules, ref, cand)
+    assert geom.verdict == "fail" and "shape id" in geom.reason
+    assert geom.figures["inconclusive"]["reasons"]  # the figures still say what could not be judged
+
+
+def test_a_backend_is_inconclusive_only_when_all_its_warnings_are():
+    checks = {
+        "geometry": harness.Check("warn", reason="inconclusive: this oracle cannot judge this scene (x)"),
+        "shading": harness.Check("warn", reason="CIEDE2000 p95 1.50"),
+    }
+    b = harness.BackendCheck("synthetic", "warn", checks=checks)
+    assert not b.inconclusive  # the shading warning is a finding of its own
+    b.checks.pop("shading")
+    assert b.inconclusive and b.as_dict()["inconclusive"] is True
+
+
+def test_shadow_decisions_are_not_judged_where_an_oracles_planes_did_not_cover_the_segments(setup):
+    """A physical oracle whose finite stand-ins for planes still missed points after their last growth
+    (Mitsuba's meta plane_coverage_complete False) cannot decide shadows: lit flips are not counted."""
+    scene, rules, ref = setup
+    cand = candidate(ref)
+    diffuse = ref.terms["diffuse"].copy()
+    lit = (diffuse > 0).all(-1)
+    inner = lit.copy()  # lit pixels whose 7x7 neighbourhood is lit: far from terminators and shadow edges
+    for dy in range(-3, 4):
+        for dx in range(-3, 4):
+            inner &= np.roll(np.roll(lit, dy, 0), dx, 1)
+    ys, xs = np.nonzero(inner)
+    y, x = ys[len(ys) // 2], xs[len(xs) // 2]
+    diffuse[y - 1 : y + 2, x - 1 : x + 2] = 0.0  # a 3x3 patch shadowed in the oracle only
+    cand.aux = {"diffuse_exercise": diffuse}
+    geom = harness.check_geometry(scene, rules, ref, cand)  # as a precise oracle's: tiny band
+    cand.backend = "mitsuba"  # shading: the physical model's diffuse buffer
+    for complete, verdict in ((True, "fail"), (False, "pass")):
+        cand.meta["plane_coverage_complete"] = complete
+        shading = harness.check_shading(scene, ref, cand, geom)
+        assert shading.verdict == verdict, (complete, shading.reason, shading.figures)
+        assert shading.figures["plane_coverage_complete"] is complete

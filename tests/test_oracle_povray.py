@@ -5,7 +5,7 @@ Comparisons are made under ``oracle.adapt(rules)``, so the reference follows the
 - Hit mask: may differ only inside the silhouette band, margin < K·eps with K·eps =
   ``povray.band_threshold(scene, rules)`` (float bounding boxes 2^-24 (|C| + r)/r, the textbook
   discriminant 2^-53 |f|^2/r^2, planes missed below |n·d| = 1e-10, the mesh camera's single-precision
-  rays; K = 8) -- a few 1e-6 for these scenes -- or a candidate hit nearer than MIN_DEPTH_BAND (POV-Ray
+  rays; K = 8) -- a few 1e-6 for these scenes -- or a candidate hit within its start band (POV-Ray
   ignores hits within 1e-4 of a ray's origin).
 - Shape ids: equal on every pixel both call a hit, outside the band.
 - t, position, normal: within the encoding precision in ``meta["precision"]`` (derived in
@@ -105,7 +105,9 @@ def renders():
             o, d = camera.primary_rays(sc, rules)
             with np.errstate(invalid="ignore"):
                 m = band.margins(sc, o, d)
-            outside = (m["margin"] >= povray.band_threshold(sc, rules)) & (m["near"] >= povray.MIN_DEPTH_BAND)
+            p = res.meta["precision"]
+            starts = band.start_band(sc, o, d, p["min_distance"], p["start_err"], p["start_err"])
+            outside = (m["margin"] >= povray.band_threshold(sc, rules)) & ~starts
             cache[case] = {"scene": sc, "rules": rules, "res": res, "ref": ref, "outside": outside.reshape(SIZE, SIZE)}
         return cache[case]
 
@@ -396,7 +398,7 @@ def test_the_exercises_own_samples(stem):
     assert len(res.meta["commands"]) == 2 and not res.hit.any()  # colour only: no geometry frames
     ref = tracer.render(sc, rules)
     p = res.meta["precision"]
-    inband = band.sample_band(sc, rules, 9, p["band_threshold"], p["min_depth"])
+    inband = band.sample_band(sc, rules, 9, p["band_threshold"], p["min_distance"], p["start_err"])
     d = np.abs(res.image8.astype(int) - ref.color8().astype(int))
     assert d[~inband].max() <= 1
     x = np.clip(ref.color, 0, 1) * 255 + 0.5

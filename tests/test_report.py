@@ -281,3 +281,25 @@ def test_committed_sample_is_complete():
     assert {p.name for p in (sample / "assets").iterdir()} <= used | {"sweep.png"}  # nothing stale
     data = json.loads((sample / "report.json").read_text())
     assert data["verdict"] == "pass" and all(s["verdict"] == "pass" for s in data["scenes"])
+
+
+def test_an_inconclusive_check_is_shown_as_such(tmp_path):
+    """A check that could not fail (here: an infinite t tolerance) is a WARN the page labels INCONCLUSIVE, in the
+    matrix, on the backend and on the check, and report.json says so."""
+    real = harness.check_scene(ROOT / "scenes" / "exercise.toml", ["reference"], (16, 16))
+    scene = load_scene(ROOT / "scenes" / "exercise.toml").with_overrides(width=16, height=16)
+    ref = real.reference
+    cand = copy.deepcopy(ref)
+    cand.backend = "synthetic"
+    cand.meta = {**cand.meta, "precision": {"band_eps": 1e-9, "t_rel": 1e-12, "t_abs": np.inf, "normal_deg": 1e-9}}
+    geom = harness.check_geometry(scene, resolve(scene), ref, cand)
+    assert geom.inconclusive
+    b = BackendCheck(backend="synthetic", verdict="warn", reason=geom.reason, checks={"geometry": geom},
+                     result=cand, reference=ref)  # fmt: skip
+    sc = SceneCheck(scene="vague", file="vague.toml", verdict="warn", backends={"synthetic": b}, reference=ref)
+    index = report.write_report(CheckResult(verdict="warn", scenes=[sc]), tmp_path / "r", command="x", date=DATE)
+    html = index.read_text()
+    assert html.count(">INCONCLUSIVE<") == 4  # matrix cell, tile, backend summary, geometry check
+    assert "inconclusive: this oracle cannot judge this scene (the t tolerance" in html
+    data = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert data["scenes"][0]["backends"]["synthetic"]["inconclusive"] is True

@@ -502,3 +502,57 @@ def test_runtime_subset_rays_same_bits(precision):
         for full, sub in ((o, os_), (d, ds)):
             whole = tr._to_numpy3(full)
             assert np.array_equal(whole[idx].view(np.uint8), tr._to_numpy3(sub).view(np.uint8)), change
+
+
+# ---------------------------------------------------------------------------------------------
+# near_root_only with the error-bound offset: back faces shadow themselves
+
+_BACK_FACE = """
+[camera]
+distance = 2.0
+width = 24
+height = 24
+[light]
+position = [0.0, 0.0, 12.0]
+[render]
+background = [0.1, 0.2, 0.3]
+max_depth = 0
+[materials.m]
+ambient = [0.1, 0.1, 0.1]
+diffuse = [0.7, 0.6, 0.5]
+specular = [0.5, 0.5, 0.5]
+[[shapes]]
+type = "ball"
+center = [0.3, 0.0, 3.0]
+radius = 1.0
+material = "m"
+"""
+
+
+@pytest.mark.parametrize("big", [False, True], ids=["unrolled", "bvh"])
+def test_near_root_only_with_the_error_bound_offset_keeps_back_face_self_shadows(big):
+    """The light is behind the ball: every point the camera sees faces away from it (s·n < 0), and the
+    shadow ray runs into the ball itself. Under near_root_only with the error-bound offset the ray used
+    to start inside the ball (the side it leaves to), where near_root_only sees nothing: every such point
+    lit, with a negative diffuse term and (r·s)^8 on the wrong side. Started outside, it is blocked, as
+    under the exercise's numeric offset along the normal and as without near_root_only."""
+    text = _BACK_FACE
+    if big:  # from 16 shapes on the tracer goes through the shape table and the BVH: far, unseen balls
+        text += "".join(
+            f'[[shapes]]\ntype = "ball"\ncenter = [{40.0 + 3 * k}, 40.0, -20.0]\nradius = 0.5\nmaterial = "m"\n'
+            for k in range(16)
+        )
+    scene = parse_scene(text)
+    base = replace(PROFILES["exercise"], offset="error-bound")
+    assert base.near_root_only is True and base.clamp is False
+    res = Tracer(scene, base).render()
+    on_ball = res.shape_id == 0
+    assert on_ball.sum() > 100
+    assert not res.terms["diffuse"][on_ball].any() and not res.terms["specular"][on_ball].any()
+    for other in (replace(base, offset=1e-6), replace(base, near_root_only=False)):
+        alt = Tracer(scene, other).render()
+        assert np.array_equal(alt.terms["diffuse"][on_ball], res.terms["diffuse"][on_ball]), other
+    o, d = camera.primary_rays(scene, base)
+    plain = Plain(scene, base)
+    got = np.array([plain.trace(tuple(o[i]), tuple(d[i]), 0) for i in range(len(o))]).reshape(24, 24, 3)
+    assert np.abs(got - res.color).max() < 1e-9  # the plain reference agrees
