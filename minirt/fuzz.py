@@ -63,10 +63,17 @@ def pow10(u: float) -> float:
 
 
 def log_uniform(rng: random.Random, lo: float, hi: float) -> float:
-    """A value in [lo, hi], log-uniformly (log10 of the bounds by math.log10 of exact powers of ten
-    is exact; other bounds go through log10 once, deterministic enough as a bound only)."""
-    a, b = math.log10(lo), math.log10(hi)
+    """A value in [lo, hi], log-uniformly; lo and hi are powers of ten (1e-12, 10, 1e8), so their
+    exponents are integers known exactly and no libm logarithm enters the draw."""
+    a, b = _decade(lo), _decade(hi)
     return min(max(pow10(rng.uniform(a, b)), lo), hi)
+
+
+def _decade(x: float) -> int:
+    k = round(math.log10(x))
+    if float(f"1e{k}") != x:
+        raise ValueError(f"not a power of ten: {x!r}")
+    return k
 
 
 def _signed(rng: random.Random, x: float) -> float:
@@ -500,7 +507,7 @@ def _f32(rng: random.Random, width: int, height: int) -> Doc:
     ulp32 = math.ldexp(1.0, math.frexp(far)[1] - 24)  # float32's spacing at the cluster's depth
     home = (rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), far)
     words = [f"cluster at z = {_g(far)} (float32 spacing {_g(ulp32)})"]
-    detail = log_uniform(rng, 1e-4 * ulp32, 1e2 * ulp32)
+    detail = ulp32 * log_uniform(rng, 1e-4, 1e2)  # ulp32 a power of two: exact
     r0 = rng.uniform(0.2, 1)
     c0 = home
     sc.ball(c0, r0)

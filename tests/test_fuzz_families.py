@@ -53,7 +53,7 @@ PINNED = {
     "contact": "f6299c0f5aba314b",
     "far": "8f27ca3e150f834b",
     "scaled": "b242088949b81ca3",
-    "f32": "e5d4beb044109333",
+    "f32": "70e092d6bc9d011c",
 }
 
 
