@@ -472,7 +472,9 @@ def _far(rng: random.Random, width: int, height: int) -> Doc:
             r = rng.uniform(0.1, 0.8)
             sc.ball((rng.uniform(-1.5, 1.5), -below + r + rng.uniform(0, 0.5), rng.uniform(2, 8)), r)
     for _ in range(rng.randint(0 if planet else 1, 3)):
-        x, y = rng.randint(0, width - 1), rng.randint(0, height - 1)
+        # above a planet, only rays looking up (py >= 0) clear its horizon
+        top = math.floor(height / 2 - sc.sample) if planet else height - 1
+        x, y = rng.randint(0, width - 1), rng.randint(0, max(top, 0))
         d = pixel_ray(*image_point(x + sc.sample, y + sc.sample, width, height), sc.distance)
         ratio = log_uniform(rng, 10, 1e8)
         r = log_uniform(rng, 1e-2, 1e2)
