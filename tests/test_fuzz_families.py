@@ -90,6 +90,14 @@ def test_start_has_a_surface_at_the_image_plane():
         m = re.search(r"gap ([0-9.e+-]+)", sc.description)
         gap = abs(float(m.group(1))) if m else 0.0
         assert gap == 0 or 0.99e-12 <= gap <= 1.001e-3, sc.description
+        line = re.search(r"(row y|column x) = .*\((p[xy]) = ([0-9.e+-]+)\)", sc.description)
+        if line:  # the plane holds that row's (column's) image-plane points, up to the gap
+            plane, at = sc.shapes[0], float(line.group(3))
+            assert isinstance(plane, Plane) and plane.normal[2] != 0
+            points = [(e, at, 0.0) if line.group(2) == "py" else (at, e, 0.0) for e in (-0.5, 0.0, 0.5)]
+            off = [abs(float(np.dot(plane.normal, p)) - plane.distance) for p in points]
+            # the description rounds the gap to 3 digits
+            assert gap * 0.99 - 1e-15 <= min(off) <= max(off) <= gap * 1.01 + 1e-15, (sc.description, off)
 
 
 def _pixel_rays(sc: Scene) -> np.ndarray:
