@@ -410,7 +410,7 @@ def _grazing(rng: random.Random, width: int, height: int) -> Doc:
             v = _sub(center, camera)
             miss = _norm(_sub(v, _scale(d, _dot(v, d))))  # the ray's distance from the centre
             rel = _signed(rng, _gap(rng, 1e-16, 1e-4, p_zero=0.3))
-            sc.ball(center, miss * (1 + rel))
+            sc.ball(center, miss + miss * rel)  # not miss * (1 + rel): 1 + 1e-16 rounds to 1
             off = "exactly" if rel == 0 else f"radius off by {_g(rel)} (relative)"
             words.append(f"ball whose silhouette passes through pixel ({x}, {y})'s {where}, {off}")
     sc.context_balls(rng.randint(0, 2))
