@@ -57,9 +57,11 @@ schemas: setup
 bench: setup
 	$(BIN)/python benchmarks/bench.py
 
-# Random scenes through every oracle: prints any that does not pass (SEED=, COUNT=, SIZE= to vary).
+# Random scenes through every oracle: prints any that does not pass (SEED=, COUNT=, SIZE= to vary;
+# FAMILY= one of minirt.fuzz's hard-case families instead of the plain random scenes).
 fuzz: setup
-	$(BIN)/python tools/fuzz_scenes.py --seed $(or $(SEED),1) --count $(or $(COUNT),12) --size $(or $(SIZE),24)
+	$(BIN)/python tools/fuzz_scenes.py --seed $(or $(SEED),1) --count $(or $(COUNT),12) --size $(or $(SIZE),24) \
+		--family $(or $(FAMILY),random)
 
 clean:
 	rm -rf $(VENV) renders out grades .pytest_cache
