@@ -127,6 +127,18 @@ def test_a_huge_rectangles_error_reaches_the_diffuse_tolerance():
 
 
 @pytest.mark.slow
+def test_a_grazing_view_of_a_huge_rectangle_errs_by_its_error_over_cos():
+    """A fuzzed scene: a ray meets Mitsuba's rectangle at cos 0.188; the interpolated hit point lies 0.495
+    off the ray (abs_error 0.092 / 0.188), which turns the light direction 5 times more than abs_error
+    alone: the diffuse tolerance carries abs_error / (|cos| |L - p|)."""
+    sc = harness.check_scene(Path(__file__).parent / "scenes" / "fuzz_grazing_rectangle.toml", ["mitsuba"])
+    b = sc.backends["mitsuba"]
+    assert b.verdict == "pass", b.reason
+    # beyond the tolerance without the cosine there: 2e-4 + abs_error / |L - p| = 2e-4 + 0.092 / 18.45 = 5.2e-3
+    assert b.checks["shading"].figures["diffuse_rel_err_max"] > 6e-3
+
+
+@pytest.mark.slow
 def test_a_plane_never_shadows_itself_in_mitsuba():
     """A fuzzed scene: the stock visibility test let a huge rectangle shadow its own points."""
     sc = harness.check_scene(Path(__file__).parent / "scenes" / "fuzz_plane_self_shadow.toml", ["mitsuba"])
