@@ -57,11 +57,11 @@ schemas: setup
 bench: setup
 	$(BIN)/python benchmarks/bench.py
 
-# Random scenes through every oracle: prints any that does not pass (SEED=, COUNT=, SIZE= to vary;
-# FAMILY= one of minirt.fuzz's hard-case families instead of the plain random scenes).
+# The adversarial campaign in small: hard scenes of every family through every oracle (minirt fuzz; SEED=,
+# COUNT=, SIZE= to vary, FAMILY= a comma list of families, DEFECTS=all to check the injected defects too).
 fuzz: setup
-	$(BIN)/python tools/fuzz_scenes.py --seed $(or $(SEED),1) --count $(or $(COUNT),12) --size $(or $(SIZE),24) \
-		--family $(or $(FAMILY),random)
+	$(BIN)/minirt fuzz --seed $(or $(SEED),1) --count $(or $(COUNT),14) --size $(or $(SIZE),24)x$(or $(SIZE),24) \
+		--families $(or $(FAMILY),all) --defects $(or $(DEFECTS),none) --out renders/fuzz
 
 clean:
 	rm -rf $(VENV) renders out grades .pytest_cache

@@ -292,6 +292,46 @@ class ProbeDocument(_Document):
     image: dict[str, Any] | None = None
 
 
+# ---------------------------------------------------------------------------------------------
+# fuzz.json
+
+
+class FuzzFailure(BaseModel):
+    scene: str = Field(description="The scene's name; its file, check JSON and images are in the output folder.")
+    family: str
+    backend: str
+    verdict: Literal["fail", "error"]
+    reason: str
+
+
+class DefectFigures(BaseModel):
+    summary: str = Field(description="The tracer bug the defect stands for.")
+    changes: int = Field(description="Scenes where the defect changes what some oracle's check judges.")
+    changes_judged: int = Field(description="... on pixels that check judges (outside its bands and edges).")
+    caught: int = Field(description="Scenes where an oracle it changes FAILed.")
+    rate: float | None = Field(description="caught / changes; null when it changed no scene.")
+    rate_judged: float | None = Field(description="The same over the scenes in changes_judged.")
+    missed: list[str]
+    missed_judged: list[str]
+
+
+class FuzzDocument(_Document):
+    """``minirt fuzz``'s fuzz.json (and its --json): the campaign's verdicts, failures and defect catch rates.
+    No timings: the same command gives the same bytes, whether its jobs ran or came from the cache."""
+
+    seed: int
+    families: list[str]
+    size: list[int]
+    backends: list[str]
+    scenes: int
+    jobs: int = Field(description="Scenes x oracles.")
+    verdicts: dict[CheckVerdict, int]
+    inconclusive: int = Field(description="WARN verdicts whose only cause is a check that could not fail.")
+    failures: list[FuzzFailure]
+    by_family: dict[str, dict[CheckVerdict, int]]
+    defects: dict[str, DefectFigures] = Field(default_factory=dict)
+
+
 DOCUMENTS: dict[str, type[_Document]] = {
     "check": CheckDocument,
     "report": ReportDocument,
@@ -300,6 +340,7 @@ DOCUMENTS: dict[str, type[_Document]] = {
     "sweep": SweepDocument,
     "render": RenderSidecar,
     "probe": ProbeDocument,
+    "fuzz": FuzzDocument,
 }
 
 

@@ -290,8 +290,8 @@ def _random_light(rng: random.Random) -> Vec:
 
 
 def _random(rng: random.Random, width: int, height: int) -> Doc:
-    """The plain random scene. The draws, their order and their rounding are the original fuzzer's
-    (tools/fuzz_scenes.py), so its seeds still give the scenes its regression notes cite."""
+    """The plain random scene: the draws, their order and their rounding of the first fuzzer, which the
+    scenes in tests/scenes/fuzz_*.toml came from."""
     cam = {"distance": round(rng.uniform(0.8, 4), 3), "width": width, "height": height}
     light = {"position": _vec3(rng, -8, 8)}
     profile = rng.choice(["exercise", "conventional"])

@@ -4,7 +4,7 @@ the JSON Schema shipped in minirt/schemas/ -- and those schemas are the ones the
 The documents come from the commands as a user runs them (subprocesses, small images): render sidecars
 (reference and Embree), check --json - (Embree's tolerance maxima are infinite: null with a reason),
 report.json with an embedded sweep, sweep.json, grade --json, a class's grades.json (one row an error),
-probe --json.
+probe --json, fuzz.json with a defect.
 """
 
 from __future__ import annotations
@@ -73,6 +73,11 @@ def docs(tmp_path_factory) -> SimpleNamespace:
     (klass / "bob" / "rules.png").write_text("not a png")
     p = run("grade", "--class", klass, "-o", tmp / "grades", "--workers", "1", "-q")
     assert p.returncode == 0, p.stderr
+    p = run(
+        "fuzz", "-n", "2", "--size", "8x8", "-b", "embree", "--defects", "t-scaled", "-o", tmp / "fz", "--workers", "1"
+    )
+    assert p.returncode == 0, p.stderr
+    fuzz = (tmp / "fz" / "fuzz.json").read_text()
     p = run("probe", "exercise", "8", "6", *small, "--json")
     assert p.returncode == 0, p.stderr
     return SimpleNamespace(
@@ -85,6 +90,7 @@ def docs(tmp_path_factory) -> SimpleNamespace:
             "grade": [grade],
             "grades": [(tmp / "grades" / "grades.json").read_text()],
             "probe": [p.stdout],
+            "fuzz": [fuzz],
         },
     )
 

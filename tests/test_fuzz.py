@@ -1,0 +1,193 @@
+"""`minirt fuzz`: the campaign's make-test subset, its jobs, cache, evidence and defect injections.
+
+The subset: a fixed seed, scenes of every family through every oracle, on an embedded Dask LocalCluster
+of two workers -- 0 FAIL, 0 ERROR. A rerun comes from the cache and writes the same bytes; a run in this
+process (--workers 1, no cache) writes them too. Defects: each changes the reference's image on most
+scenes, and wherever it changes pixels a check judges, some oracle FAILs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+
+from minirt import campaign, documents
+from minirt.fuzz import FAMILIES
+from minirt.result import RenderResult
+
+ROOT = Path(__file__).resolve().parent.parent
+PER_FAMILY = 3  # scenes of each family in the subset
+SIZE = "16x16"
+
+
+def fuzz(*args, cwd: Path = ROOT, env=None, timeout: int = 900) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "minirt", "fuzz", *map(str, args)],
+        cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def subset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fuzz") / "campaign"
+    count = PER_FAMILY * len(FAMILIES)
+    p = fuzz("--count", count, "--seed", 7, "--size", SIZE, "--workers", 2, "-o", out, "-q")
+    return out, count, p
+
+
+def test_subset_every_family_every_oracle_on_a_local_cluster(subset):
+    out, count, p = subset
+    assert p.returncode == 0, p.stdout + p.stderr
+    doc = json.loads((out / "fuzz.json").read_text())
+    assert doc["scenes"] == count and doc["jobs"] == 3 * count
+    assert doc["backends"] == ["mitsuba", "povray", "embree"]
+    assert doc["verdicts"]["fail"] == 0 and doc["verdicts"]["error"] == 0, doc["failures"]
+    assert sum(doc["verdicts"].values()) == doc["jobs"]
+    assert set(doc["by_family"]) == set(FAMILIES)
+    assert all(sum(v.values()) == 3 * PER_FAMILY for v in doc["by_family"].values())
+    assert "(2 processes)" in p.stdout  # the jobs ran on a LocalCluster of two workers
+    validator = jsonschema.Draft202012Validator(documents.shipped("fuzz"))
+    assert not list(validator.iter_errors(doc))
+
+
+def test_every_non_pass_keeps_its_scene_and_evidence(subset):
+    out, _, _ = subset
+    doc = json.loads((out / "fuzz.json").read_text())
+    kept = {p.stem for p in out.glob("*.toml")}
+    non_pass = sum(v for k, v in doc["verdicts"].items() if k != "pass")
+    if not non_pass:
+        assert not kept  # only non-PASS scenes are kept
+    for f in out.glob("*.check.json"):
+        scene = f.name.split(".")[0]
+        assert scene in kept
+        assert json.loads(f.read_text())["verdict"] != "pass"
+
+
+def test_rerun_comes_from_the_cache_with_the_same_bytes(subset, tmp_path):
+    out, count, _ = subset
+    before = (out / "fuzz.json").read_bytes()
+    p = fuzz("--count", count, "--seed", 7, "--size", SIZE, "--workers", 1, "-o", out)
+    assert p.returncode == 0, p.stderr
+    assert f"{3 * count} of {3 * count} jobs from the cache" in p.stdout
+    assert (out / "fuzz.json").read_bytes() == before
+    # and without the cache, in this process, the same bytes again (a few scenes: the same seed's first ones)
+    q = fuzz("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "--no-cache", "-o", tmp_path, "-q")
+    r = fuzz("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "-o", out / "again", "-q")
+    assert q.returncode == r.returncode == 0, q.stderr + r.stderr
+    assert (tmp_path / "fuzz.json").read_bytes() == (out / "again" / "fuzz.json").read_bytes()
+    assert not (tmp_path / "cache").exists()
+
+
+def test_defects_are_caught_where_they_change_judged_pixels(tmp_path):
+    kinds = ",".join(campaign.DEFECTS)
+    p = fuzz("--count", 6, "--seed", 3, "--families", "random", "--size", "24x24", "--workers", 1, "--defects", kinds,
+             "-o", tmp_path, "-q")  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    doc = json.loads((tmp_path / "fuzz.json").read_text())
+    assert set(doc["defects"]) == set(campaign.DEFECTS)
+    for name, d in doc["defects"].items():
+        assert d["changes"] >= 1, f"{name} changed no scene: it tests nothing here"
+        assert d["missed_judged"] == [], f"{name} changed judged pixels of {d['missed_judged']} and was not caught"
+        assert d["caught"] <= d["changes"]
+        assert f"defect {name}" in p.stdout
+
+
+def test_a_crashing_oracle_is_an_error_with_its_scene_kept(tmp_path):
+    fake = tmp_path / "bin" / "povray"
+    fake.parent.mkdir()
+    fake.write_text(
+        '#!/bin/sh\n[ "$1" = --version ] && { echo "POV-Ray 3.7.0.10"; exit 0; }\n'
+        'echo "Parse Error: boom" >&2\nexit 1\n'
+    )
+    fake.chmod(0o755)
+    env = {**os.environ, "PATH": f"{fake.parent}{os.pathsep}{os.environ['PATH']}"}
+    out = tmp_path / "out"
+    p = fuzz("--count", 2, "--families", "random", "--size", "8x8", "-b", "povray", "--workers", 1, "-o", out, "-q",
+             env=env)  # fmt: skip
+    assert p.returncode == 2, p.stdout + p.stderr
+    assert "ERROR random_1_0 povray" in p.stderr and "Parse Error" in p.stderr
+    doc = json.loads((out / "fuzz.json").read_text())
+    assert doc["verdicts"]["error"] == 2 and len(doc["failures"]) == 2
+    assert {f["scene"] for f in doc["failures"]} == {"random_1_0", "random_1_1"}
+    for s in ("random_1_0", "random_1_1"):
+        assert (out / f"{s}.toml").is_file() and (out / f"{s}.povray.check.json").is_file()
+    assert not list(out.glob("cache/*.json"))  # an error is not cached: the next run tries again
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--families", "nope"], "--families: unknown family nope"),
+        (["--defects", "nope"], "--defects: unknown defect nope"),
+        (["--size", "10x"], "--size"),
+        (["-b", "reference"], "no oracle to compare with"),
+        (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--workers and --scheduler"),
+    ],
+)
+def test_bad_options_are_one_line_and_exit_2(args, words, tmp_path):
+    p = fuzz(*args, "-o", tmp_path, "-q")
+    assert p.returncode == 2, p.stderr
+    assert words in p.stderr
+    assert "Traceback" not in p.stderr
+
+
+def test_an_unreachable_scheduler_is_one_line(tmp_path):
+    p = fuzz("--count", 1, "--scheduler", "tcp://127.0.0.1:9", "-o", tmp_path, "-q", timeout=120)
+    assert p.returncode == 2, p.stderr
+    assert "cannot reach a Dask scheduler" in p.stderr and "Traceback" not in p.stderr
+
+
+# ---- units ------------------------------------------------------------------------------------
+
+
+def _result(hit, sid, t, color) -> RenderResult:
+    h, w = hit.shape
+    n = np.zeros((h, w, 3))
+    n[..., 2] = 1
+    return RenderResult("reference", w, h, hit=hit, shape_id=sid, t=t, normal=n, color=color,
+                        terms={"diffuse": color})  # fmt: skip
+
+
+def test_changes_sees_each_buffer_and_respects_where():
+    hit = np.array([[True, False]])
+    sid = np.array([[0, -1]])
+    t = np.array([[2.0, np.inf]])
+    c = np.full((1, 2, 3), 0.5)
+    a = _result(hit, sid, t, c)
+    assert not campaign.changes(a, _result(hit, sid, t, c), "exercise")
+    assert campaign.changes(a, _result(~hit, sid, t, c), None)
+    assert campaign.changes(a, _result(hit, sid + 1, t, c), None)
+    assert campaign.changes(a, _result(hit, sid, t * 1.01, c), None)
+    assert not campaign.changes(a, _result(hit, sid, t * (1 + 1e-12), c), None)
+    one_level = c + 1 / 255
+    assert not campaign.changes(a, _result(hit, sid, t, one_level), "exercise")  # rounding: the check allows it
+    assert campaign.changes(a, _result(hit, sid, t, c + 3 / 255), "exercise")
+    assert not campaign.changes(a, _result(hit, sid, t, c + 3 / 255), None)  # a geometry-only oracle
+    assert not campaign.changes(a, _result(hit, sid, t, c + 3 / 255), "exercise", np.zeros_like(hit))
+
+
+def test_job_key_changes_with_what_the_result_depends_on():
+    v = {"minirt": "a", "drjit": "1", "povray": "3.7"}
+    j = campaign.Job("s", "random", "text", "povray", ())
+    k = campaign.job_key(j, v)
+    assert k == campaign.job_key(campaign.Job("s", "random", "text", "povray", ()), dict(v))
+    assert k != campaign.job_key(campaign.Job("s", "random", "text!", "povray", ()), v)
+    assert k != campaign.job_key(campaign.Job("s", "random", "text", "mitsuba", ()), v)
+    assert k != campaign.job_key(campaign.Job("s", "random", "text", "povray", ("t-scaled",)), v)
+    assert k != campaign.job_key(j, {**v, "povray": "3.8"})
+    assert k != campaign.job_key(j, {**v, "minirt": "b"})
+
+
+def test_scenes_take_the_families_in_turn():
+    fams = tuple(FAMILIES)
+    got = campaign.scenes(2 * len(fams) + 1, 5, fams, (8, 8))
+    assert [f for _, f, _ in got] == [*fams, *fams, fams[0]]
+    assert got[0][0] == f"{fams[0]}_5_0" and got[len(fams)][0] == f"{fams[0]}_5_1"
+    assert got == campaign.scenes(2 * len(fams) + 1, 5, fams, (8, 8))
