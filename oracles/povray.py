@@ -307,14 +307,22 @@ def start_decision(scene: Scene, rules: Rules, mesh_camera: bool) -> dict[str, A
     - Mesh camera: rays start on the harness's own origins, so hits within MIN_ISECT_DEPTH of them are
       dropped; the single-precision triangles place a point at distance t off by <= MESH_RAY_ERROR (1 + t)
       (see MESH_RAY_ERROR), at t = MIN_ISECT_DEPTH: MESH_RAY_ERROR (1 + 1e-4).
-    - Pinhole camera: rays start at the camera, at least the camera distance before the image plane, and no
-      shape lies between the two (else the mesh camera is used), so no candidate of the reference is
-      within 1e-4 of POV-Ray's origin: minimum distance 0. Its double-precision rays cross the image plane
-      within dir_err |o - camera| of the exercise's origin o (dir_err = 2^-22, see precision()): the
-      reference's own t > 0 decision is undecidable for POV-Ray within that distance.
+    - Pinhole camera, rule ray_origin "image-plane": rays start at the camera, at least the camera distance
+      before the image plane, and no shape lies between the two (else the mesh camera is used), so no
+      candidate of the reference is within 1e-4 of POV-Ray's origin: minimum distance 0. Its
+      double-precision rays cross the image plane within dir_err |o - camera| of the exercise's origin o
+      (dir_err = 2^-22, see precision()): the reference's own t > 0 decision is undecidable for POV-Ray
+      within that distance.
+    - Pinhole camera, rule ray_origin "camera": POV-Ray's rays and the exercise's start at the same point,
+      the camera (its location is given exactly), so hits within MIN_ISECT_DEPTH of it are dropped, as
+      with the mesh camera; at t = MIN_ISECT_DEPTH the direction error places a point dir_err
+      MIN_ISECT_DEPTH off. (A fuzzed plane through the camera, grazing_7_1: the reference hit it at
+      t ~ 1e-10 on a row of pixels, POV-Ray did not.)
     """
     if mesh_camera:
         return {"min_distance": MIN_ISECT_DEPTH, "start_err": MESH_RAY_ERROR * (1 + MIN_ISECT_DEPTH)}
+    if rules.ray_origin == "camera":
+        return {"min_distance": MIN_ISECT_DEPTH, "start_err": 2.0**-22 * MIN_ISECT_DEPTH}
     o = camera.primary_rays(scene, rules)[0]
     reach = float(np.max(np.linalg.norm(o - np.asarray(scene.camera.position), axis=1))) if len(o) else 0.0
     return {"min_distance": 0.0, "start_err": 2.0**-22 * reach}

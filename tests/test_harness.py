@@ -74,8 +74,9 @@ DEFECTS = {
     "horizontal mirror": (lambda r, s: _all_buffers(r, lambda a: a[:, ::-1].copy()), "geometry"),
     "flipped normals": (lambda r, s: setattr(r, "normal", -r.normal) or r, "geometry"),
     "wrong shape id": (lambda r, s: setattr(r, "shape_id", np.where(r.shape_id == 0, 1, r.shape_id)) or r, "geometry"),
-    "NaN pixel": (lambda r, s: r.color.__setitem__((SIZE // 2, SIZE // 2, 0), np.nan) or r, "preflight"),
-    "NaN position": (lambda r, s: r.position.__setitem__((SIZE // 2, SIZE // 2, 1), np.nan) or r, "preflight"),
+    # (NaN at a hit off the band: row SIZE // 2 is the floor's horizon, in the band, where NaN is not judged)
+    "NaN pixel": (lambda r, s: r.color.__setitem__((SIZE // 2 + 6, SIZE // 2, 0), np.nan) or r, "geometry"),
+    "NaN position": (lambda r, s: r.position.__setitem__((SIZE // 2 + 6, SIZE // 2, 1), np.nan) or r, "geometry"),
     "wrong image size": (
         lambda r, s: (_all_buffers(r, lambda a: a[:-1]) and setattr(r, "height", SIZE - 1)) or r,
         "preflight",
@@ -292,3 +293,15 @@ def test_shadow_decisions_are_not_judged_where_an_oracles_planes_did_not_cover_t
         shading = harness.check_shading(scene, ref, cand, geom)
         assert shading.verdict == verdict, (complete, shading.reason, shading.figures)
         assert shading.figures["plane_coverage_complete"] is complete
+
+
+def test_nan_inside_the_band_is_counted_not_judged(setup):
+    """An oracle's NaN where its own precision cannot decide the pixel (a float32 normal of a ball 1e8 away)
+    is not a defect of the reference: counted in the figures, not judged; off the band it FAILs (above)."""
+    scene, rules, ref = setup
+    cand = candidate(ref)
+    cand.normal[SIZE // 2, SIZE // 2] = np.nan  # row SIZE // 2: the floor's horizon, in the band
+    geom = harness.check_geometry(scene, rules, ref, cand)
+    assert geom.images["band"][SIZE // 2, SIZE // 2]
+    assert geom.verdict == "pass", geom.reason
+    assert geom.figures["nonfinite"] == {"normal": 1} and geom.figures["nonfinite_outside_band"] == 0
