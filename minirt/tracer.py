@@ -841,7 +841,7 @@ class Tracer:
             aux["shadow_margin"] = np.asarray(lvl0.record["shadow_margin"]).astype(np.float64).reshape(h, w)
         del lvl0, levels
         if sc.samples > 1:
-            col, terms, more = self._render_samples(progress, y0, y1)
+            col, terms, more = self._render_samples(progress, y0, y1, falloff=diagnostics)
             aux.update(more)
         timings["total"] = time.perf_counter() - t0
         for k in TERMS:
@@ -863,12 +863,15 @@ class Tracer:
         return RenderResult(backend="reference", width=w, height=h, color=col, terms=terms, aux=aux, meta=meta, **geom)
 
     def _render_samples(
-        self, progress=None, y0: int = 0, y1: int | None = None
+        self, progress=None, y0: int = 0, y1: int | None = None, falloff: bool = False
     ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Average `samples` stratified, jittered rays per pixel (see camera.sample_offsets).
 
         Also returns the per-pixel sample variance (unbiased, of one sample; divide by n for the
-        mean's) of the colour and of the diffuse term, for statistical comparisons.
+        mean's) of the colour and of the diffuse term, for statistical comparisons. ``falloff``: also
+        the mean and variance of each sample's diffuse term over its squared distance to the light
+        (aux diffuse_r2, variance_diffuse_r2) -- what a physical renderer's point light averages over
+        the pixel, so the harness compares like with like however much r varies across the pixel.
 
         Rays (``_sample_rays``) and the float64 sums stay in Dr.Jit; only the sub-pixel offsets come
         from NumPy (its seeded PCG64) and the sums go back once. The same additions in the same order
@@ -889,6 +892,12 @@ class Tracer:
                 add["color2"] = add["color"] * add["color"]
                 if "term.diffuse" in add:
                     add["diffuse2"] = add["term.diffuse"] * add["term.diffuse"]
+                if falloff and "term.diffuse" in add:
+                    lvl = levels[0]
+                    to_light = A64(lvl.p) - A64(*self.scene.light.position)
+                    r2 = dr.squared_norm(to_light)
+                    add["diffuse_r2"] = dr.select((lvl.shape_id >= 0) & (r2 > 0), add["term.diffuse"] / r2, 0.0)
+                    add["diffuse_r2_2"] = add["diffuse_r2"] * add["diffuse_r2"]
                 sums = add if s == 0 else {k: sums[k] + add[k] for k in add}
                 dr.eval(sums)  # one small kernel per sample; the graph never grows
                 if progress:
@@ -900,6 +909,10 @@ class Tracer:
         if "diffuse2" in got:
             dm = got["term.diffuse"] / n
             aux["variance_diffuse"] = (np.maximum(got["diffuse2"] - n * dm * dm, 0.0) / (n - 1)).reshape(h, w, 3)
+        if "diffuse_r2" in got:
+            fm = got["diffuse_r2"] / n
+            aux["diffuse_r2"] = fm.reshape(h, w, 3)
+            aux["variance_diffuse_r2"] = (np.maximum(got["diffuse_r2_2"] - n * fm * fm, 0.0) / (n - 1)).reshape(h, w, 3)
         return mean.reshape(h, w, 3), terms, aux
 
     def _sample_rays(self, u: np.ndarray, v: np.ndarray, pixels: np.ndarray | None = None) -> tuple[Any, Any]:

@@ -99,6 +99,11 @@ BACKEND = "mitsuba"
 PACKAGE_VERSION = "3.9.1"
 VARIANTS = ("llvm_ad_rgb", "scalar_rgb")  # preferred first
 U32 = 2.0**-24  # float32 unit round-off
+# Mitsuba's spawn_ray offset: a secondary ray leaves si.p + n * RAY_EPSILON (1 + max|p|) (include/mitsuba/core
+# math.h: RayEpsilon = Epsilon * 1500, Epsilon = 2^-24 in float32). Where a rectangle's own float32 error
+# exceeds it, the stock integrator's shadow ray can re-hit the rectangle (the sensor route; the custom rays
+# restart past the error slab instead).
+RAY_EPSILON = 2.0**-24 * 1500
 # Growths of the plane rectangles before giving up. Each growth can uncover more: a reflection that now
 # hits a grown rectangle far away, whose shadow segment crosses another plane outside its rectangle (a
 # fuzzed scene with two far-reaching planes and four bounces needed 4). The last growth is always
@@ -307,6 +312,31 @@ def plane_frames(scene: Scene, o: np.ndarray, d: np.ndarray) -> dict[int, PlaneR
     return rects
 
 
+def sensor_frames(scene: Scene, rules: Rules) -> dict[int, PlaneRect]:
+    """Rectangles for the sensor route, which cannot grow them after tracing (Mitsuba's own rays and its
+    stock ``direct`` integrator): ``plane_frames`` of the rays through every pixel square's four corners
+    (the sensor's samples lie inside those squares, and a square's hits on a plane lie inside its
+    corners' hits), plus each plane's projection of every such ray's hit on the other planes. A shadow
+    segment from a hit P to the light L crosses plane B at a point of B lying between the projections of
+    P and L onto B; both are in B's box, which is convex, so B covers every first shadow segment. (A
+    fuzzed scene, random_7_5: a shadow segment passed beyond a rectangle sized for the primary rays
+    alone, and 6 of its pixels came out lit, 21 sigma on that plane's mean.)"""
+    os_, ds = [], []
+    for u, v in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)):
+        n = scene.camera.width * scene.camera.height
+        o, d = camera.rays_through(scene, rules, np.full(n, u), np.full(n, v))
+        os_.append(o)
+        ds.append(d)
+    o, d = np.concatenate(os_), np.concatenate(ds)
+    rects = plane_frames(scene, o, d)
+    hits = {k: o + np.where(np.isfinite(t := plane_hits(r, o, d)), t, np.nan)[:, None] * d for k, r in rects.items()}
+    for k, r in rects.items():
+        for j, p in hits.items():
+            if j != k:
+                r.include(p)
+    return rects
+
+
 # ---------------------------------------------------------------------------------------------
 # The scene as Mitsuba XML: numbers and fixed keywords only.
 
@@ -378,7 +408,9 @@ def sensor_params(scene: Scene, rules: Rules, spp: int = 1) -> dict[str, Any]:
     return {
         "fov": math.degrees(2 * math.atan(0.5 / d)),
         "near_clip": d if rules.ray_origin == "image-plane" else 1e-7 * d,
-        "far_clip": 1e7,
+        # beyond every hit the harness asks about: 1e7, or 1e4 camera distances for a camera set far back
+        # (Mitsuba refuses near_clip >= far_clip: a fuzzed f32 scene with its camera 2.5e7 away)
+        "far_clip": max(1e7, 1e4 * d),
         "principal_point_offset_x": _principal_offset(-0.5 if corner else 0.0, rules.pixel_shift[0], w),
         "principal_point_offset_y": _principal_offset(-0.5 if corner else 0.0, rules.pixel_shift[1], h),
         "to_world": to_world,
@@ -964,8 +996,7 @@ class _SensorRender(_Base):
         w, h = sc.camera.width, sc.camera.height
         spp = int(self.opts.get("spp", 1))
         seed = int(self.opts.get("seed", 0))
-        o64, d64 = camera.primary_rays(sc, rules)
-        rects = plane_frames(sc, o64, d64)
+        rects = sensor_frames(sc, rules)
         ms = self.load(rects, spp=spp)
         t0 = time.perf_counter()
         sensor = ms.sensors()[0]  # the exported sensor: stratified, no jitter, box filter
@@ -990,7 +1021,8 @@ class _SensorRender(_Base):
         def ch(*keys: str) -> np.ndarray:
             return np.stack([img[..., names.index(k)] for k in keys], axis=-1)
 
-        meta_extra: dict[str, Any] = {"channels": names, "spp": spp, "seed": seed,
+        meta_extra: dict[str, Any] = {"channels": names, "spp": spp, "seed": seed, "ray_epsilon": RAY_EPSILON,
+                                      "planes": {f"shape{k}": r.describe() for k, r in rects.items()},
                                       "sensor": {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                                                  for k, v in sensor_params(sc, rules).items()}}  # fmt: skip
         aux: dict[str, np.ndarray] = {}

@@ -115,13 +115,25 @@ def test_edges_seen_in_reflections_are_classified():
     assert shading.figures["color8_diff_on_edges"] > 0  # the legitimate difference is there, on an edge
 
 
+def _rays_pass_sensor_inconclusive(b) -> None:
+    """Scenes of 4 samples with a huge rectangle: the custom-ray checks (what these tests are about) pass;
+    the sensor route's stochastic check is an inconclusive WARN, because the rectangle's float32 error
+    exceeds the spawn offset of Mitsuba's stock integrator on most pixels, so its shadow rays may re-hit
+    the rectangle (they did, on the fuzzed scene tests/scenes/campaign/contact_26_0.toml). It used to
+    PASS here: this scene's shadow rays happened not to re-hit it, but nothing bounds that."""
+    assert b.verdict == "warn" and b.inconclusive, b.reason
+    assert all(c.verdict == "pass" for k, c in b.checks.items() if k != "stochastic"), b.reason
+    st = b.checks["stochastic"]
+    assert st.inconclusive and st.figures["self_shadow_unjudged_pixels"] > 0
+
+
 @pytest.mark.slow
 def test_a_huge_rectangles_error_reaches_the_diffuse_tolerance():
     """A fuzzed scene: Mitsuba's rectangle for a far-reaching plane errs by 0.077 at its hit points,
     which turns the light direction; the diffuse tolerance carries abs_error / |L - p| for planes."""
     sc = harness.check_scene(Path(__file__).parent / "scenes" / "fuzz_huge_rectangle.toml", ["mitsuba"])
     b = sc.backends["mitsuba"]
-    assert b.verdict == "pass", b.reason
+    _rays_pass_sensor_inconclusive(b)
     assert max(p["abs_error"] for p in b.result.meta["planes"].values()) > 0.01  # the case is still hard
     assert b.checks["shading"].figures["diffuse_rel_err_max"] > 2e-4  # beyond the plane-free tolerance
 
@@ -143,7 +155,7 @@ def test_a_plane_never_shadows_itself_in_mitsuba():
     """A fuzzed scene: the stock visibility test let a huge rectangle shadow its own points."""
     sc = harness.check_scene(Path(__file__).parent / "scenes" / "fuzz_plane_self_shadow.toml", ["mitsuba"])
     b = sc.backends["mitsuba"]
-    assert b.verdict == "pass", b.reason
+    _rays_pass_sensor_inconclusive(b)
     assert b.checks["shading"].figures["lit_mismatch"] == 0
 
 
