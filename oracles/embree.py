@@ -431,6 +431,10 @@ class EmbreeOracle(Oracle):
         # Per-pixel bounds for the shape the oracle hit.
         gap = tess.radial_gap_rel
         normal_bound = np.full(n_rays, np.inf)
+        # Embree's float32 hit may land on any triangle within eps32 of the true point: far from the origin
+        # (a ball 7.9e5 away with radius 0.374, fuzz far_11_15: eps32 0.37) that tilts the chosen face's
+        # normal as much as the shell does, so the normal bound takes both.
+        eps32_abs = EMBREE_ULPS * U32 * extent
         for k, shape in enumerate(scene.shapes):
             m = sid == k
             if not m.any():
@@ -438,7 +442,7 @@ class EmbreeOracle(Oracle):
             if isinstance(shape, Ball):
                 tb = ball_t_bound(shape, gap, o[m], d[m])
                 t_bound[m] = tb
-                ratio = tb / (shape.radius * (1.0 - gap))
+                ratio = (tb + eps32_abs) / (shape.radius * (1.0 - gap))
                 with np.errstate(invalid="ignore"):
                     extra = np.where(ratio < 1.0, np.degrees(np.arcsin(np.minimum(ratio, 1.0))), 180.0)
                 normal_bound[m] = np.minimum(tess.normal_deg + extra, 180.0)
@@ -530,7 +534,8 @@ def precision_summary(scene: Scene, tess: Tessellation, far_factor: float, exten
     eps32_rel = max((eps32_abs / b.radius for b in balls), default=0.0)
     shell = math.sqrt(1.0 - (1.0 - g) ** 2)  # largest Δt / r for a ray crossing the inner ball
     t_abs = max((b.radius * shell for b in balls), default=0.0)
-    normal_deg = tess.normal_deg + math.degrees(math.asin(min(1.0, shell / (1.0 - g)))) if balls else 0.0
+    worst = max(((b.radius * shell + eps32_abs) / (b.radius * (1.0 - g)) for b in balls), default=0.0)
+    normal_deg = tess.normal_deg + math.degrees(math.asin(min(1.0, worst))) if balls else 0.0
     far = far_distance(scene, far_factor, tess.subdivisions)
     origins = _ray_origin_region(scene)
     h_max = max((abs(float(np.dot(p.normal, x)) - p.distance) for p in planes for x in origins), default=0.0)
@@ -549,9 +554,10 @@ def precision_summary(scene: Scene, tess: Tessellation, far_factor: float, exten
         "why": (
             "Balls are inscribed icospheres with radial gap g: the faceted surface lies between radius r(1-g) and r. "
             "t_abs = max r*sqrt(1-(1-g)^2): largest |Δt| for a ray crossing the inner ball (per pixel: aux t_bound, "
-            "<= r*t_rel_over_cos/cos θ). normal_deg = α (face vs vertex normals, normal_face_deg) + asin(t_abs/r(1-g)) "
-            "(per pixel: aux normal_bound_deg). band_abs = g + eps32_rel: silhouette margin |h-r|/r below which "
-            "hit/miss may differ (g from the tessellation, eps32_rel = 8 float32 ulps of the mesh's extent / r); "
+            "<= r*t_rel_over_cos/cos θ). normal_deg = α (face vs vertex normals, normal_face_deg) + "
+            "asin((t_abs + eps32_abs)/r(1-g)) (per pixel: aux normal_bound_deg). band_abs = g + eps32_rel: "
+            "silhouette margin |h-r|/r below which hit/miss may differ (g from the tessellation, "
+            "eps32_rel = 8 float32 ulps of the mesh's extent / r); "
             "origin_band_abs: the same for | |o-C| - r |/r, a ray starting in the shell. "
             "grazing_abs: |n·d| below which a plane hit lies beyond the far distance and is lost. t, position, "
             "normal are recomputed in float64 from the triangle Embree chose; depth ties within t_bound + eps32_abs."
