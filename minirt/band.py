@@ -44,7 +44,8 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
     ts = []
     nds = []  # per candidate: |n·d| for a plane's hit, inf for a ball's roots
     coss = []  # per candidate: |n·d| at it, the ray's cosine against the surface (a ball's root: sqrt(disc) / r)
-    for s in scene.shapes:
+    owner = []  # per candidate: its shape's index
+    for k, s in enumerate(scene.shapes):
         if isinstance(s, Ball):
             f = o - np.asarray(s.center)
             b = np.einsum("ij,ij->i", f, d)
@@ -64,6 +65,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
                 ts.append(np.where((disc >= 0) & (r > 0), r, np.inf))
                 nds.append(np.full(n, np.inf))
                 coss.append(sq / s.radius)
+                owner.append(k)
         else:
             nn = np.asarray(s.normal)
             nd = d @ nn
@@ -73,20 +75,35 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
             ts.append(np.where(np.isfinite(t) & (t > 0), t, np.inf))
             nds.append(np.abs(nd))
             coss.append(np.abs(nd))
+            owner.append(k)
     tie = np.full(n, np.inf)
+    id_tie = np.full(n, np.inf)
     if len(ts) >= 2:
         # A surface off by e along its normal moves its hit by e / cos along the ray (cos = |n·d| there), so
         # the two nearest candidates' order is as uncertain as their gap is small against t2 / cos: the
         # relative gap is taken times the smaller cos of the two (fuzz start_11_4: two crossing balls 0.0043
         # apart in t at a grazing hit, Embree's tessellation swapped them).
-        order = np.argsort(np.stack(ts, axis=1), axis=1)
-        tt = np.take_along_axis(np.stack(ts, axis=1), order, axis=1)
-        cc = np.take_along_axis(np.stack(coss, axis=1), order, axis=1)
-        t1, t2 = tt[:, 0], tt[:, 1]
-        both = np.isfinite(t1) & np.isfinite(t2)
-        cos = np.minimum(np.minimum(cc[:, 0], cc[:, 1]), 1.0)
-        with np.errstate(invalid="ignore"):  # inf - inf where fewer than two shapes are hit
-            tie = np.where(both, (t2 - t1) / np.where(both, t2, 1.0) * cos, np.inf)
+        stacked_t, stacked_c = np.stack(ts, axis=1), np.stack(coss, axis=1)
+        order = np.argsort(stacked_t, axis=1, kind="stable")
+        tt = np.take_along_axis(stacked_t, order, axis=1)
+        cc = np.take_along_axis(stacked_c, order, axis=1)
+        ow = np.asarray(owner)[order]
+        rows = np.arange(n)
+        # tie: the two nearest candidates, whichever shapes (which root is nearest decides t and the normal);
+        # id_tie: the nearest and the nearest of another shape -- a ball's two roots never change the shape
+        # id (fuzz far_5_0: a far ball's roots 6e-6 apart excused a swapped id as a "tie").
+        other = ow != ow[:, :1]
+        second = np.where(other.any(axis=1), np.argmax(other, axis=1), 0)
+
+        def gap(j: np.ndarray, exists: np.ndarray) -> np.ndarray:
+            t1, t2 = tt[:, 0], np.where(exists, tt[rows, j], np.inf)
+            both = np.isfinite(t1) & np.isfinite(t2)
+            cos = np.minimum(np.minimum(cc[:, 0], cc[rows, j]), 1.0)
+            with np.errstate(invalid="ignore"):  # inf - inf where fewer than two shapes are hit
+                return np.where(both, (t2 - t1) / np.where(both, t2, 1.0) * cos, np.inf)
+
+        tie = gap(np.ones(n, dtype=int), np.ones(n, dtype=bool))
+        id_tie = gap(second, other.any(axis=1))
     margin = np.minimum.reduce([sil, graze, tie, origin])
     # Not a relative margin, so not in `margin`: the distance to the nearest candidate hit (either root
     # of any shape). Renderers that ignore hits closer than a fixed depth (POV-Ray: 1e-4) disagree there.
@@ -101,6 +118,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
         "silhouette": sil,
         "grazing": graze,
         "tie": tie,
+        "id_tie": id_tie,
         "origin": origin,
         "margin": margin,
         "near": near,

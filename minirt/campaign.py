@@ -18,7 +18,8 @@ the image* of a scene for an oracle when the defective reference differs from th
 that oracle's check judges (``changes``: geometry for all; colour beyond rounding for an oracle that
 shades); it is *caught* when the check of that oracle against it is FAIL. The campaign's catch rate is
 over the scenes where the defect changes the image for some oracle; caught means some oracle that it
-changes failed.
+changes failed. ``rate_judged`` counts only changes on pixels the oracle's check judges (outside its
+bands, depth ties and edges) in scenes it can judge (its check of the correct reference conclusive).
 """
 
 from __future__ import annotations
@@ -170,11 +171,11 @@ def changes(a: RenderResult, b: RenderResult, model: str | None, where: np.ndarr
 
 
 def judged(bc) -> np.ndarray | None:
-    """The pixels a backend check judges: outside its geometry band and its shading's edges."""
+    """The pixels a backend check judges: outside its geometry band, its depth ties and its shading's edges."""
     geom, shade = bc.checks.get("geometry"), bc.checks.get("shading")
     if geom is None or "band" not in geom.images:
         return None
-    out = ~geom.images["band"].astype(bool)
+    out = ~geom.images["band"].astype(bool) & ~geom.images.get("ties", np.zeros_like(geom.images["band"]))
     if shade is not None and "edges" in shade.images:
         out &= ~shade.images["edges"].astype(bool)
     return out
@@ -267,7 +268,8 @@ def run_job(job: Job) -> dict[str, Any]:
             )
             found[name] = {
                 "changes": changed,
-                "changes_judged": changed and changes(clean, got, model, judged(bc)),
+                # on pixels the check judges, in a scene the oracle can judge (its clean check conclusive)
+                "changes_judged": changed and not bc.inconclusive and changes(clean, got, model, judged(bc)),
                 "verdict": dc.verdict if dc else "pass",
             }
         out["defects"] = found

@@ -307,7 +307,9 @@ class FuzzFailure(BaseModel):
 class DefectFigures(BaseModel):
     summary: str = Field(description="The tracer bug the defect stands for.")
     changes: int = Field(description="Scenes where the defect changes what some oracle's check judges.")
-    changes_judged: int = Field(description="... on pixels that check judges (outside its bands and edges).")
+    changes_judged: int = Field(
+        description="... on pixels that check judges (outside its bands, ties and edges), the scene conclusive."
+    )
     caught: int = Field(description="Scenes where an oracle it changes FAILed.")
     rate: float | None = Field(description="caught / changes; null when it changed no scene.")
     rate_judged: float | None = Field(description="The same over the scenes in changes_judged.")
