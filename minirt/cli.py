@@ -77,6 +77,21 @@ ScenesArg = Annotated[
 OraclesOpt = Annotated[str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")]
 SizeOpt = Annotated[str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
+CheckWorkersOpt = Annotated[
+    int,
+    typer.Option(
+        "--workers", metavar="N", min=1, max=256,
+        help="Run each (scene, oracle) check as a job on N local worker processes (Dask LocalCluster); "
+        "1: in this process.",
+    ),
+]  # fmt: skip
+SchedulerOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--scheduler", metavar="ADDRESS",
+        help="Run the jobs on a running Dask cluster (tcp://host:8786); its workers need minirt and the renderers.",
+    ),
+]  # fmt: skip
 JsonOpt = Annotated[
     str | None,
     typer.Option(
@@ -565,9 +580,12 @@ def _parse_size(size: str | None) -> tuple[int, int] | None:
     return wh
 
 
-def run_checks(paths, backend: str, size: str | None, quiet: bool):
+def run_checks(paths, backend: str, size: str | None, quiet: bool, workers: int = 1, scheduler: str | None = None):
     """Shared by `check` and `report`: render and compare, with a progress bar on a terminal."""
     from minirt import backends, harness
+
+    if workers > 1 and scheduler is not None:
+        raise MinirtError("--workers and --scheduler: give one (the cluster has its own workers)")
 
     scenes_ = _scene_paths(paths)
     names = backends.parse_backends(backend)
@@ -578,11 +596,18 @@ def run_checks(paths, backend: str, size: str | None, quiet: bool):
     with _progress(not quiet) as bar:
         task = bar.add_task("checking", total=len(scenes_) * oracle_count) if bar else None
 
-        def tick(i: int, scene: str, name: str, j: int, n: int) -> None:
-            if bar:
-                bar.update(task, completed=i * oracle_count + j, description=f"{terminal_text(scene, 40)}: {name}")
+        jobs_mode = workers > 1 or scheduler is not None
 
-        result = harness.run(scenes_, names, wh, tick)
+        def tick(i: int, scene: str, name: str, j: int, n: int) -> None:
+            if not bar:
+                return
+            label = f"{terminal_text(scene, 40)}: {name}"
+            if jobs_mode:  # jobs finish in any order: one step each
+                bar.update(task, advance=1, description=label)
+            else:
+                bar.update(task, completed=i * oracle_count + j, description=label)
+
+        result = harness.run(scenes_, names, wh, tick, workers=workers, scheduler=scheduler)
         if bar:
             bar.update(task, completed=len(scenes_) * oracle_count)
     return result
@@ -649,6 +674,8 @@ def check(
     json_out: JsonOpt = None,
     junit: Annotated[Path | None, typer.Option("--junit", help="Write the results as JUnit XML.")] = None,
     size: SizeOpt = None,
+    workers: CheckWorkersOpt = 1,
+    scheduler: SchedulerOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
     """Compare the reference tracer with the oracles: geometry pixel by pixel, shading, rules.
@@ -660,7 +687,7 @@ def check(
     if json_out != "-":
         _out_file(Path(json_out) if json_out else None, "--json")
     _out_file(junit, "--junit")
-    result = run_checks(scene_paths, backend, size, quiet)
+    result = run_checks(scene_paths, backend, size, quiet, workers, scheduler)
     _print_check(result)
     _check_warnings(result, backend, size)
     if json_out:
@@ -742,6 +769,8 @@ def report(
     sweep_dir: Annotated[
         Path | None, typer.Option("--sweep", help="Embed a sweep written by `minirt sweep --out DIR`.")
     ] = None,
+    workers: CheckWorkersOpt = 1,
+    scheduler: SchedulerOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
     """Write the HTML comparison report (DIR/index.html, opens from disk) and DIR/report.json."""
@@ -759,7 +788,7 @@ def report(
         except (OSError, ValueError) as e:
             raise MinirtError(f"{f}: not a readable sweep ({e})") from None
     _out_dir(out_dir)
-    result = run_checks(scene_paths, backend, size, quiet)
+    result = run_checks(scene_paths, backend, size, quiet, workers, scheduler)
     _print_check(result)
     _check_warnings(result, backend, size)
     command = "minirt " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["report"] else "minirt report"

@@ -971,9 +971,22 @@ def check_scene(
     return sc
 
 
-def run(paths: list[Path], names: list[str], size: tuple[int, int] | None = None, progress=None) -> CheckResult:
+def run(
+    paths: list[Path],
+    names: list[str],
+    size: tuple[int, int] | None = None,
+    progress=None,
+    workers: int = 1,
+    scheduler: str | None = None,
+) -> CheckResult:
     """Check every scene file against the backends. ``progress(i, scene, backend, j, n)``: scene i's
-    backend j of n is starting."""
+    backend j of n is starting (in this process) or has finished (on workers).
+
+    ``workers`` > 1 or a Dask ``scheduler``: each (scene, oracle) is one job of minirt.jobs, run on that
+    many local worker processes or on the cluster's workers; the job carries the scene file's text, so
+    workers need minirt and the renderers, not the files. The verdicts and figures are the same."""
+    if workers > 1 or scheduler is not None:
+        return _run_jobs(paths, names, size, progress, workers, scheduler)
     from minirt.diagnose import VariantCache
 
     variants = VariantCache(VARIANT_CACHE_BYTES)
@@ -988,6 +1001,61 @@ def run(paths: list[Path], names: list[str], size: tuple[int, int] | None = None
         for i, (p, r, sr) in enumerate(zip(paths, rendered, loaded, strict=True)):
             tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
             scenes.append(check_scene(p, names, size, tick, variants, r, sr))
+    return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
+
+
+@dataclass(frozen=True)
+class CheckJob:
+    """One (scene, oracle) check of ``run`` on a worker: the scene file's text and name, the size override."""
+
+    source: str
+    text: str
+    size: tuple[int, int] | None
+    backend: str
+
+
+def check_job(job: CheckJob) -> tuple[BackendCheck, RenderResult]:
+    """A job of ``_run_jobs``: the oracle's check and the reference at the scene's samples."""
+    from minirt.scene import parse_scene
+
+    scene = parse_scene(job.text, source=job.source)
+    if job.size:
+        scene = scene.with_overrides(width=job.size[0], height=job.size[1])
+    rules = resolve(scene)
+    refs = _ReferenceCache(scene)
+    return check_backend(scene, rules, job.backend, refs), refs.get(rules)
+
+
+def _run_jobs(paths, names, size, progress, workers, scheduler) -> CheckResult:
+    from minirt import jobs
+
+    loaded = [_scene_and_rules(p, size) for p in paths]  # bad input here, before any job starts
+    oracles = [n for n in names if n != backends.REFERENCE]
+    todo = [
+        CheckJob(str(p), Path(p).read_text(encoding="utf-8"), size, n) for p in paths for n in oracles
+    ]  # fmt: skip
+    index = {id(j): (k // max(len(oracles), 1), k % max(len(oracles), 1)) for k, j in enumerate(todo)}
+
+    def done(job: CheckJob, _result) -> None:
+        if progress:
+            i, j = index[id(job)]
+            progress(i, loaded[i][0].name, job.backend, j + 1, len(oracles))
+
+    def failed(job: CheckJob, message: str):
+        return BackendCheck(backend=job.backend, verdict="error", reason=message), None
+
+    got = jobs.run(check_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed)
+    scenes = []
+    for i, (p, (scene, rules)) in enumerate(zip(paths, loaded, strict=True)):
+        sc = SceneCheck(scene=scene.name, file=str(p), verdict="skip", description=scene.description)
+        for j, name in enumerate(oracles):
+            bc, ref = got[i * len(oracles) + j]
+            sc.backends[name] = bc
+            sc.reference = sc.reference or ref
+        if sc.reference is None:  # no oracle (or every job died): the reference itself, here
+            sc.reference = _ReferenceCache(scene).get(rules)
+        sc.verdict = worst([b.verdict for b in sc.backends.values()]) if sc.backends else "pass"
+        scenes.append(sc)
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
 
 

@@ -99,3 +99,29 @@ def _tiny():
 def test_parse_backends(spec):
     names = backends.parse_backends(spec)
     assert "reference" in names and len(names) >= 2
+
+
+def _without_timings(d):
+    if isinstance(d, dict):
+        return {k: _without_timings(v) for k, v in d.items() if k not in ("seconds", "timings", "renders")}
+    if isinstance(d, list):
+        return [_without_timings(v) for v in d]
+    return d
+
+
+def test_check_as_jobs_on_a_local_cluster_gives_the_same_document(tmp_path):
+    """--workers 2: each (scene, oracle) is a Dask job on a LocalCluster; verdicts, figures and reasons are
+    those of the in-process run (only the seconds differ)."""
+    args = ["check", "exercise", "shadows", "--size", "24x24", "-q"]
+    here = run(*args, "--json", str(tmp_path / "here.json"))
+    there = run(*args, "--workers", "2", "--json", str(tmp_path / "there.json"))
+    assert here.returncode == there.returncode == 0, here.stderr + there.stderr
+    a = json.loads((tmp_path / "here.json").read_text())
+    b = json.loads((tmp_path / "there.json").read_text())
+    assert [s["scene"] for s in b["scenes"]] == ["exercise", "shadows"]
+    assert _without_timings(a) == _without_timings(b)
+
+
+def test_check_workers_and_scheduler_together_is_bad_input():
+    p = run("check", "exercise", "--workers", "2", "--scheduler", "tcp://127.0.0.1:1", "-q")
+    assert p.returncode == 2 and "--workers and --scheduler" in p.stderr
