@@ -111,9 +111,11 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
     # |n·d| of the plane whose hit is nearest (inf when a ball's is): a plane's t = n·(Q - o)/(n·d) turns a
     # direction error e into a relative t error e/|n·d|, so oracles' t tolerances scale with 1/hit_nd.
     hit_nd = np.full(n, np.inf)
+    hit_cos = np.ones(n)  # |n·d| at the nearest candidate, ball or plane (1 where nothing is hit)
     if ts:
         k = np.argmin(np.stack(ts, axis=1), axis=1)
         hit_nd = np.where(np.isfinite(near), np.stack(nds, axis=1)[np.arange(n), k], np.inf)
+        hit_cos = np.where(np.isfinite(near), np.stack(coss, axis=1)[np.arange(n), k], 1.0)
     return {
         "silhouette": sil,
         "grazing": graze,
@@ -123,6 +125,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
         "margin": margin,
         "near": near,
         "hit_nd": hit_nd,
+        "hit_cos": hit_cos,
         "origin_norm": np.linalg.norm(o, axis=1),  # |o|, for oracles whose origin rounding scales with it
     }
 

@@ -302,6 +302,13 @@ def plane_frames(scene: Scene, o: np.ndarray, d: np.ndarray) -> dict[int, PlaneR
         r = PlaneRect(s)
         t = plane_hits(r, o, d)
         r.include(o + np.where(np.isfinite(t), t, np.nan)[:, None] * d)
+        # A grazing ray's hit moves along it by t DIR_ERR / |n·d| with the float32 direction: include that
+        # far (4x) too, or Mitsuba's hit lands past the rectangle's edge (fuzz grazing_2026_46: |n·d| 1.7e-6,
+        # the hit 6 % farther, beyond a rectangle sized by it). Rays with |n·d| <= 4 DIR_ERR are in the band.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spread = 4 * DIR_ERR / np.abs(d @ r.n)
+        far = np.where(np.isfinite(t) & (spread < 1), t * (1 + spread), np.nan)
+        r.include(o + far[:, None] * d)
         pts = [light, r.q, np.asarray(scene.camera.position)]
         for b in scene.shapes:
             if isinstance(b, Ball):
