@@ -162,18 +162,18 @@ def geometry_tolerance(
         t_min, start_err = p.get("min_distance", 0.0), p.get("start_err", 0.0)
         starts = start_band(t_min=t_min, plane_err=start_err, ball_err=start_err)
         band = (m["margin"] < eps) | starts
-        # plus the conditioning of the hit: a ray whose origin and direction err by dir_err (1 + t) -- the mesh
-        # camera's single-precision rays -- meets a surface dir_err (1 + t)/cos farther or nearer, cos = |n·d|
+        # plus the conditioning of the hit: a ray whose origin and direction err by dir_err (R + t) -- the mesh
+        # camera's single-precision rays, R its origins' reach -- meets a surface dir_err (R + t)/cos away, cos = |n·d|
         # at the hit, ball or plane (fuzz start_2026_83: a ball met at an angle, dt 1.65e-6 > t_abs 1.54e-6)
         with np.errstate(divide="ignore"):
-            t_abs = p["t_abs"] + p.get("dir_err", 0.0) * (1 + t_ref) / m["hit_cos"]
+            t_abs = p["t_abs"] + p.get("dir_err", 0.0) * (p.get("ray_reach", 1.0) + t_ref) / m["hit_cos"]
         deg = math.degrees(math.asin(min(1.0, 2 * p["normal_abs"]))) + 1e-9
         nd = np.full((h, w), deg)
         why = {
             "band": f"margin < {eps:.3g}: single-precision bounding boxes and textbook sphere roots in POV-Ray; "
             f"or a candidate hit with t cos within {start_err:.3g} of [0, {t_min:.3g}] (POV-Ray drops hits within "
             "its minimum distance 1e-4 of a mesh-camera ray's origin; its rays are off by start_err there)",
-            "t": f"|dt| <= {p['t_abs']:.3g} + {p.get('dir_err', 0.0):.3g}*(1 + t)/|n·d| (n at the hit): "
+            "t": f"|dt| <= {p['t_abs']:.3g} + {p.get('dir_err', 0.0):.3g}*(R + t)/|n·d| (n at the hit, R = ray_reach): "
             f"{p.get('derivation', '')}",
             "normal": f"{deg:.3g} deg: normals from decoded positions, |dn| <= {p['normal_abs']:.3g}",
         }

@@ -255,10 +255,23 @@ def encoding_ranges(scene: Scene, rules: Rules) -> list[dict[str, tuple[float, f
 # stored as a float, by ~2^-22 rad; a point at distance t along the ray thus moves by <= 2^-22 (1 + t).
 # Twice that, 2^-21 (1 + t), is used below.
 MESH_RAY_ERROR = 2.0**-21
+# That holds for origins within 1 of the world origin (the image plane). Rays that start at a camera d away
+# (rule ray_origin "camera", the exercise's samples) get triangles d times larger, so the face normal stays
+# within 2^-22 rad, while the centroid errs by 2^-24 (|P| + size): a point at distance t then moves by
+# <= MESH_RAY_ERROR (R + t), R = mesh_reach() = max(1, |P|). (Fuzz f32_2026_155, camera 5675 away: fixed-size
+# triangles turned every sample ray by 1e-3 rad and all 188 compared pixels differed.)
+
+
+def mesh_reach(scene: Scene, rules: Rules) -> float:
+    """R of MESH_RAY_ERROR (R + t): max(1, |P|) over the mesh camera's ray origins."""
+    return 1.0 if rules.ray_origin == "image-plane" else max(1.0, float(np.linalg.norm(scene.camera.position)))
 
 
 def precision(
-    scene: Scene, ranges: list[dict[str, tuple[float, float]] | None], mesh_camera: bool = False
+    scene: Scene,
+    ranges: list[dict[str, tuple[float, float]] | None],
+    mesh_camera: bool = False,
+    reach: float = 1.0,
 ) -> dict[str, Any]:
     """The buffer precision the encoding guarantees (derived, not including POV-Ray's own rounding),
     plus the mesh camera's ray error when one is used."""
@@ -270,7 +283,7 @@ def precision(
     for s, r in zip(scene.shapes, ranges, strict=True):
         if r is None:
             continue
-        ray = MESH_RAY_ERROR * (1 + r["t"][1]) if mesh_camera else 0.0
+        ray = MESH_RAY_ERROR * (reach + r["t"][1]) if mesh_camera else 0.0
         e = max((r[q][1] - r[q][0]) * per for q in "xyz") + ray
         pos = max(pos, e)
         et = (r["t"][1] - r["t"][0]) * per + ray
@@ -291,13 +304,14 @@ def precision(
             "|dq| <= (2^-12 + 2^-20)/1024 (hi - lo) = 2.4e-7 of the range; position_abs/t_abs are the largest "
             "over shapes, t_rel divides by the smallest t in the range; normals (P - C)/r err by "
             "sqrt(3) position_abs / r (planes exact); the float colour is half: relative 2^-12"
-            + ("; plus the mesh camera's single-precision rays, 2^-21 (1 + t_max) per shape" if mesh_camera else "")
+            + ("; plus the mesh camera's single-precision rays, 2^-21 (R + t_max) per shape" if mesh_camera else "")
         ),
         "mesh_camera": mesh_camera,
         # POV-Ray's ray directions: decoded far hits (|P - cam| ~ 1e3) lie within ~4e-8 rad of the exercise's
         # rays (measured), float32 level although its camera vectors are double; 2^-22 = 2.4e-7 leaves a factor
         # of 6. The mesh camera's single-precision rays err by MESH_RAY_ERROR.
         "dir_err": max(2.0**-22, MESH_RAY_ERROR if mesh_camera else 0.0),
+        "ray_reach": reach if mesh_camera else 1.0,  # R: a ray's position error is dir_err (R + t)
     }
 
 
@@ -320,7 +334,10 @@ def start_decision(scene: Scene, rules: Rules, mesh_camera: bool) -> dict[str, A
       t ~ 1e-10 on a row of pixels, POV-Ray did not.)
     """
     if mesh_camera:
-        return {"min_distance": MIN_ISECT_DEPTH, "start_err": MESH_RAY_ERROR * (1 + MIN_ISECT_DEPTH)}
+        return {
+            "min_distance": MIN_ISECT_DEPTH,
+            "start_err": MESH_RAY_ERROR * (mesh_reach(scene, rules) + MIN_ISECT_DEPTH),
+        }
     if rules.ray_origin == "camera":
         return {"min_distance": MIN_ISECT_DEPTH, "start_err": 2.0**-22 * MIN_ISECT_DEPTH}
     o = camera.primary_rays(scene, rules)[0]
@@ -351,7 +368,7 @@ def band_threshold(scene: Scene, rules: Rules, samples: int = 1) -> float:
             f = math.dist(cam, s.center) + s.radius
             eps = max(eps, 2.0**-24 * (c + s.radius) / s.radius, 2.0**-53 * f * f / (s.radius * s.radius))
             if mesh:
-                eps = max(eps, MESH_RAY_ERROR * (1 + c + s.radius) / s.radius)
+                eps = max(eps, MESH_RAY_ERROR * (mesh_reach(scene, rules) + c + s.radius) / s.radius)
     return 8 * eps
 
 
@@ -409,7 +426,7 @@ def _camera_mesh(name: str, o: np.ndarray, d: np.ndarray) -> str:
     e1 = np.cross(d, a)
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
     e2 = np.cross(d, e1)
-    s = MESH_TRIANGLE_SIZE
+    s = MESH_TRIANGLE_SIZE * max(1.0, float(np.abs(o).max(initial=0.0)) * math.sqrt(3))  # see mesh_reach
     p1 = o + s * e1
     p2 = o + s * (-0.5 * e1 + math.sqrt(3) / 2 * e2)
     p3 = o + s * (-0.5 * e1 - math.sqrt(3) / 2 * e2)
@@ -925,7 +942,7 @@ class PovrayOracle(Oracle):
         timings["total"] = time.perf_counter() - t_start
         meta.update(passes=passes, commands=[p["command"] for p in passes], timings=timings)
         if gframes or geometry or samples > 1:  # geometry asked for (even with no shapes), or the exercise's samples
-            meta["precision"] = precision(scene, ranges or [None] * len(scene.shapes), mesh)
+            meta["precision"] = precision(scene, ranges or [None] * len(scene.shapes), mesh, mesh_reach(scene, rules))
             meta["precision"].update(
                 band_threshold=band_threshold(scene, rules, samples), **start_decision(scene, rules, mesh)
             )
