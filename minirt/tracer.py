@@ -330,24 +330,30 @@ class Tracer:
         r = dr.select(is_ball, dr.gather(T.Float, tab.radius, k, is_ball), T.Float(1.0))
         return self._ball_normal(p, d, c, r, is_ball, n)
 
-    def error_bound(self, shape_id, p) -> Any:
-        """Absolute error bound of a hit point, per shape (measured to give 0 self-hits; tests/test_hard_cases.py).
+    def error_bound(self, shape_id, p, o) -> Any:
+        """Absolute error bound of a hit point p of the ray from o, per shape (measured to give 0 self-hits;
+        tests/test_hard_cases.py).
 
         Ball: gamma(6) (r + |p|) -- re-projection costs about 5 roundings of magnitude r + |p|, one more
-        for the normalisation. Plane: gamma(4) (|p| + |a|) -- the point-normal form's dot products.
+        for the normalisation; the ray's origin no longer matters. Plane: gamma(4) (|a| + |p| + |o|) -- the
+        point-normal form's dot products, and p = o + t d, whose distance from the plane errs by the
+        rounding of n·o too: a point near the origin seen from far (fuzz start_2026_175: |p| 0.19, |o| 3.09)
+        lies a few u |o| off its plane, far more than u |p|, and a bound without |o| left it there.
         """
         u = self.T.u
-        lp = dr.norm(p)
+        lp, lo = dr.norm(p), dr.norm(o)
         if self.table is not None:
             k, hit = self.T.UInt(shape_id), shape_id >= 0
             factor = dr.gather(self.T.Float, self.table.err_factor, k, hit)
-            return factor * (dr.gather(self.T.Float, self.table.err_length, k, hit) + lp)
+            is_ball = dr.gather(self.T.Bool, self.table.is_ball, k, hit)
+            extra = dr.select(is_ball, self.T.Float(0.0), lo)
+            return factor * ((dr.gather(self.T.Float, self.table.err_length, k, hit) + lp) + extra)
         vals = []
         for s in self.scene.shapes:
             if isinstance(s, Ball):
-                vals.append(gamma(6, u) * (s.radius + lp))
+                vals.append(gamma(6, u) * ((s.radius + lp) + 0.0))  # + 0.0: the table path's sum, same bits
             else:
-                vals.append(gamma(4, u) * (lp + abs(s.distance)))
+                vals.append(gamma(4, u) * ((abs(s.distance) + lp) + lo))
         return self._by_id(shape_id, vals, self.T.Float(0))
 
     def offset_origin(self, p, n, err, direction, outward=None) -> Any:
@@ -520,7 +526,7 @@ class Tracer:
             terms["ambient"] = dr.select(hit, self._material_term(shape_id, "ambient"), zero)
             local = local + terms["ambient"]
         r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction
-        err = self.error_bound(shape_id, p) if self.rules.offset == "error-bound" else None
+        err = self.error_bound(shape_id, p, o) if self.rules.offset == "error-bound" else None
         outward = self._outward(shape_id)
         clamp_all, clamp_specular = self._rule(self.rules.clamp is True), self._rule(self.rules.clamp == "specular")
         if fx.diffuse or fx.specular:

@@ -107,13 +107,17 @@ class Plain:
             return p, mul(sub(p, shape.center), 1.0 / shape.radius)
         return p, shape.normal
 
-    def start(self, shape, p, n, direction):
+    def start(self, shape, p, n, direction, o):
         if self.rules.offset != "error-bound":
             if self.rules.offset_along == "ray":
                 return add(p, mul(direction, self.rules.offset))
             return add(p, mul(n, self.rules.offset))
         lp = norm(p)
-        err = gamma(6) * (shape.radius + lp) if isinstance(shape, Ball) else gamma(4) * (lp + abs(shape.distance))
+        # the plane's bound counts the ray's origin o: p = o + t d is off its plane by a few u |o| too
+        if isinstance(shape, Ball):
+            err = gamma(6) * (shape.radius + lp)
+        else:
+            err = gamma(4) * (abs(shape.distance) + lp + norm(o))
         side = -1.0 if dot(n, direction) < 0 else 1.0
         if isinstance(shape, Ball) and self.rules.near_root_only:
             side = 1.0  # start outside the ball: near_root_only sees nothing of it from inside
@@ -146,7 +150,7 @@ class Plain:
         dist = norm(to_light)
         s = (to_light[0] / dist, to_light[1] / dist, to_light[2] / dist)
         r = sub(d, mul(n, 2 * dot(d, n)))
-        so = self.start(shape, p, n, s)
+        so = self.start(shape, p, n, s, o)
         blocked = False
         for other in sc.shapes:
             ts = self.intersect(other, so, s)
@@ -170,7 +174,7 @@ class Plain:
             color = add(color, mul(cmul(sc.light.color, m.diffuse), diff))
             color = add(color, mul(cmul(sc.light.color, m.specular), spec))
         if depth > 0:
-            result = self.trace(self.start(shape, p, n, r), r, depth - 1)
+            result = self.trace(self.start(shape, p, n, r, o), r, depth - 1)
             color = add(color, cmul(result, m.reflection))
         if ru.background == "on-hit":
             color = add(color, sc.background)
