@@ -1031,12 +1031,7 @@ def fuzz(
             help="Local worker processes (default: one per core, none with fewer than 8 jobs each; 1: this process).",
         ),
     ] = None,
-    scheduler: Annotated[
-        str | None,
-        typer.Option(
-            "--scheduler", metavar="ADDRESS", help="Run the jobs on a running Dask cluster (tcp://host:8786)."
-        ),
-    ] = None,
+    scheduler: SchedulerOpt = None,
     no_cache: Annotated[
         bool, typer.Option("--no-cache", help="Recompute every job (and do not store results).")
     ] = False,
