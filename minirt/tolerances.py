@@ -126,10 +126,14 @@ def geometry_tolerance(
         # A shadow or hit decision moved by the rectangle's absolute error: relative to the smallest radius.
         band = m["margin"] < eps
         # Rays starting on a plane (t ~ 0): Mitsuba 3 has no minimum distance (Ray3f carries maxt only), and
-        # whether its rectangle lies in front of the origin is decided in float32: the rectangle's own error
-        # plane_abs, plus the origin rounded to float32 and taken to the rectangle's local frame (a few
-        # roundings of terms <= |o|: 4 u32 |o|). Balls: the relative origin margin above (band_eps) covers it.
-        start_err = plane_abs + 4 * U32 * m["origin_norm"]
+        # whether its rectangle lies in front of the origin is decided in float32: the error of the origin's
+        # signed distance from the rectangle (its normal_error, older documents: its abs_error), plus the
+        # origin rounded to float32 and taken to the rectangle's local frame (a few roundings of terms <= |o|:
+        # 4 u32 |o|). Balls: the relative origin margin above (band_eps) covers it.
+        plane_normal = max(
+            [pl.get("normal_error", pl.get("abs_error", 0.0)) for pl in result.meta.get("planes", {}).values()] or [0.0]
+        )
+        start_err = plane_normal + 4 * U32 * m["origin_norm"]
         starts = start_band(t_min=0.0, plane_err=start_err.reshape(-1))
         band = band | starts
         # A plane's t = n·(Q - o)/(n·d): the rectangle's absolute error and the float32 rounding of the ray's
@@ -142,7 +146,7 @@ def geometry_tolerance(
         nd = np.full((h, w), p["normal_deg"])
         why = {
             "band": f"margin < band_k*band_eps = {eps:.3g}: {p.get('why', '')}; or a ray starting within "
-            f"plane_abs + 4 u32 |o| = {plane_abs:.3g} + 4 u32 |o| of a plane (float32 decides t > 0 there)",
+            f"normal_error + 4 u32 |o| = {plane_normal:.3g} + 4 u32 |o| of a plane (float32 decides t > 0 there)",
             "t": f"t_rel*t + plane_abs + (plane_abs + dir_err*t)/|n·d| = {p['t_rel']:.3g}*t + {plane_abs:.3g} + "
             f"({plane_abs:.3g} + {dir_err:.3g}*t)/|n·d| (float32 roots; rectangles interpolate their corners; "
             "a plane's t is conditioned by 1/|n·d|, n·d of the hit plane, inf for balls) + per pixel "
@@ -153,6 +157,7 @@ def geometry_tolerance(
             "band_eps": eps,
             "t_rel": p["t_rel"],
             "plane_abs": plane_abs,
+            "plane_normal_error": plane_normal,
             "normal_deg": p["normal_deg"],
             "start_band_pixels": int(starts.sum()),
         }
