@@ -232,14 +232,9 @@ def run_job(job: Job) -> dict[str, Any]:
     """One (scene, oracle) check and its defect checks, as a plain dict (what the cache stores).
     Non-PASS verdicts carry their evidence: the check's JSON and the two images as PNG bytes."""
     from minirt import harness
-    from minirt.rules import resolve
-    from minirt.scene import parse_scene
 
     t0 = time.perf_counter()
-    scene = parse_scene(job.text, source=f"{job.scene}.toml")
-    rules = resolve(scene)
-    refs = harness._ReferenceCache(scene)
-    bc = harness.check_backend(scene, rules, job.backend, refs, explain=False)
+    scene, rules, refs, bc = harness.check_text(job.text, f"{job.scene}.toml", job.backend, explain=False)
     out: dict[str, Any] = {
         "scene": job.scene, "family": job.family, "backend": job.backend, "verdict": bc.verdict,
         "inconclusive": bc.inconclusive, "reason": bc.reason,

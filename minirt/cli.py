@@ -77,14 +77,23 @@ ScenesArg = Annotated[
 OraclesOpt = Annotated[str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")]
 SizeOpt = Annotated[str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
-CheckWorkersOpt = Annotated[
-    int,
-    typer.Option(
-        "--workers", metavar="N", min=1, max=256,
-        help="Run each (scene, oracle) check as a job on N local worker processes (Dask LocalCluster); "
-        "1: in this process.",
-    ),
-]  # fmt: skip
+
+
+def _workers_opt(default: str) -> Any:
+    """``--workers N`` (local worker processes, a Dask LocalCluster), its default said by each command."""
+    return Annotated[
+        int | None,
+        typer.Option(
+            "--workers", metavar="N", min=1, max=256, show_default=False,
+            help=f"Run the jobs on N local worker processes, a Dask LocalCluster (default: {default}; 1: here).",
+        ),
+    ]  # fmt: skip
+
+
+CheckWorkersOpt = _workers_opt("every check in this process")
+GradeWorkersOpt = _workers_opt("with --class, one per core, none with fewer than 16 images")
+FuzzWorkersOpt = _workers_opt("one per core, none with fewer than 8 jobs each")
+
 SchedulerOpt = Annotated[
     str | None,
     typer.Option(
@@ -580,12 +589,21 @@ def _parse_size(size: str | None) -> tuple[int, int] | None:
     return wh
 
 
-def run_checks(paths, backend: str, size: str | None, quiet: bool, workers: int = 1, scheduler: str | None = None):
+def _pool(workers: int | None, scheduler: str | None, default: int) -> int:
+    """The worker count of a command's --workers/--scheduler pair (``default`` when neither is given);
+    both given is an error: a cluster has its own workers."""
+    if workers is not None and scheduler is not None:
+        raise MinirtError("--workers and --scheduler: give one (the cluster has its own workers)")
+    return default if workers is None else workers
+
+
+def run_checks(
+    paths, backend: str, size: str | None, quiet: bool, workers: int | None = None, scheduler: str | None = None
+):
     """Shared by `check` and `report`: render and compare, with a progress bar on a terminal."""
     from minirt import backends, harness
 
-    if workers > 1 and scheduler is not None:
-        raise MinirtError("--workers and --scheduler: give one (the cluster has its own workers)")
+    workers = _pool(workers, scheduler, default=1)
 
     scenes_ = _scene_paths(paths)
     names = backends.parse_backends(backend)
@@ -674,7 +692,7 @@ def check(
     json_out: JsonOpt = None,
     junit: Annotated[Path | None, typer.Option("--junit", help="Write the results as JUnit XML.")] = None,
     size: SizeOpt = None,
-    workers: CheckWorkersOpt = 1,
+    workers: CheckWorkersOpt = None,
     scheduler: SchedulerOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
@@ -769,7 +787,7 @@ def report(
     sweep_dir: Annotated[
         Path | None, typer.Option("--sweep", help="Embed a sweep written by `minirt sweep --out DIR`.")
     ] = None,
-    workers: CheckWorkersOpt = 1,
+    workers: CheckWorkersOpt = None,
     scheduler: SchedulerOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
@@ -827,18 +845,7 @@ def grade(
         typer.Option("--scenes", metavar="DIR", help="With --class: the scenes (default: the bundled scenes)."),
     ] = None,
     size: Annotated[str | None, typer.Option("--size", help="The scene rendered at WIDTHxHEIGHT.")] = None,
-    workers: Annotated[
-        int | None,
-        typer.Option(
-            "--workers",
-            metavar="N",
-            min=1,
-            max=256,
-            help="With --class: worker processes (default: one per core, none with fewer than 16 images; "
-            "1 grades in this process).",
-            show_default=False,
-        ),
-    ] = None,
+    workers: GradeWorkersOpt = None,
     scheduler: Annotated[
         str | None,
         typer.Option(
@@ -958,8 +965,7 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
     wh = _parse_size(size)
     loaded = [(str(f), *_load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
     total = len(people) * len(loaded)
-    if workers is None:
-        workers = jobs.default_workers(total)
+    workers = _pool(workers, scheduler, default=0) or jobs.default_workers(total)
     with _progress(not quiet) as bar:
         label = f"grading ({workers} processes)" if scheduler is None and workers > 1 else "grading"
         task = bar.add_task(label, total=total) if bar else None
@@ -1020,17 +1026,7 @@ def fuzz(
     ] = "none",
     out_dir: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("renders/fuzz"),
     json_out: JsonOpt = None,
-    workers: Annotated[
-        int | None,
-        typer.Option(
-            "--workers",
-            metavar="N",
-            min=1,
-            max=256,
-            show_default=False,
-            help="Local worker processes (default: one per core, none with fewer than 8 jobs each; 1: this process).",
-        ),
-    ] = None,
+    workers: FuzzWorkersOpt = None,
     scheduler: SchedulerOpt = None,
     no_cache: Annotated[
         bool, typer.Option("--no-cache", help="Recompute every job (and do not store results).")
@@ -1057,16 +1053,14 @@ def fuzz(
     if not names:
         raise MinirtError("no oracle to compare with (--backend)")
     kinds = campaign.parse_defects(defects)
-    if workers is not None and scheduler is not None:
-        raise MinirtError("--workers and --scheduler: give one (the cluster has its own workers)")
+    workers = _pool(workers, scheduler, default=0)  # 0: sized below, from the jobs' count
     if json_out not in (None, "-"):
         _out_file(Path(json_out), "--json")
     _out_dir(out_dir)
     c = campaign.Campaign(seed=seed, families=fams, size=wh, backends=tuple(names), defects=kinds)
     c.scenes = campaign.scenes(count, seed, fams, wh)
     total = len(c.scenes) * len(names)
-    if workers is None:
-        workers = jobs.default_workers(total, per_worker=8)
+    workers = workers or jobs.default_workers(total, per_worker=8)
     counts = dict.fromkeys(campaign.VERDICTS, 0)
     with _progress(not quiet) as bar:
         where = f"on {scheduler}" if scheduler else f"{workers} processes" if workers > 1 else "1 process"

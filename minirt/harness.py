@@ -750,7 +750,7 @@ def check_stochastic(scene, ref, res, classes, edges, centre: RenderResult) -> C
 # Whole scenes
 
 
-class _ReferenceCache:
+class ReferenceCache:
     """Reference renders of one scene, keyed by rules (many oracles share the same adapted rules)."""
 
     def __init__(self, scene: Scene):
@@ -770,7 +770,7 @@ class _ReferenceCache:
 
 
 def attribute_rules(
-    refs: _ReferenceCache, rules: Rules, followed: Rules
+    refs: ReferenceCache, rules: Rules, followed: Rules
 ) -> tuple[dict[str, int], dict[str, np.ndarray]]:
     """Rule effects: pixels of the scene-rules image that each rule the oracle cannot follow changes,
     singly (what the rule does in the reference; ``diagnose_oracle`` says what explains the oracle)."""
@@ -848,7 +848,7 @@ def check_backend(
     scene: Scene,
     rules: Rules,
     name: str,
-    refs: _ReferenceCache,
+    refs: ReferenceCache,
     options: dict | None = None,
     variants=None,
     rendered=None,
@@ -906,7 +906,7 @@ def check_backend(
     return bc
 
 
-def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache, geom: Check) -> Check:
+def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache, geom: Check) -> Check:
     res = backends.render(name, scene, rules, {"mode": "sensor", "spp": scene.samples})
     if not res.ok:
         return Check("skip" if res.status == "skip" else "error", reason=res.reason)
@@ -917,7 +917,7 @@ def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache
     return check_stochastic(scene, ref, res, classes, edges, centre)
 
 
-def _samples_run(scene: Scene, rules: Rules, name: str, refs: _ReferenceCache) -> Check:
+def _samples_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache) -> Check:
     """An oracle of the exercise's model rendering the reference's own stratified samples (option
     ``samples``): the averaged colour is compared per pixel like a one-ray render, with the band taken
     over every sample's ray."""
@@ -959,7 +959,7 @@ def check_scene(
     already parsed (both from ``run``)."""
     scene, rules = loaded or _scene_and_rules(path, size)
     sc = SceneCheck(scene=scene.name, file=str(path), verdict="skip", description=scene.description)
-    refs = _ReferenceCache(scene)
+    refs = ReferenceCache(scene)
     sc.reference = refs.get(rules)
     oracle_names = [n for n in names if n != backends.REFERENCE]
     for i, name in enumerate(oracle_names):
@@ -1014,16 +1014,25 @@ class CheckJob:
     backend: str
 
 
-def check_job(job: CheckJob) -> tuple[BackendCheck, RenderResult]:
-    """A job of ``_run_jobs``: the oracle's check and the reference at the scene's samples."""
+def check_text(
+    text: str, source: str, backend: str, size: tuple[int, int] | None = None, explain: bool = True
+) -> tuple[Scene, Rules, ReferenceCache, BackendCheck]:
+    """One oracle's check of a scene given as text (what a job carries to a worker): the scene, its
+    rules, the reference renders made for the check (to reuse) and the check itself."""
     from minirt.scene import parse_scene
 
-    scene = parse_scene(job.text, source=job.source)
-    if job.size:
-        scene = scene.with_overrides(width=job.size[0], height=job.size[1])
+    scene = parse_scene(text, source=source)
+    if size:
+        scene = scene.with_overrides(width=size[0], height=size[1])
     rules = resolve(scene)
-    refs = _ReferenceCache(scene)
-    return check_backend(scene, rules, job.backend, refs), refs.get(rules)
+    refs = ReferenceCache(scene)
+    return scene, rules, refs, check_backend(scene, rules, backend, refs, explain=explain)
+
+
+def check_job(job: CheckJob) -> tuple[BackendCheck, RenderResult]:
+    """A job of ``_run_jobs``: the oracle's check and the reference at the scene's samples."""
+    _, rules, refs, bc = check_text(job.text, job.source, job.backend, job.size)
+    return bc, refs.get(rules)
 
 
 def _run_jobs(paths, names, size, progress, workers, scheduler) -> CheckResult:
@@ -1053,7 +1062,7 @@ def _run_jobs(paths, names, size, progress, workers, scheduler) -> CheckResult:
             sc.backends[name] = bc
             sc.reference = sc.reference or ref
         if sc.reference is None:  # no oracle (or every job died): the reference itself, here
-            sc.reference = _ReferenceCache(scene).get(rules)
+            sc.reference = ReferenceCache(scene).get(rules)
         sc.verdict = worst([b.verdict for b in sc.backends.values()]) if sc.backends else "pass"
         scenes.append(sc)
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)

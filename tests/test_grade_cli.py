@@ -143,6 +143,22 @@ def _bad_inputs(work) -> dict[str, tuple[list, str]]:
             ],
             "--scheduler tcp://127.0.0.1:9: cannot reach",
         ),
+        "workers and scheduler": (
+            [
+                "grade",
+                "--class",
+                t / "one_class",
+                "--scenes",
+                work.scenes,
+                "--out",
+                t / "o3",
+                "--workers",
+                "2",
+                "--scheduler",
+                "tcp://127.0.0.1:9",
+            ],
+            "--workers and --scheduler: give one",
+        ),
         "json unwritable": (["grade", scene, work.match, "--json", "/proc/x/y.json"], "/proc/x"),
     }
 
@@ -160,6 +176,7 @@ BAD = [
     "class on empty folder",
     "workers without class",
     "scheduler unreachable",
+    "workers and scheduler",
     "json unwritable",
 ]
 
