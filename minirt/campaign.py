@@ -24,7 +24,6 @@ bands, depth ties and edges) in scenes it can judge (its check of the correct re
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from collections.abc import Callable, Sequence
@@ -34,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from minirt.cache import Codec, digest, json_codec
 from minirt.result import RenderResult
 from minirt.rules import Rules
 from minirt.scene import Ball, Material, Scene
@@ -196,36 +196,10 @@ class Job:
 
 def job_key(job: Job, versions: dict[str, str]) -> str:
     """The cache key: SHA-256 over everything the job's result depends on (module docstring)."""
-    blob = json.dumps(
+    return digest(
         {"text": job.text, "backend": job.backend, "defects": list(job.defects),
-         "minirt": versions["minirt"], "drjit": versions["drjit"], "oracle": versions.get(job.backend, "")},
-        sort_keys=True,
+         "minirt": versions["minirt"], "drjit": versions["drjit"], "oracle": versions.get(job.backend, "")}
     )  # fmt: skip
-    return hashlib.sha256(blob.encode()).hexdigest()
-
-
-def code_digest() -> str:
-    """SHA-256 of minirt's and its oracles' sources: a result computed by other code is not reused."""
-    import minirt
-    from minirt import oracles
-
-    h = hashlib.sha256()
-    roots = {Path(minirt.__file__).parent, Path(oracles.__file__).parent}  # one folder in a wheel, two here
-    for p in sorted({p for root in roots for p in root.rglob("*.py")}):
-        h.update(p.name.encode())
-        h.update(p.read_bytes())
-    return h.hexdigest()
-
-
-def versions(backends_used: Sequence[str]) -> dict[str, str]:
-    import drjit
-
-    from minirt import backends
-
-    v = {"minirt": code_digest(), "drjit": drjit.__version__}
-    for name in backends_used:
-        v[name] = backends.info(name).detail
-    return v
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -342,61 +316,39 @@ def run(
 ) -> Campaign:
     """Every job of the campaign, from ``cache`` (a folder; None: no cache) where it holds the job's key."""
     from minirt import jobs
+    from minirt.cache import Cache, versions
 
     t0 = time.perf_counter()
-    todo = campaign.jobs()
     v = versions(campaign.backends)
-    keys = [job_key(j, v) for j in todo]
-    results: list[dict[str, Any] | None] = [None] * len(todo)
-    missing = []
-    for k, (job, key) in enumerate(zip(todo, keys, strict=True)):
-        hit = _cached(cache, key)
-        if hit is not None:
-            results[k] = hit
-            campaign.cached += 1
-            if on_done:
-                on_done(job, hit)
-        else:
-            missing.append(k)
-
-    def store(job: Job, res: dict[str, Any]) -> None:
-        if cache is not None and res["verdict"] != "error":  # an error may be passing (a dead worker): redo it
-            _store(cache, job_key(job, v), res)
-        if on_done:
-            on_done(job, res)
-
-    got = jobs.run(run_job, [todo[k] for k in missing], workers=workers, scheduler=scheduler, on_done=store,
-                   on_error=failed_job)  # fmt: skip
-    for k, res in zip(missing, got, strict=True):
-        results[k] = res
-    campaign.results = results  # type: ignore[assignment]
+    # an error may be passing (a dead worker, a renderer missing here): never stored, redone next time
+    store = None if cache is None else Cache(cache, lambda j: job_key(j, v), CODEC, _not_error)
+    campaign.results = jobs.run(run_job, campaign.jobs(), workers=workers, scheduler=scheduler, on_done=on_done,
+                                on_error=failed_job, cache=store)  # fmt: skip
+    campaign.cached = store.hits if store else 0
     campaign.seconds = time.perf_counter() - t0
     return campaign
 
 
-def _cached(cache: Path | None, key: str) -> dict[str, Any] | None:
-    if cache is None:
-        return None
-    p = cache / f"{key}.json"
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
+def _not_error(result: dict[str, Any]) -> bool:
+    return result["verdict"] != "error"
+
+
+def _encode(result: dict[str, Any]) -> bytes:
+    d = dict(result)
+    if "evidence" in d:  # the images' PNG bytes, as hex
+        d["evidence"] = {**d["evidence"], "images": {k: v.hex() for k, v in d["evidence"]["images"].items()}}
+    return json_codec.encode(d)
+
+
+def _decode(data: bytes) -> dict[str, Any]:
+    d = json.loads(data.decode())
     ev = d.get("evidence")
-    if ev:  # images are stored as hex
+    if ev:
         ev["images"] = {k: bytes.fromhex(v) for k, v in ev.get("images", {}).items()}
     return d
 
 
-def _store(cache: Path, key: str, res: dict[str, Any]) -> None:
-    from minirt.imageio import atomic_path
-
-    d = dict(res)
-    if "evidence" in d:
-        d["evidence"] = {**d["evidence"], "images": {k: v.hex() for k, v in d["evidence"]["images"].items()}}
-    cache.mkdir(parents=True, exist_ok=True)
-    with atomic_path(cache / f"{key}.json") as tmp:
-        tmp.write_text(json.dumps(d, sort_keys=True, allow_nan=False), encoding="utf-8")
+CODEC = Codec("json", _encode, _decode)
 
 
 def summary(c: Campaign) -> dict[str, Any]:

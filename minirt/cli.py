@@ -101,6 +101,14 @@ SchedulerOpt = Annotated[
         help="Run the jobs on a running Dask cluster (tcp://host:8786); its workers need minirt and the renderers.",
     ),
 ]  # fmt: skip
+CacheOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--cache", metavar="DIR",
+        help="Keep each (scene, oracle) check's result in DIR by content hash (scene text, size, oracle, "
+        "versions); a rerun checks only what changed.",
+    ),
+]  # fmt: skip
 JsonOpt = Annotated[
     str | None,
     typer.Option(
@@ -598,7 +606,13 @@ def _pool(workers: int | None, scheduler: str | None, default: int) -> int:
 
 
 def run_checks(
-    paths, backend: str, size: str | None, quiet: bool, workers: int | None = None, scheduler: str | None = None
+    paths,
+    backend: str,
+    size: str | None,
+    quiet: bool,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    cache: Path | None = None,
 ):
     """Shared by `check` and `report`: render and compare, with a progress bar on a terminal."""
     from minirt import backends, harness
@@ -610,11 +624,13 @@ def run_checks(
     wh = _parse_size(size)
     for p in scenes_:  # bad input first, before any long work
         _load(p)
+    if cache is not None:
+        _out_dir(cache, "--cache")
     oracle_count = max(1, len([n for n in names if n != backends.REFERENCE]))
     with _progress(not quiet) as bar:
         task = bar.add_task("checking", total=len(scenes_) * oracle_count) if bar else None
 
-        jobs_mode = workers > 1 or scheduler is not None
+        jobs_mode = workers > 1 or scheduler is not None or cache is not None
 
         def tick(i: int, scene: str, name: str, j: int, n: int) -> None:
             if not bar:
@@ -625,7 +641,7 @@ def run_checks(
             else:
                 bar.update(task, completed=i * oracle_count + j, description=label)
 
-        result = harness.run(scenes_, names, wh, tick, workers=workers, scheduler=scheduler)
+        result = harness.run(scenes_, names, wh, tick, workers=workers, scheduler=scheduler, cache=cache)
         if bar:
             bar.update(task, completed=len(scenes_) * oracle_count)
     return result
@@ -694,6 +710,7 @@ def check(
     size: SizeOpt = None,
     workers: CheckWorkersOpt = None,
     scheduler: SchedulerOpt = None,
+    cache: CacheOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
     """Compare the reference tracer with the oracles: geometry pixel by pixel, shading, rules.
@@ -705,7 +722,7 @@ def check(
     if json_out != "-":
         _out_file(Path(json_out) if json_out else None, "--json")
     _out_file(junit, "--junit")
-    result = run_checks(scene_paths, backend, size, quiet, workers, scheduler)
+    result = run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
     _print_check(result)
     _check_warnings(result, backend, size)
     if json_out:
@@ -789,6 +806,7 @@ def report(
     ] = None,
     workers: CheckWorkersOpt = None,
     scheduler: SchedulerOpt = None,
+    cache: CacheOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
     """Write the HTML comparison report (DIR/index.html, opens from disk) and DIR/report.json."""
@@ -806,7 +824,7 @@ def report(
         except (OSError, ValueError) as e:
             raise MinirtError(f"{f}: not a readable sweep ({e})") from None
     _out_dir(out_dir)
-    result = run_checks(scene_paths, backend, size, quiet, workers, scheduler)
+    result = run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
     _print_check(result)
     _check_warnings(result, backend, size)
     command = "minirt " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["report"] else "minirt report"

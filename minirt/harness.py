@@ -32,7 +32,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,6 +42,9 @@ from minirt.result import RenderResult
 from minirt.rules import Rules, resolve
 from minirt.scene import Scene, load_scene
 from minirt.tolerances import THRESHOLDS, geometry_tolerance
+
+if TYPE_CHECKING:
+    from minirt.cache import Cache
 
 ORDER = ["skip", "pass", "warn", "fail", "error"]
 
@@ -978,15 +981,19 @@ def run(
     progress=None,
     workers: int = 1,
     scheduler: str | None = None,
+    cache: Path | None = None,
 ) -> CheckResult:
     """Check every scene file against the backends. ``progress(i, scene, backend, j, n)``: scene i's
     backend j of n is starting (in this process) or has finished (on workers).
 
     ``workers`` > 1 or a Dask ``scheduler``: each (scene, oracle) is one job of minirt.jobs, run on that
     many local worker processes or on the cluster's workers; the job carries the scene file's text, so
-    workers need minirt and the renderers, not the files. The verdicts and figures are the same."""
-    if workers > 1 or scheduler is not None:
-        return _run_jobs(paths, names, size, progress, workers, scheduler)
+    workers need minirt and the renderers, not the files. The verdicts and figures are the same.
+    ``cache``: a folder of job results (minirt.cache) keyed by the scene's text and name, the size, the
+    oracle and the versions; a job it holds is not run again (jobs run one by one here then, without
+    POV-Ray's renders started ahead)."""
+    if workers > 1 or scheduler is not None or cache is not None:
+        return _run_jobs(paths, names, size, progress, workers, scheduler, cache)
     from minirt.diagnose import VariantCache
 
     variants = VariantCache(VARIANT_CACHE_BYTES)
@@ -1035,7 +1042,22 @@ def check_job(job: CheckJob) -> tuple[BackendCheck, RenderResult]:
     return bc, refs.get(rules)
 
 
-def _run_jobs(paths, names, size, progress, workers, scheduler) -> CheckResult:
+def check_cache(folder: Path, oracles: list[str]) -> Cache:
+    """The cache of ``run``'s jobs in ``folder``: results with arrays, so pickled (see minirt.cache)."""
+    from minirt.cache import Cache, digest, pickle_codec, versions
+
+    v = versions(oracles)
+
+    def key(job: CheckJob) -> str:
+        return digest({"kind": "check", "source": job.source, "text": job.text, "size": job.size,
+                       "backend": job.backend, "minirt": v["minirt"], "drjit": v["drjit"],
+                       "oracle": v.get(job.backend, "")})  # fmt: skip
+
+    # an error may be passing (a dead worker, a crashed renderer): never stored, redone next time
+    return Cache(folder, key, pickle_codec, keep=lambda got: got[0].verdict != "error")
+
+
+def _run_jobs(paths, names, size, progress, workers, scheduler, cache: Path | None = None) -> CheckResult:
     from minirt import jobs
 
     loaded = [_scene_and_rules(p, size) for p in paths]  # bad input here, before any job starts
@@ -1053,7 +1075,8 @@ def _run_jobs(paths, names, size, progress, workers, scheduler) -> CheckResult:
     def failed(job: CheckJob, message: str):
         return BackendCheck(backend=job.backend, verdict="error", reason=message), None
 
-    got = jobs.run(check_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed)
+    store = None if cache is None else check_cache(cache, oracles)
+    got = jobs.run(check_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=store)
     scenes = []
     for i, (p, (scene, rules)) in enumerate(zip(paths, loaded, strict=True)):
         sc = SceneCheck(scene=scene.name, file=str(p), verdict="skip", description=scene.description)

@@ -15,6 +15,9 @@ work was spread. It is the one place that knows about processes:
 ``fn`` must be a module-level function (workers import it by name) and should keep what it can reuse
 from one item to the next in its own process (a render cache): items are handed out one at a time.
 
+With a ``cache`` (minirt.cache) the items whose results it holds are not run again; this process alone
+reads and writes it.
+
 A call that raises -- or whose worker process dies, which Dask reports after retrying the item on other
 workers -- does not stop the run: ``on_error(item, message)`` makes its result instead.
 """
@@ -25,7 +28,10 @@ import contextlib
 import logging
 import os
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
+
+if TYPE_CHECKING:
+    from minirt.cache import Cache
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -52,9 +58,14 @@ def run(
     scheduler: str | None = None,
     on_done: Callable[[T, R], None] | None = None,
     on_error: Callable[[T, str], R] | None = None,
+    cache: Cache | None = None,
 ) -> list[R]:
     """``[fn(item) for item in items]``, here or on Dask workers (see the module's docstring);
-    ``on_done(item, result)`` is called in this process as each finishes (a progress bar)."""
+    ``on_done(item, result)`` is called in this process as each finishes (a progress bar). With a
+    ``cache`` (minirt.cache.Cache), items whose result it holds are not run again, and new results are
+    stored as they arrive (``on_error``'s are not)."""
+    if cache is not None:
+        return _cached_run(fn, items, workers, scheduler, on_done, on_error, cache)
     if scheduler is None and workers <= 1:
         return [_one(fn, item, on_done, on_error) for item in items]
     with _client(workers, scheduler) as client:
@@ -76,6 +87,29 @@ def run(
                     on_done(items[k], results[k])
             f.release()
         return results
+
+
+def _cached_run(fn, items, workers, scheduler, on_done, on_error, cache: Cache) -> list[Any]:
+    results: list[Any] = [None] * len(items)
+    missing = []
+    for k, item in enumerate(items):
+        hit = cache.load(item)
+        if hit is None:
+            missing.append(k)
+            continue
+        results[k] = hit
+        if on_done:
+            on_done(item, hit)
+
+    def done(item, result) -> None:
+        cache.store(item, result)
+        if on_done:
+            on_done(item, result)
+
+    got = run(fn, [items[k] for k in missing], workers, scheduler, done, on_error)
+    for k, result in zip(missing, got, strict=True):
+        results[k] = result
+    return results
 
 
 def _one(fn, item, on_done, on_error):

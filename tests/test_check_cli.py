@@ -125,3 +125,41 @@ def test_check_as_jobs_on_a_local_cluster_gives_the_same_document(tmp_path):
 def test_check_workers_and_scheduler_together_is_bad_input():
     p = run("check", "exercise", "--workers", "2", "--scheduler", "tcp://127.0.0.1:1", "-q")
     assert p.returncode == 2 and "--workers and --scheduler" in p.stderr
+
+
+def test_check_cache_reruns_only_what_changed(tmp_path):
+    """--cache DIR: a rerun takes every unchanged (scene, oracle) check from DIR -- the same document,
+    down to the seconds the first run measured -- and redoes the checks of a changed scene, and of an entry
+    that was damaged."""
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    for name in ("exercise", "shadows"):
+        (scenes / f"{name}.toml").write_text((ROOT / "scenes" / f"{name}.toml").read_text())
+    cache = tmp_path / "cache"
+    args = ["check", str(scenes / "exercise.toml"), str(scenes / "shadows.toml"), "--size", "24x24", "-q"]
+    args += ["--backend", "embree", "--cache", str(cache)]
+
+    def doc(name):
+        p = run(*args, "--json", str(tmp_path / name))
+        assert p.returncode == 0, p.stderr
+        return {s["scene"]: s["backends"]["embree"] for s in json.loads((tmp_path / name).read_text())["scenes"]}
+
+    first = doc("1.json")
+    assert len(list(cache.iterdir())) == 2
+    assert doc("2.json") == first  # seconds included: nothing was checked again
+    text = (scenes / "shadows.toml").read_text()
+    (scenes / "shadows.toml").write_text(text.replace("[camera]", "# an edit\n[camera]", 1))
+    third = doc("3.json")
+    assert third["exercise"] == first["exercise"]
+    assert third["shadows"]["seconds"] != first["shadows"]["seconds"]
+    assert _without_timings(third["shadows"]) == _without_timings(first["shadows"])  # a comment changes nothing
+    for entry in cache.iterdir():  # damaged entries are checked again, never used
+        entry.write_bytes(entry.read_bytes()[:100])
+    fourth = doc("4.json")
+    assert fourth["exercise"]["seconds"] != first["exercise"]["seconds"]
+    assert _without_timings(fourth) == _without_timings(third)
+
+
+def test_check_cache_folder_must_be_writable(tmp_path):
+    p = run("check", "exercise", "--cache", "/proc/minirt-cache", "-q")
+    assert p.returncode == 2 and "--cache /proc/minirt-cache" in p.stderr, p.stderr
