@@ -74,12 +74,15 @@ pickle_codec = Codec("pickle", lambda r: pickle.dumps(r, protocol=pickle.HIGHEST
 @dataclass
 class Cache:
     """A folder of job results. ``key(item)``: the item's content hash; ``keep(result)``: whether a result
-    may be stored (not an error that a dead worker or a missing renderer could have caused)."""
+    may be stored (not an error that a dead worker or a missing renderer could have caused);
+    ``accept(item, result)``: on a hit, whether the stored result can stand (and restore what it needs,
+    such as a page it wrote), else the item is run again."""
 
     folder: Path
     key: Callable[[Any], str]
     codec: Codec = json_codec
     keep: Callable[[Any], bool] = lambda result: True
+    accept: Callable[[Any, Any], bool] = lambda item, result: True
     hits: int = field(default=0, init=False)
 
     def _path(self, key: str) -> Path:
@@ -98,6 +101,8 @@ class Cache:
         try:
             result = self.codec.decode(data[len(head) :])
         except Exception:  # a truncated or foreign entry: recompute it
+            return None
+        if not self.accept(item, result):
             return None
         self.hits += 1
         return result

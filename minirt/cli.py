@@ -873,6 +873,15 @@ def grade(
             "and the same paths.",
         ),
     ] = None,
+    cache: Annotated[
+        Path | None,
+        typer.Option(
+            "--cache",
+            metavar="DIR",
+            help="With --class: keep each image's grade in DIR by content hash (image bytes, scene, rules, "
+            "versions); a rerun grades only new or changed images.",
+        ),
+    ] = None,
     profile: ProfileOpt = None,
     rule: RuleOpt = None,
     quiet: QuietOpt = False,
@@ -892,14 +901,16 @@ def grade(
         if scene_path is not None or image is not None:
             raise MinirtError("--class grades DIR/<student>/<scene>.png: give no SCENE or IMAGE with it")
         _grade_class(
-            class_dir, scenes_dir, out_dir or Path("grades"), json_out, size, profile, rule, quiet, workers, scheduler
-        )
+            class_dir, scenes_dir, out_dir or Path("grades"), json_out, size, profile, rule, quiet, workers, scheduler,
+            cache,
+        )  # fmt: skip
         return
     if scene_path is None or image is None:
         raise MinirtError(
             "grade needs SCENE and IMAGE (or --class DIR), e.g. minirt grade scenes/rules.toml student.png"
         )
-    for given, option in ((scenes_dir, "--scenes"), (workers, "--workers"), (scheduler, "--scheduler")):
+    class_only = ((scenes_dir, "--scenes"), (workers, "--workers"), (scheduler, "--scheduler"), (cache, "--cache"))
+    for given, option in class_only:
         if given is not None:
             raise MinirtError(f"{option} goes with --class")
     from minirt import grading
@@ -962,7 +973,9 @@ def _print_grade(g, page: Path | None) -> None:
         out.print(f"wrote {terminal_text(page)}")
 
 
-def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet, workers, scheduler) -> None:
+def _grade_class(
+    class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet, workers, scheduler, cache
+) -> None:
     from minirt import grading, jobs
     from minirt.grade_report import write_class_page
     from minirt.imageio import write_json
@@ -980,6 +993,8 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
     if json_out not in (None, "-"):
         _out_file(Path(json_out), "--json")
     _out_dir(out_dir)
+    if cache is not None:
+        _out_dir(cache, "--cache")
     wh = _parse_size(size)
     loaded = [(str(f), *_load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
     total = len(people) * len(loaded)
@@ -993,7 +1008,10 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
                 bar.update(task, description=terminal_text(f"{row.student[:16]:<16} {row.scene[:12]:<12}"))
                 bar.advance(task)
 
-        rows = grading.grade_class(people, loaded, out_dir, workers=workers, scheduler=scheduler, on_done=done)
+        store = None if cache is None else grading.class_cache(cache, out_dir)
+        rows = grading.grade_class(
+            people, loaded, out_dir, workers=workers, scheduler=scheduler, on_done=done, cache=store
+        )
     summary = grading.class_dict(rows, [f.stem for f in files])
     index = write_class_page(rows, summary, out_dir, quiet=quiet)
     summary["grades"] = [r.as_dict() for r in rows]  # with the pages' links
@@ -1004,7 +1022,9 @@ def _grade_class(class_dir, scenes_dir, out_dir, json_out, size, profile, rule, 
     v = summary["verdicts"]
     (err if json_out == "-" else out).print(
         f"graded {len(people)} students x {len(files)} scenes: {v['match']} match, {v['differs']} differ, "
-        f"{v['error']} error; wrote {terminal_text(index)}"
+        f"{v['error']} error"
+        + (f" ({store.hits} of {total} from the cache)" if store is not None else "")
+        + f"; wrote {terminal_text(index)}"
     )
 
 

@@ -12,20 +12,25 @@ Nothing here prints; the CLI does. JSON carries no timings, so the same command 
 
 from __future__ import annotations
 
+import hashlib
+import re
 import shlex
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from minirt import diagnose as dg
 from minirt import rules as rules_mod
 from minirt.errors import MinirtError
-from minirt.imageio import STUDENT_EXTENSIONS, read_student_image
+from minirt.imageio import STUDENT_EXTENSIONS, atomic_path, read_student_image
 from minirt.rules import Rules
 from minirt.scene import Scene
+
+if TYPE_CHECKING:
+    from minirt.cache import Cache
 
 MATCH, DIFFERS, ERROR = "match", "differs", "error"
 EXIT = {MATCH: 0, DIFFERS: 1, ERROR: 2}
@@ -289,6 +294,7 @@ class ClassRow:
     page: str = ""
     grade: Grade | None = field(default=None, repr=False)
     sentences: dict[str, str] = field(default_factory=dict, repr=False)  # rule -> the sentence for the student
+    page_html: bytes | None = field(default=None, repr=False)  # the page's bytes, for the cache (``grade_class``)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -347,6 +353,8 @@ class ClassJob:
     rules: Rules
     out_dir: str  # the class's output folder (pages/ inside)
     page_stem: str
+    image_digest: str = ""  # SHA-256 of the student's image file ("" when there is none): the cache key's
+    keep_page: bool = False  # return the page's bytes with the row (to cache them)
 
 
 # Each process keeps one render cache for every image it grades (a worker's share of a class). Its budget
@@ -370,7 +378,43 @@ def grade_job(job: ClassJob) -> ClassRow:
     row = grade_one_row(Path(job.student), job.scene, job.scene_file, job.rules, process_cache())
     write_row_page(row, Path(job.out_dir), job.page_stem)
     row.grade = None
+    if job.keep_page and row.page:
+        row.page_html = (Path(job.out_dir) / row.page).read_bytes()
     return row
+
+
+ASSET_LINK = re.compile(r'"assets/([A-Za-z0-9._-]+\.png)"')  # a class page's pictures (named by their pixels)
+
+
+def class_cache(folder: Path, out_dir: Path) -> Cache:
+    """The cache of ``grade_class``'s jobs: a row is reused for the same image bytes, scene, rules, page
+    name and versions, and its page is written back from the cached bytes -- when every picture it links
+    is still in ``out_dir/pages/assets`` (pictures are named by their pixels' hash, so a file of that name
+    is that picture); otherwise the image is graded again. Error rows are never kept."""
+    from minirt.cache import Cache, digest, pickle_codec, versions
+
+    v = versions([])
+
+    def key(job: ClassJob) -> str:
+        return digest({"kind": "grade", "image": job.image_digest, "scene": repr(job.scene), "rules": repr(job.rules),
+                       "scene_file": Path(job.scene_file).name, "page": job.page_stem, "minirt": v["minirt"],
+                       "drjit": v["drjit"]})  # fmt: skip
+
+    def accept(job: ClassJob, row: ClassRow) -> bool:
+        if not row.page:
+            return True
+        if row.page_html is None:
+            return False
+        assets = Path(out_dir) / "pages" / "assets"
+        if not all((assets / name).is_file() for name in ASSET_LINK.findall(row.page_html.decode("utf-8"))):
+            return False
+        page = Path(out_dir) / row.page
+        page.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(page) as tmp:
+            tmp.write_bytes(row.page_html)
+        return True
+
+    return Cache(folder, key, pickle_codec, keep=lambda row: row.verdict != ERROR, accept=accept)
 
 
 def grade_class(
@@ -380,6 +424,7 @@ def grade_class(
     workers: int = 1,
     scheduler: str | None = None,
     on_done: Callable[[ClassJob, ClassRow], None] | None = None,
+    cache: Cache | None = None,
 ) -> list[ClassRow]:
     """Grade every student's image of every scene (``scenes``: (file, scene, rules)), writing each page
     into ``out_dir/pages/`` as it is graded; rows in student order, then scene order, however the work
@@ -390,12 +435,30 @@ def grade_class(
 
     keys = [(s, f, sc, r) for s in people for f, sc, r in scenes]
     stems = page_stems((s.name, Path(f).stem) for s, f, _, _ in keys)
-    todo = [ClassJob(str(s), sc, f, r, str(out_dir), stem) for (s, f, sc, r), stem in zip(keys, stems, strict=True)]
+    todo = [
+        ClassJob(str(s), sc, f, r, str(out_dir), stem, _image_digest(s, f) if cache else "", cache is not None)
+        for (s, f, sc, r), stem in zip(keys, stems, strict=True)
+    ]
 
     def failed(job: ClassJob, message: str) -> ClassRow:
         return ClassRow(Path(job.student).name, Path(job.scene_file).stem, ERROR, {}, None, None, reason=message)
 
-    return jobs.run(grade_job, todo, workers=workers, scheduler=scheduler, on_done=on_done, on_error=failed)
+    def done(job: ClassJob, row: ClassRow) -> None:
+        row.page_html = None  # stored by now: a class's pages are not held in memory
+        if on_done:
+            on_done(job, row)
+
+    return jobs.run(grade_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=cache)
+
+
+def _image_digest(student: Path, scene_file: str) -> str:
+    img = find_image(student, Path(scene_file).stem)
+    if img is None:
+        return ""
+    try:
+        return hashlib.sha256(img.read_bytes()).hexdigest()
+    except OSError:
+        return ""  # graded (and reported) as unreadable
 
 
 def common_mistakes(rows: list[ClassRow]) -> list[dict[str, Any]]:

@@ -12,6 +12,7 @@ import csv
 import io
 import json
 import shlex
+import shutil
 import subprocess
 import sys
 from dataclasses import replace
@@ -339,3 +340,41 @@ def test_class_on_two_worker_processes_writes_the_same_files(klass):
     assert sorted(two) == sorted(klass.tree)
     assert [n for n in two if two[n] != klass.tree[n]] == []
     assert any(n.startswith("pages/assets/") for n in two) and "index.html" in two
+
+
+def test_class_cache_grades_only_new_or_changed_images(klass, work, tmp_path):
+    """--cache DIR: a rerun takes every unchanged image's grade from DIR and writes its page back from
+    the cached bytes (the same files as grading it), and grades again an image whose bytes changed, and a
+    page whose pictures are gone."""
+    c = tmp_path / "class"
+    shutil.copytree(klass.dir, c)
+    out, cache = tmp_path / "out", tmp_path / "cache"
+    args = ["grade", "--class", c, "--scenes", work.scenes, "--out", out, "--cache", cache]
+    first = run(*args)
+    assert first.returncode == 0, first.stderr
+    assert "(0 of 6 from the cache)" in first.stdout
+    tree = _tree(out)
+
+    def pages(files, folder):  # a page names its image's path: the class folder's name set aside
+        return {n: b.replace(str(folder).encode(), b"CLASS") for n, b in files.items() if n.startswith("pages/")}
+
+    assert pages(tree, c) == pages(klass.tree, klass.dir)  # the cache changes nothing in what is written
+    for page in (out / "pages").glob("*.html"):
+        page.unlink()
+    again = run(*args)
+    assert "(4 of 6 from the cache)" in again.stdout, again.stdout  # carol's two errors are never kept
+    assert _tree(out) == tree
+    shutil.copy(c / "alice" / "rules.png", c / "bob" / "rules.png")  # bob fixes his channels in one scene
+    fixed = run(*args)
+    assert "(3 of 6 from the cache)" in fixed.stdout, fixed.stdout
+    assert "3 match, 1 differ, 2 error" in fixed.stdout
+    html = {n: b for n, b in _tree(out).items() if n.endswith(".html")}
+    shutil.rmtree(out / "pages" / "assets")
+    assert "(0 of 6 from the cache)" in run(*args).stdout  # pictures gone: graded again, never a broken page
+    assert {n: b for n, b in _tree(out).items() if n.endswith(".html")} == html
+    assert (out / "pages" / "assets").is_dir()
+
+
+def test_cache_goes_with_class(work, tmp_path):
+    line = one_error_line(run("grade", work.rules_toml, work.match, "--cache", tmp_path / "c"))
+    assert "--cache goes with --class" in line
