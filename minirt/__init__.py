@@ -140,13 +140,18 @@ def check(
     backends: str | Sequence[str] = "all",
     *,
     size: tuple[int, int] | None = None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    cache: str | PathLike[str] | None = None,
 ) -> CheckResult:
     """Compare the reference tracer with the oracles on scene files, as ``minirt check`` does:
     geometry pixel by pixel, shading, rules, one verdict per scene and backend.
 
     ``scenes``: a scene file, a bundled scene's name, a folder of scene files, or a list of them;
     None checks every bundled scene. ``backends``: ``"all"``, a comma list or a list of names.
-    ``size``: (width, height) to render at instead of each scene's own.
+    ``size``: (width, height) to render at instead of each scene's own. ``workers`` / ``scheduler``:
+    each (scene, oracle) check as a Dask job on that many local processes or on a running cluster;
+    ``cache``: a folder keeping each check's result by content hash (``minirt check --cache``).
 
     Returns the harness's CheckResult: ``verdict`` (the worst: pass, warn, fail, error or skip),
     ``scenes`` (per scene its ``backends``, each a BackendCheck with verdict, reason and figures),
@@ -174,7 +179,10 @@ def check(
             raise MinirtError(f"check: no scene files in {scenes!s}")
     for p in paths:  # bad input first, before any long work
         _load_file(p)
-    return harness.run(paths, names, tuple(size) if size else None)
+    if workers > 1 and scheduler is not None:
+        raise MinirtError("workers and scheduler: give one (the cluster has its own workers)")
+    folder = None if cache is None else Path(cache)
+    return harness.run(paths, names, tuple(size) if size else None, workers=workers, scheduler=scheduler, cache=folder)
 
 
 def grade(

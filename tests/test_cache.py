@@ -42,3 +42,13 @@ def test_results_the_cache_must_not_keep_are_not_stored(tmp_path):
     jobs.run(square, [1, 2], cache=cache)
     assert cache.load(1) == {"x": 1, "y": 1} and cache.load(2) is None
     assert not list(tmp_path.glob("*.tmp*"))
+
+
+def test_the_python_api_check_takes_a_cache(tmp_path):
+    """minirt.check(cache=DIR): the second call takes its result from DIR (the first call's seconds)."""
+    import minirt
+
+    first = minirt.check("exercise", backends=["embree"], size=(16, 16), cache=tmp_path)
+    again = minirt.check("exercise", backends=["embree"], size=(16, 16), cache=tmp_path)
+    a, b = first.scenes[0].backends["embree"], again.scenes[0].backends["embree"]
+    assert a.verdict == b.verdict == "pass" and a.seconds == b.seconds and len(list(tmp_path.iterdir())) == 1
