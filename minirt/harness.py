@@ -992,6 +992,7 @@ def run(
     ``cache``: a folder of job results (minirt.cache) keyed by the scene's text and name, the size, the
     oracle and the versions; a job it holds is not run again (jobs run one by one here then, without
     POV-Ray's renders started ahead)."""
+    _fits_in_memory(paths, names, size, 0 if scheduler else workers if workers > 1 else 0)
     if workers > 1 or scheduler is not None or cache is not None:
         return _run_jobs(paths, names, size, progress, workers, scheduler, cache)
     from minirt.diagnose import VariantCache
@@ -1009,6 +1010,24 @@ def run(
             tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
             scenes.append(check_scene(p, names, size, tick, variants, r, sr))
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
+
+
+def _fits_in_memory(paths, names, size, local_workers: int) -> None:
+    """Bad input before any work: a check this machine cannot hold (minirt.memory), as one line."""
+    from minirt import memory
+
+    scenes = [_scene_and_rules(p, size)[0] for p in paths]
+    pixels = [s.camera.width * s.camera.height for s in scenes]
+    oracles = [n for n in names if n != backends.REFERENCE]
+    need, have = memory.check_bytes(pixels, oracles, local_workers), memory.available()
+    if have is not None and need > have:
+        big = max(scenes, key=lambda s: s.camera.width * s.camera.height)
+        what = f"{len(scenes)} scenes, the largest" if len(scenes) > 1 else "the scene"
+        raise MinirtError(
+            f"checking {what} at {big.camera.width}x{big.camera.height} against {len(oracles)} oracle(s) needs about "
+            f"{memory.gb(need)} of memory, and {memory.gb(have)} is available: check at a smaller --size, or "
+            "fewer scenes at a time"
+        )
 
 
 @dataclass(frozen=True)
