@@ -12,14 +12,12 @@ the plain name (``--out`` separates them).
 from __future__ import annotations
 
 import hashlib
-import re
 from pathlib import Path
 
 from minirt.rules import Rules, format_rule_value, resolve
 from minirt.scene import Scene
-from minirt.untrusted import file_stem
+from minirt.untrusted import file_stem, name_part
 
-UNSAFE = re.compile(r"[^A-Za-z0-9._,=-]")  # portable file-name characters ('+' separates parts)
 MAX_TAG = 96  # a longer tag is cut, and a hash of the whole keeps it unique
 
 
@@ -31,7 +29,7 @@ def variant_tag(plain: Scene, scene: Scene, rules: Rules) -> str:
         parts.append(f"profile={scene.profile}")
     profile_rules = resolve(scene)  # the scene's own model under the render's profile
     parts += [f"{k}={format_rule_value(k, getattr(rules, k))}" for k in sorted(rules.differs(profile_rules))]
-    tag = "+".join(UNSAFE.sub("_", p) for p in parts)
+    tag = "+".join(name_part(p) for p in parts)  # '+' separates the parts
     if len(tag) > MAX_TAG:
         tag = f"{tag[: MAX_TAG - 13]}+{hashlib.sha256(tag.encode()).hexdigest()[:12]}"
     return tag

@@ -9,7 +9,8 @@ from such text:
 - :func:`terminal_text` -- for the console (Rich markup): control and format characters written as
   ``\\x1b`` / ``\\u202e`` escapes, markup escaped, very long text cut (with the count of what was cut).
 - :func:`file_stem` -- for a file name inside an output folder: portable characters only, never empty,
-  never ``.``/``..`` or hidden, bounded length (a hash of the whole keeps two long names apart).
+  never ``.``/``..`` or hidden, bounded length (a hash of the whole keeps two long names apart);
+  :func:`name_part` for the parts of a name after its stem (a variant's ``rule=value`` tags).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import unicodedata
 MAX_SHOWN = 400  # characters of one untrusted value on a terminal line; the rest is counted, not shown
 MAX_STEM = 80  # characters of a file stem from a scene name (file systems allow 255 bytes per name)
 _STEM_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+_PART_UNSAFE = re.compile(r"[^A-Za-z0-9._,=-]")  # a tag part may also say rule=value,value
 
 
 def printable(text: object, limit: int = MAX_SHOWN) -> str:
@@ -67,3 +69,10 @@ def file_stem(name: object, fallback: str = "scene") -> str:
         digest = hashlib.sha256(s.encode("utf-8", "surrogatepass")).hexdigest()[:12]
         stem = f"{stem[: MAX_STEM - 13]}_{digest}"
     return stem.rstrip("_") or fallback
+
+
+def name_part(text: object) -> str:
+    """A part of a file name after a safe stem (minirt.names' ``rule=value`` tags, joined by ``+``):
+    every character outside ``A-Za-z0-9._,=-`` becomes ``_`` -- no separator, no ``+``, nothing a shell
+    or a file system reads. Its place after the stem keeps it from making a hidden or ``..`` name."""
+    return _PART_UNSAFE.sub("_", str(text))
