@@ -284,6 +284,7 @@ def render(
     names = backends.parse_backends(backend)
     dest = _out_dir(out_dir or Path("renders") / naming.scene_stem(scene))
     w, h = scene.camera.width, scene.camera.height
+    _render_fits(names, w, h, rules)
     if not quiet:
         err.print(
             f"[bold]{terminal_text(scene.name)}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}"
@@ -603,6 +604,20 @@ def _pool(workers: int | None, scheduler: str | None, default: int) -> int:
     if workers is not None and scheduler is not None:
         raise MinirtError("--workers and --scheduler: give one (the cluster has its own workers)")
     return default if workers is None else workers
+
+
+def _render_fits(names: list[str], w: int, h: int, rules) -> None:
+    """Bad input before any work: a render this machine cannot hold (minirt.memory), as one line. The
+    reference alone, larger than a tile, is written tile by tile (backends.render_to_files): no limit."""
+    from minirt import backends, bitmap, memory, tracer
+
+    if names == [backends.REFERENCE] and w * h > tracer.TILE_PIXELS and bitmap.is_default(rules):
+        return
+    memory.require(
+        memory.render_bytes(w * h, names),
+        f"rendering {w}x{h} with {', '.join(names)}",
+        "render at a smaller --width/--height, or with the reference alone (written tile by tile)",
+    )
 
 
 def run_checks(

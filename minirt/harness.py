@@ -1019,15 +1019,13 @@ def _fits_in_memory(paths, names, size, local_workers: int) -> None:
     scenes = [_scene_and_rules(p, size)[0] for p in paths]
     pixels = [s.camera.width * s.camera.height for s in scenes]
     oracles = [n for n in names if n != backends.REFERENCE]
-    need, have = memory.check_bytes(pixels, oracles, local_workers), memory.available()
-    if have is not None and need > have:
-        big = max(scenes, key=lambda s: s.camera.width * s.camera.height)
-        what = f"{len(scenes)} scenes, the largest" if len(scenes) > 1 else "the scene"
-        raise MinirtError(
-            f"checking {what} at {big.camera.width}x{big.camera.height} against {len(oracles)} oracle(s) needs about "
-            f"{memory.gb(need)} of memory, and {memory.gb(have)} is available: check at a smaller --size, or "
-            "fewer scenes at a time"
-        )
+    big = max(scenes, key=lambda s: s.camera.width * s.camera.height)
+    what = f"{len(scenes)} scenes, the largest" if len(scenes) > 1 else "the scene"
+    memory.require(
+        memory.check_bytes(pixels, oracles, local_workers),
+        f"checking {what} at {big.camera.width}x{big.camera.height} against {len(oracles)} oracle(s)",
+        "check at a smaller --size, or fewer scenes at a time",
+    )
 
 
 @dataclass(frozen=True)

@@ -52,3 +52,34 @@ def test_the_cli_says_so_in_one_line_and_exit_2():
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1, p.stderr
     assert lines[0].startswith("minirt: error: checking the scene at 16384x16384") and "--size" in lines[0]
+
+
+def test_the_render_estimate_follows_the_measured_peaks():
+    mp = 1024 * 1024
+    measured = {("reference",): 0.98, ("mitsuba",): 0.97, ("povray",): 0.49, ("embree",): 0.54,
+                ("reference", "mitsuba", "povray", "embree"): 1.50}  # fmt: skip
+    for names, peak in measured.items():
+        est = memory.render_bytes(mp, list(names)) / 2**30
+        assert peak * 0.95 <= est <= peak * 1.10, (names, est, peak)
+
+
+def test_a_render_that_cannot_fit_is_one_line_and_the_reference_alone_streams(tmp_path):
+    """16384² with Mitsuba: ~155 GB by the estimate, beyond any machine this runs on; the reference
+    alone passes the guard (it is written tile by tile: memory.py does not count it)."""
+    from minirt import cli
+    from minirt.rules import resolve
+    from minirt.scene import load_scene
+
+    p = subprocess.run(
+        [sys.executable, "-m", "minirt", "render", "exercise", "--width", "16384", "--height", "16384",
+         "--backend", "mitsuba", "--out", str(tmp_path), "-q"],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )  # fmt: skip
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1, p.stderr
+    assert lines[0].startswith("minirt: error: rendering 16384x16384 with mitsuba needs about")
+    assert not list(tmp_path.iterdir())
+    rules = resolve(load_scene(EXERCISE))
+    cli._render_fits(["reference"], 16384, 16384, rules)  # no error
+    with pytest.raises(MinirtError):
+        cli._render_fits(["reference", "embree"], 16384, 16384, rules)
