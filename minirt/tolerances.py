@@ -192,8 +192,13 @@ def geometry_tolerance(
     elif name == "embree":
         tb = result.aux.get("t_bound", np.full((h, w), p["t_abs"]))
         t_abs = tb + p["eps32_abs"]
+        # A depth tie is relative to the ray's nearest candidate hit in the scene (margins "near"), not to
+        # the reference's t: where the reference misses, t_ref is 0 and a ratio to it put every ray that
+        # meets a ball in the band -- a reference that skipped a ball was never caught there (the defect
+        # campaign, far_2027_34: 46 of its pixels).
+        near = m["near"]
         with np.errstate(divide="ignore", invalid="ignore"):
-            tie_rel = np.where(t_ref > 0, t_abs / np.maximum(t_ref, 1e-300), np.inf)
+            tie_rel = np.where(np.isfinite(near) & (near > 0), t_abs / np.maximum(near, 1e-300), np.inf)
         band = (
             (m["silhouette"] < p["band_abs"])
             | (m["origin"] < p["origin_band_abs"])
