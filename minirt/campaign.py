@@ -18,8 +18,9 @@ the image* of a scene for an oracle when the defective reference differs from th
 that oracle's check judges (``changes``: geometry for all; colour beyond rounding for an oracle that
 shades); it is *caught* when the check of that oracle against it is FAIL. The campaign's catch rate is
 over the scenes where the defect changes the image for some oracle; caught means some oracle that it
-changes failed. ``rate_judged`` counts only changes on pixels the oracle's check judges (outside its
-bands, depth ties and edges) in scenes it can judge (its check of the correct reference conclusive).
+changes failed. ``rate_judged`` counts only the changes that oracle's check can see: on the pixels it
+judges (outside its bands, depth ties and edges), beyond its per-pixel t and normal tolerances there,
+in scenes it can judge (its check of the correct reference conclusive).
 """
 
 from __future__ import annotations
@@ -142,12 +143,20 @@ class _DefectiveReference:
         return self.cache[key]
 
 
-def changes(a: RenderResult, b: RenderResult, model: str | None, where: np.ndarray | None = None) -> bool:
+def changes(
+    a: RenderResult,
+    b: RenderResult,
+    model: str | None,
+    where: np.ndarray | None = None,
+    tolerance: tuple[np.ndarray, np.ndarray] | None = None,
+) -> bool:
     """Whether two reference renders differ in what a check of an oracle shading ``model`` judges
     (harness.SHADING_MODEL), on the pixels ``where`` (default all): the geometry -- hit mask, shape ids,
-    t and normals beyond CHANGE_REL -- for every oracle; for the exercise's model also the 8-bit image
-    beyond the check's own tolerance (THRESHOLDS color8_levels, rounding); for the physical one its
-    diffuse term beyond one level."""
+    t and normals beyond CHANGE_REL, or with ``tolerance`` (per-pixel t and normal-angle tolerances of
+    the check) beyond those -- for every oracle; for the exercise's model also the 8-bit image beyond
+    the check's own tolerance (THRESHOLDS color8_levels, rounding); for the physical one its diffuse
+    term beyond one level."""
+    from minirt.harness import angle_deg
     from minirt.tolerances import THRESHOLDS
 
     w = np.ones_like(a.hit) if where is None else where
@@ -155,7 +164,13 @@ def changes(a: RenderResult, b: RenderResult, model: str | None, where: np.ndarr
     if ((a.hit != b.hit) & w).any() or ((ida != idb) & w).any():
         return True
     h = a.hit & w
-    for x, y in ((a.t, b.t), (a.normal, b.normal)):
+    if h.any() and tolerance is not None:
+        t_tol, n_tol = tolerance
+        if a.t is not None and b.t is not None and (np.abs(a.t - b.t)[h] > t_tol[h]).any():
+            return True
+        if a.normal is not None and b.normal is not None and (angle_deg(a.normal, b.normal)[h] > n_tol[h]).any():
+            return True
+    for x, y in () if tolerance is not None else ((a.t, b.t), (a.normal, b.normal)):
         if x is not None and y is not None and h.any():
             dx = np.abs(x[h] - y[h])
             if (dx > CHANGE_REL * np.maximum(1.0, np.abs(x[h]))).any():
@@ -170,14 +185,29 @@ def changes(a: RenderResult, b: RenderResult, model: str | None, where: np.ndarr
     return False
 
 
-def judged(bc) -> np.ndarray | None:
-    """The pixels a backend check judges: outside its geometry band, its depth ties and its shading's edges."""
+def tolerance(bc) -> tuple[np.ndarray, np.ndarray] | None:
+    """A backend check's per-pixel t and normal-angle tolerances (None when it has no geometry check)."""
+    geom = bc.checks.get("geometry")
+    if geom is None or "t_tolerance" not in geom.images:
+        return None
+    return geom.images["t_tolerance"], geom.images["normal_tolerance"]
+
+
+def judged(bc, defective=None) -> np.ndarray | None:
+    """The pixels a backend check judges: outside its geometry band, its depth ties and its shading's edges
+    -- and, given the check against a defective reference, outside that one's edges too. Edges come from
+    the reference under test (its silhouettes, shadows, terminators): a moved light moves them, and the
+    check rightly sets its own edges aside. The band does not: it is the scene's and the oracle's, so it
+    comes from the correct check alone -- a band that grew with a defect would be a hole in the harness,
+    and must show as a miss (it did: Embree's depth ties, measured against a reference that missed)."""
     geom, shade = bc.checks.get("geometry"), bc.checks.get("shading")
     if geom is None or "band" not in geom.images:
         return None
     out = ~geom.images["band"].astype(bool) & ~geom.images.get("ties", np.zeros_like(geom.images["band"]))
-    if shade is not None and "edges" in shade.images:
-        out &= ~shade.images["edges"].astype(bool)
+    for c in (bc, defective):
+        shade = None if c is None else c.checks.get("shading")
+        if shade is not None and "edges" in shade.images:
+            out &= ~shade.images["edges"].astype(bool)
     return out
 
 
@@ -237,8 +267,11 @@ def run_job(job: Job) -> dict[str, Any]:
             )
             found[name] = {
                 "changes": changed,
-                # on pixels the check judges, in a scene the oracle can judge (its clean check conclusive)
-                "changes_judged": changed and not bc.inconclusive and changes(clean, got, model, judged(bc)),
+                # a change the check could see: on pixels it judges (outside the band, the ties and both
+                # checks' edges), beyond its tolerances there, in a scene it can judge (clean check conclusive)
+                "changes_judged": changed
+                and not bc.inconclusive
+                and changes(clean, got, model, judged(bc, dc), tolerance(bc)),
                 "verdict": dc.verdict if dc else "pass",
             }
         out["defects"] = found

@@ -1145,7 +1145,7 @@ def fuzz(
     for name, d in doc.get("defects", {}).items():
         rate = "-" if d["rate"] is None else f"{100 * d['rate']:.1f} %"
         inside = d["changes"] - d["changes_judged"]
-        where = f"; {inside} only on pixels the check sets aside (bands, edges)" if inside else ""
+        where = f"; {inside} only where the checks cannot see it (bands, edges, within tolerance)" if inside else ""
         (err if json_out == "-" else out).print(
             terminal_text(
                 f"  defect {name:<18} caught in {d['caught']}/{d['changes']} scenes it changes ({rate}){where}"

@@ -342,6 +342,8 @@ def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderRes
         "normal_deg": ang,
         "band": tol.band,
         "not_judged": same & tol.band,  # t and normals compared but not judged: the silhouette band
+        "t_tolerance": tol.t_abs,  # per pixel, what a t may differ by (the campaign's "changes judged")
+        "normal_tolerance": tol.normal_deg,
     }
     thresholds = {
         "mask_outside_band": f"0: {THRESHOLDS['mask_outside_band'].why}",

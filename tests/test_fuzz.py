@@ -171,6 +171,16 @@ def test_changes_sees_each_buffer_and_respects_where():
     assert campaign.changes(a, _result(hit, sid, t, c + 3 / 255), "exercise")
     assert not campaign.changes(a, _result(hit, sid, t, c + 3 / 255), None)  # a geometry-only oracle
     assert not campaign.changes(a, _result(hit, sid, t, c + 3 / 255), "exercise", np.zeros_like(hit))
+    # with the check's per-pixel tolerances a t or normal change counts only beyond them (mask and ids always)
+    tol = (np.full((1, 2), 0.05), np.full((1, 2), 1.0))
+    assert not campaign.changes(a, _result(hit, sid, t * 1.01, c), None, None, tol)  # dt 0.02 <= 0.05
+    assert campaign.changes(a, _result(hit, sid, t * 1.05, c), None, None, tol)  # dt 0.1 > 0.05
+    assert campaign.changes(a, _result(~hit, sid, t, c), None, None, tol)
+    tilted = _result(hit, sid, t, c)
+    tilted.normal = np.array([[[0.0, np.sin(0.05), np.cos(0.05)], [0.0, 0.0, 1.0]]])  # 2.9 degrees
+    assert campaign.changes(a, tilted, None, None, tol) and not campaign.changes(
+        a, tilted, None, None, (tol[0], tol[1] * 3)
+    )
 
 
 def test_job_key_changes_with_what_the_result_depends_on():
@@ -191,3 +201,18 @@ def test_scenes_take_the_families_in_turn():
     assert [f for _, f, _ in got] == [*fams, *fams, fams[0]]
     assert got[0][0] == f"{fams[0]}_5_0" and got[len(fams)][0] == f"{fams[0]}_5_1"
     assert got == campaign.scenes(2 * len(fams) + 1, 5, fams, (8, 8))
+
+
+def test_a_reference_that_misses_a_ball_fails_against_embree():
+    """The defect campaign's far_2027_34 (seed 2027, 32x32): the reference with its near ball skipped misses
+    46 pixels Embree hits. Embree's depth-tie band was relative to the reference's t, 0 on a miss, which
+    put every such pixel in the band (the check was inconclusive); it is relative to the scene's nearest
+    candidate now."""
+    from minirt import fuzz, harness
+
+    text = fuzz.scene_text("far", 2027, 34, 32, 32)
+    scene, rules, _, bc = harness.check_text(text, "far_2027_34.toml", "embree", explain=False)
+    assert bc.verdict == "pass", bc.reason
+    bad = campaign._DefectiveReference(scene, campaign.DEFECTS["last-shape-skipped"])
+    dc = harness.check_backend(scene, rules, "embree", bad, rendered=bc.result, explain=False)
+    assert dc.verdict == "fail" and dc.checks["geometry"].figures["mask_mismatch_outside_band"] == 46, dc.reason
