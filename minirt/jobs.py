@@ -132,6 +132,28 @@ def _message(e: BaseException) -> str:
     return f"internal error: {name}: {text}" if text else f"internal error: {name}"
 
 
+def _reachable(scheduler: str) -> None:
+    """A tcp:// address whose port refuses or does not resolve is one line at once: Dask's Client retries
+    such an address until its 10 s time-out (a mistyped port cost every command 10 s)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from minirt.errors import MinirtError
+
+    try:
+        u = urlsplit(scheduler)
+        host, port = u.hostname, u.port
+    except ValueError:
+        return  # Dask's own message says what is wrong with the address
+    if u.scheme != "tcp" or host is None or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=10).close()
+    except OSError as e:
+        why = e.strerror or type(e).__name__
+        raise MinirtError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({why})") from None
+
+
 @contextlib.contextmanager
 def _client(workers: int, scheduler: str | None) -> Iterator[Any]:
     import dask
@@ -141,6 +163,7 @@ def _client(workers: int, scheduler: str | None) -> Iterator[Any]:
     for name in ("distributed", "dask"):
         logging.getLogger(name).setLevel(logging.ERROR)
     if scheduler is not None:
+        _reachable(scheduler)
         try:
             client = Client(scheduler, timeout="10s")
         except (OSError, TimeoutError, ValueError) as e:
