@@ -25,7 +25,6 @@ in scenes it can judge (its check of the correct reference conclusive).
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -170,11 +169,12 @@ def changes(
             return True
         if a.normal is not None and b.normal is not None and (angle_deg(a.normal, b.normal)[h] > n_tol[h]).any():
             return True
-    for x, y in () if tolerance is not None else ((a.t, b.t), (a.normal, b.normal)):
-        if x is not None and y is not None and h.any():
-            dx = np.abs(x[h] - y[h])
-            if (dx > CHANGE_REL * np.maximum(1.0, np.abs(x[h]))).any():
-                return True
+    elif h.any():
+        for x, y in ((a.t, b.t), (a.normal, b.normal)):
+            if x is not None and y is not None:
+                dx = np.abs(x[h] - y[h])
+                if (dx > CHANGE_REL * np.maximum(1.0, np.abs(x[h]))).any():
+                    return True
     level = THRESHOLDS["color8_levels"].value
     if model == "exercise":
         d8 = np.abs(a.color8().astype(int) - b.color8().astype(int)).max(-1)
@@ -374,7 +374,7 @@ def _encode(result: dict[str, Any]) -> bytes:
 
 
 def _decode(data: bytes) -> dict[str, Any]:
-    d = json.loads(data.decode())
+    d = json_codec.decode(data)
     ev = d.get("evidence")
     if ev:
         ev["images"] = {k: bytes.fromhex(v) for k, v in ev.get("images", {}).items()}

@@ -994,9 +994,10 @@ def run(
     ``cache``: a folder of job results (minirt.cache) keyed by the scene's text and name, the size, the
     oracle and the versions; a job it holds is not run again (jobs run one by one here then, without
     POV-Ray's renders started ahead)."""
-    _fits_in_memory(paths, names, size, 0 if scheduler else workers if workers > 1 else 0)
+    loaded = [_scene_and_rules(p, size) for p in paths]  # each file parsed once, for every use below
+    _fits_in_memory([s for s, _ in loaded], names, 0 if scheduler else workers if workers > 1 else 0)
     if workers > 1 or scheduler is not None or cache is not None:
-        return _run_jobs(paths, names, size, progress, workers, scheduler, cache)
+        return _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache)
     from minirt.diagnose import VariantCache
 
     variants = VariantCache(VARIANT_CACHE_BYTES)
@@ -1004,7 +1005,6 @@ def run(
     # a thread of their own, and overlap the reference's, Mitsuba's and Embree's work in this process
     # (the cores are otherwise idle while Python waits for POV-Ray). The same results, in less time.
     ahead = [n for n in names if n in CONCURRENT_BACKENDS and backends.info(n).available]
-    loaded = [_scene_and_rules(p, size) for p in paths]  # each file parsed once, for both uses
     with ThreadPoolExecutor(max_workers=1) as pool:
         rendered = [{n: pool.submit(backends.render, n, *sr) for n in ahead} for sr in loaded]
         scenes = []
@@ -1014,11 +1014,10 @@ def run(
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
 
 
-def _fits_in_memory(paths, names, size, local_workers: int) -> None:
+def _fits_in_memory(scenes: list[Scene], names, local_workers: int) -> None:
     """Bad input before any work: a check this machine cannot hold (minirt.memory), as one line."""
     from minirt import memory
 
-    scenes = [_scene_and_rules(p, size)[0] for p in paths]
     pixels = [s.camera.width * s.camera.height for s in scenes]
     oracles = [n for n in names if n != backends.REFERENCE]
     big = max(scenes, key=lambda s: s.camera.width * s.camera.height)
@@ -1076,10 +1075,10 @@ def check_cache(folder: Path, oracles: list[str]) -> Cache:
     return Cache(folder, key, pickle_codec, keep=lambda got: got[0].verdict != "error")
 
 
-def _run_jobs(paths, names, size, progress, workers, scheduler, cache: Path | None = None) -> CheckResult:
+def _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache: Path | None = None) -> CheckResult:
+    """``run``'s scene files as jobs; ``loaded``: their (scene, rules), parsed before any job starts."""
     from minirt import jobs
 
-    loaded = [_scene_and_rules(p, size) for p in paths]  # bad input here, before any job starts
     oracles = [n for n in names if n != backends.REFERENCE]
     todo = [
         CheckJob(str(p), Path(p).read_text(encoding="utf-8"), size, n) for p in paths for n in oracles
