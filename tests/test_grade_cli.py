@@ -118,6 +118,7 @@ def _bad_inputs(work) -> dict[str, tuple[list, str]]:
     (t / "one_class" / "s").mkdir(parents=True, exist_ok=True)
     (t / "one_class" / "s" / "rules.png").write_bytes(work.match.read_bytes())
     scene = work.rules_toml
+    one_class = ["grade", "--class", t / "one_class", "--scenes", work.scenes]
     return {
         "missing image": (["grade", scene, t / "none.png"], "no such image file"),
         "folder as image": (["grade", scene, t / "folder.png"], "is a folder"),
@@ -131,33 +132,11 @@ def _bad_inputs(work) -> dict[str, tuple[list, str]]:
         "class on empty folder": (["grade", "--class", t / "empty_class", "--out", t / "o"], "empty_class"),
         "workers without class": (["grade", scene, work.match, "--workers", "2"], "--workers goes with --class"),
         "scheduler unreachable": (
-            [
-                "grade",
-                "--class",
-                t / "one_class",
-                "--scenes",
-                work.scenes,
-                "--out",
-                t / "o2",
-                "--scheduler",
-                "tcp://127.0.0.1:9",
-            ],
+            [*one_class, "--out", t / "o2", "--scheduler", "tcp://127.0.0.1:9"],
             "--scheduler tcp://127.0.0.1:9: cannot reach",
         ),
         "workers and scheduler": (
-            [
-                "grade",
-                "--class",
-                t / "one_class",
-                "--scenes",
-                work.scenes,
-                "--out",
-                t / "o3",
-                "--workers",
-                "2",
-                "--scheduler",
-                "tcp://127.0.0.1:9",
-            ],
+            [*one_class, "--out", t / "o3", "--workers", "2", "--scheduler", "tcp://127.0.0.1:9"],
             "--workers and --scheduler: give one",
         ),
         "json unwritable": (["grade", scene, work.match, "--json", "/proc/x/y.json"], "/proc/x"),
