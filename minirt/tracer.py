@@ -601,15 +601,24 @@ class Tracer:
             lvl.record["next"] = (ro, r)
         return lvl, spawn
 
-    def trace(self, o, d, record: bool = False, tree: bool = False) -> tuple[Any, list[Level]]:
+    def trace(
+        self, o, d, record: bool = False, tree: bool = False, out: dict[str, Any] | None = None
+    ) -> tuple[Any, list[Level]]:
         """TraceRay for a batch: returns the colour of each ray and the wavefront levels.
 
         Memory traffic is what limits a wavefront, so each level writes only what is read later:
         every level its hit ids and local colour (the reflection colour and the background are
         re-derived from the ids in the combining pass); the first level, or every level when
         ``record``, also its terms, t, hit points and normals.
+
+        ``out`` (a dict to fill): the first level's outputs are written by the kernels that compute
+        them, straight into the interleaved float64 buffers NumPy views (``_scatter_out``), instead of
+        being stored per component and copied by a read-out kernel afterwards. ``out`` then holds
+        "color", "position", "normal", "term.<name>" (3 N) and "t" (N, float64); the first level's
+        colour, terms, hit points and normals are not kept per component (unless ``record``).
         """
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))  # the first level's
             levels: list[Level] = []
             parent = None
             depth = self.effects.reflection_depth if self.effects.reflection else 0
@@ -623,7 +632,14 @@ class Tracer:
                     outputs.append(lvl.code)
                     if "shadow_margin" in lvl.record:
                         outputs.append(lvl.record["shadow_margin"])
-                if level == 0 or record:
+                if level == 0 and out is not None:
+                    vectors = {"position": lvl.p, "normal": lvl.n} | {"term." + k: v for k, v in lvl.terms.items()}
+                    self._scatter_out(out, vectors, rays, lvl.shape_id >= 0, masked=("position", "normal"))
+                    out["t"] = dr.llvm.Float64(lvl.t)
+                    outputs.append(out["t"])
+                    if record:
+                        outputs += [lvl.t, lvl.p, lvl.n, lvl.terms]
+                elif level == 0 or record:
                     outputs += [lvl.t, lvl.p, lvl.n, lvl.terms]
                 if spawn is None:
                     dr.eval(*outputs)
@@ -659,7 +675,12 @@ class Tracer:
                     lvl.terms["background"] = lvl.bg
                     c = c + lvl.bg
                 extra = [lvl.record["tree"]] if tree else []
-                if k == 0 or record:
+                if k == 0 and out is not None:
+                    late = [name for name in ("reflection", "background") if name in lvl.terms]
+                    vectors = {"color": c} | {"term." + name: lvl.terms[name] for name in late}
+                    self._scatter_out(out, vectors, rays)
+                    dr.eval(*extra, *([c, lvl.terms] if record else []))  # runs the scatters too
+                elif k == 0 or record:
                     dr.eval(c, lvl.terms, *extra)
                 else:
                     dr.eval(c, *extra)
@@ -672,22 +693,26 @@ class Tracer:
         n = max(dr.width(a[k]) for k in range(3))
         return self._interleave(n, 1, {"v": a})["v"].reshape(n, 3)
 
-    def _read_out(self, w: int, h: int, shape_id, t, vectors: dict[str, Any]) -> dict[str, Any]:
-        """First-level outputs to NumPy in one kernel, in the layout RenderResult wants.
+    def _scatter_out(self, out: dict[str, Any], vectors: dict[str, Any], n: int, hit=None, masked=()) -> None:
+        """Queue the writes of 3-vectors (width n, or 1: a constant) into new interleaved float64
+        buffers out[name] of 3 n: they run in the next kernel, the one that computes them. The same
+        values as ``_interleave``: the names in ``masked`` are 0 where ``hit`` is false, zeros canonical.
 
-        Dr.Jit holds a 3-vector as three arrays; NumPy wants (h, w, 3). One kernel over 3 N lanes
-        gathers every vector's components into interleaved float64 buffers, normalises misses
-        (position and normal 0, as ``geometry_from_flat`` does for the oracles) and makes zeros
-        canonical (see ``_interleave``).
-        NumPy then views the buffers (and the evaluated ids and t) without a copy. Measured on
-        three_balls 1024²: 6 ms, against ~60 ms for a ravel kernel and two NumPy passes per buffer.
-        """
-        t64 = dr.llvm.Float64(t)
-        out = self._interleave(w, h, vectors, shape_id=shape_id, masked=("position", "normal"), also=[t64])
-        out["shape_id"] = np.asarray(shape_id).reshape(h, w)
-        out["hit"] = out["shape_id"] >= 0
-        out["t"] = np.asarray(t64).reshape(h, w)  # inf on a miss already (shade_level)
-        return out
+        Every buffer is allocated before the first write is queued: allocating one would run the
+        kernel of the writes queued before it."""
+        F64, A64 = dr.llvm.Float64, dr.llvm.Array3f64
+        bufs = {name: dr.empty(F64, 3 * n) for name in vectors}
+        zero = dr.opaque(F64, 0.0)
+        dr.eval(bufs, zero)
+        i = dr.arange(dr.llvm.UInt32, n)
+        for name, v in vectors.items():
+            x = A64(v)
+            if name in masked:
+                x = dr.select(hit, x, 0.0)
+            # A 3-vector into a flat buffer: element j at 3 j + k, in one scatter. Three scalar scatters
+            # into one buffer would each run the kernel of the writes queued before them.
+            dr.scatter(bufs[name], x + zero, i)
+        out.update(bufs)
 
     def _interleave(
         self, w: int, h: int, vectors: dict[str, Any], shape_id=None, masked=(), also=()
@@ -826,11 +851,15 @@ class Tracer:
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         o, d = self.primary_rays(pixels)
-        color, levels = self.trace(o, d, tree=diagnostics)
+        bufs: dict[str, Any] = {}
+        color, levels = self.trace(o, d, tree=diagnostics, out=bufs)
         lvl0 = levels[0]
-        vectors = {"color": color, "position": lvl0.p, "normal": lvl0.n}
-        out = self._read_out(w, h, lvl0.shape_id, lvl0.t, vectors | {"term." + k: v for k, v in lvl0.terms.items()})
-        del o, d, color, vectors
+        dr.sync_thread()
+        out = {k: np.asarray(b).reshape(h, w, 3) for k, b in bufs.items() if k != "t"}
+        out["shape_id"] = np.asarray(lvl0.shape_id).reshape(h, w)
+        out["hit"] = out["shape_id"] >= 0
+        out["t"] = np.asarray(bufs["t"]).reshape(h, w)  # inf on a miss already (shade_level)
+        del o, d, color, bufs
         col = out.pop("color")
         terms = {k[5:]: out.pop(k) for k in list(out) if k.startswith("term.")}
         geom = out

@@ -4,6 +4,7 @@ tracer.TILE_PIXELS.)"""
 
 from __future__ import annotations
 
+import drjit as dr
 import numpy as np
 import pytest
 
@@ -33,6 +34,35 @@ def test_tiles_same_bits_as_one_pass(name, samples, precision):
     tiled = tr.render(diagnostics=True, tile_pixels=36 * 4)  # 4 rows a tile, the last one 1 row
     assert tile_rows(36, 36 * 4) == 4
     assert _same(whole, tiled) == []
+
+
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+@pytest.mark.parametrize("name", ["three_balls", "rules", "exercise", "shadows"])
+def test_buffers_written_by_the_kernel_are_the_traced_values(name, precision):
+    """render() has the first level's kernels write the interleaved float64 buffers themselves; they
+    hold exactly what the wavefront computes per component (trace(record=True)), position and normal
+    0 on a miss, and no negative zero (a skipped term and a computed 0 * negative share their bits)."""
+    scene = load_scene(f"scenes/{name}.toml").with_overrides(width=31, height=17, samples=1)
+    tr = Tracer(scene, resolve(scene), precision)
+    res = tr.render()
+    o, d = tr.primary_rays()
+    color, levels = tr.trace(o, d, record=True)
+    lvl = levels[0]
+    hit = np.asarray(lvl.shape_id) >= 0
+
+    def flat(v, masked=False):
+        a = tr._to_numpy3(v)
+        return np.where(hit[:, None], a, 0.0) if masked else a
+
+    want = {"color": flat(color), "position": flat(lvl.p, True), "normal": flat(lvl.n, True)}
+    want |= {"term." + k: flat(v) for k, v in lvl.terms.items()}
+    got = {"color": res.color, "position": res.position, "normal": res.normal}
+    got |= {"term." + k: res.terms[k] for k in lvl.terms}
+    assert set(lvl.terms) >= {"ambient", "diffuse"}
+    for k, a in want.items():
+        assert got[k].tobytes() == a.reshape(17, 31, 3).tobytes(), k
+        assert not (np.signbit(got[k]) & (got[k] == 0)).any(), k
+    assert np.asarray(dr.llvm.Float64(lvl.t)).tobytes() == res.t.reshape(-1).tobytes()
 
 
 def test_tiles_with_the_tree():
