@@ -991,7 +991,7 @@ def _print_grade(g, page: Path | None) -> None:
 def _grade_class(
     class_dir, scenes_dir, out_dir, json_out, size, profile, rule, quiet, workers, scheduler, cache
 ) -> None:
-    from minirt import grading, jobs
+    from minirt import grading, jobs, memory
     from minirt.grade_report import write_class_page
     from minirt.imageio import write_json
     from minirt.scenes import BUNDLED
@@ -1014,6 +1014,14 @@ def _grade_class(
     loaded = [(str(f), *_load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
     total = len(people) * len(loaded)
     workers = _pool(workers, scheduler, default=0) or jobs.default_workers(total)
+    budget = grading.PROCESS_CACHE_BYTES  # a cluster's workers: their memory is not ours to measure
+    if scheduler is None:
+        biggest = max(loaded, key=lambda x: x[1].camera.width * x[1].camera.height)[1].camera
+        n = max(1, workers)
+        budget = memory.class_cache_bytes(
+            biggest.width * biggest.height, n, budget,
+            f"grading a class at {biggest.width}x{biggest.height} in {n} process{'es' if n > 1 else ''}",
+        )  # fmt: skip
     with _progress(not quiet) as bar:
         label = f"grading ({workers} processes)" if scheduler is None and workers > 1 else "grading"
         task = bar.add_task(label, total=total) if bar else None
@@ -1025,8 +1033,9 @@ def _grade_class(
 
         store = None if cache is None else grading.class_cache(cache, out_dir)
         rows = grading.grade_class(
-            people, loaded, out_dir, workers=workers, scheduler=scheduler, on_done=done, cache=store
-        )
+            people, loaded, out_dir, workers=workers, scheduler=scheduler, on_done=done, cache=store,
+            cache_bytes=budget,
+        )  # fmt: skip
     summary = grading.class_dict(rows, [f.stem for f in files])
     index = write_class_page(rows, summary, out_dir, quiet=quiet)
     summary["grades"] = [r.as_dict() for r in rows]  # with the pages' links

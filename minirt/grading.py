@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from minirt import diagnose as dg
+from minirt import memory
 from minirt import rules as rules_mod
 from minirt.errors import MinirtError
 from minirt.imageio import STUDENT_EXTENSIONS, atomic_path, read_student_image
@@ -274,6 +275,12 @@ def grade_image(
     scene = scene.with_overrides(samples=1)  # the exercise traces one ray per pixel
     target = load_target(image)
     notes = check_size(scene, target, str(image))
+    w, h = scene.camera.width, scene.camera.height
+    memory.require(
+        memory.grade_bytes(w * h),
+        f"grading {image} ({w}x{h})",
+        "grade on a machine with more memory, or a smaller render of the same scene (--size)",
+    )
     d = dg.diagnose(scene, rules, target, cache)
     verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
     g = Grade(scene, scene_file, str(image), verdict, diagnosis=d, target=target, notes=notes)
@@ -355,6 +362,7 @@ class ClassJob:
     page_stem: str
     image_digest: str = ""  # SHA-256 of the student's image file ("" when there is none): the cache key's
     keep_page: bool = False  # return the page's bytes with the row (to cache them)
+    cache_bytes: int = 2 << 30  # the budget of the process's render cache (memory.class_cache_bytes)
 
 
 # Each process keeps one render cache for every image it grades (a worker's share of a class). Its budget
@@ -363,10 +371,11 @@ PROCESS_CACHE_BYTES = 2 << 30
 _process_cache: dg.VariantCache | None = None
 
 
-def process_cache() -> dg.VariantCache:
+def process_cache(budget: int = PROCESS_CACHE_BYTES) -> dg.VariantCache:
+    """This process's render cache, made with ``budget`` bytes by the first call."""
     global _process_cache
     if _process_cache is None:
-        _process_cache = dg.VariantCache(PROCESS_CACHE_BYTES)
+        _process_cache = dg.VariantCache(budget)
     return _process_cache
 
 
@@ -375,7 +384,7 @@ def grade_job(job: ClassJob) -> ClassRow:
     without the grade's arrays, so neither the worker nor the caller holds a class's worth of them."""
     from minirt.grade_report import write_row_page
 
-    row = grade_one_row(Path(job.student), job.scene, job.scene_file, job.rules, process_cache())
+    row = grade_one_row(Path(job.student), job.scene, job.scene_file, job.rules, process_cache(job.cache_bytes))
     write_row_page(row, Path(job.out_dir), job.page_stem)
     row.grade = None
     if job.keep_page and row.page:
@@ -425,18 +434,22 @@ def grade_class(
     scheduler: str | None = None,
     on_done: Callable[[ClassJob, ClassRow], None] | None = None,
     cache: Cache | None = None,
+    cache_bytes: int = PROCESS_CACHE_BYTES,
 ) -> list[ClassRow]:
     """Grade every student's image of every scene (``scenes``: (file, scene, rules)), writing each page
     into ``out_dir/pages/`` as it is graded; rows in student order, then scene order, however the work
     was spread (minirt.jobs: ``workers`` processes here, or a Dask ``scheduler``'s). A call that fails
-    inside a worker is an ``error`` row, like a missing image."""
+    inside a worker is an ``error`` row, like a missing image. ``cache_bytes``: each process's render
+    cache (``memory.class_cache_bytes`` sizes it to the machine)."""
     from minirt import jobs
     from minirt.grade_report import page_stems
 
     keys = [(s, f, sc, r) for s in people for f, sc, r in scenes]
     stems = page_stems((s.name, Path(f).stem) for s, f, _, _ in keys)
     todo = [
-        ClassJob(str(s), sc, f, r, str(out_dir), stem, _image_digest(s, f) if cache else "", cache is not None)
+        ClassJob(
+            str(s), sc, f, r, str(out_dir), stem, _image_digest(s, f) if cache else "", cache is not None, cache_bytes
+        )
         for (s, f, sc, r), stem in zip(keys, stems, strict=True)
     ]
 

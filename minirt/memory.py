@@ -23,7 +23,8 @@ KB, and each oracle's render and figures, 1.4 KB (Mitsuba, POV-Ray) or 0.22 KB (
 only); plus, for the scene being checked, ~0.85 KB per pixel while a check runs. The estimate is
 within -5 % .. +15 % of the table, so it refuses only checks that would not have fitted, or
 nearly so; the stochastic check of a scene with many samples was not measured (its sample renders are
-tiled, so they add little per pixel).
+tiled, so they add little per pixel). Renders and grades have their own figures, beside their
+estimates below.
 """
 
 from __future__ import annotations
@@ -82,6 +83,42 @@ def render_bytes(pixels: int, backends: list[str]) -> int:
     kept = sum(RENDER_KEPT.get(n, 220) for n in backends)
     running = max((RENDER_RUNNING.get(n, 430) for n in backends), default=0)
     return int(BASE_BYTES + pixels * (kept + running))
+
+
+# Grades (``/usr/bin/time -v minirt grade scenes/rules.toml IMAGE --size NxN -q``, IMAGE a render with two
+# wrong rules, peak resident set): 512² 0.98 GB, 1024² 1.68 GB, 1536² 3.68 GB, 2048² 6.22 GB (the page,
+# --out, adds nothing measurable). The diagnosis holds the target, the scene's one-step renders and its
+# search path's renders; its render cache is bounded (diagnose.VariantCache), the renders it is comparing
+# are not. Fitted: a base and GRADE_PER_PIXEL, within -8 % .. +17 % of those four peaks.
+GRADE_BASE_BYTES = 550 << 20
+GRADE_PER_PIXEL = 1450
+
+
+# A class: each process also keeps one render cache for every image it grades, and fills it. Measured:
+# 15 students x 6 scenes at 256², one process, cache bound 2 GB: peak 2.85 GB, against 0.63 GB for one
+# of those images alone -- the cache costs ~1.1 times its bound (its arrays' bookkeeping and NumPy's
+# temporaries are not counted in it). CACHE_OVERHEAD is that factor, rounded up.
+CACHE_OVERHEAD = 1.2
+CACHE_MIN_BYTES = 256 << 20
+
+
+def grade_bytes(pixels: int, processes: int = 1) -> int:
+    """Peak bytes of grading an image of ``pixels`` -- in each of ``processes`` at once (a class)."""
+    return int(processes * (GRADE_BASE_BYTES + pixels * GRADE_PER_PIXEL))
+
+
+def class_cache_bytes(pixels: int, processes: int, most: int, what: str) -> int:
+    """The render cache each of ``processes`` grading a class (largest image ``pixels``) may keep: ``most``,
+    or what the memory left after the grades themselves allows (at least CACHE_MIN_BYTES; a smaller
+    cache costs time, never results). A class that cannot fit even without caches is refused (``what``
+    names it, as ``require`` does)."""
+    need = grade_bytes(pixels, processes) + processes * int(CACHE_MIN_BYTES * CACHE_OVERHEAD)
+    require(need, what, "grade with fewer --workers, or at a smaller --size")
+    have = available()
+    if have is None:
+        return most
+    spare = (have - grade_bytes(pixels, processes)) / (processes * CACHE_OVERHEAD)
+    return int(min(most, max(CACHE_MIN_BYTES, spare)))
 
 
 def gb(n: int) -> str:

@@ -83,3 +83,79 @@ def test_a_render_that_cannot_fit_is_one_line_and_the_reference_alone_streams(tm
     cli._render_fits(["reference"], 16384, 16384, rules)  # no error
     with pytest.raises(MinirtError):
         cli._render_fits(["reference", "embree"], 16384, 16384, rules)
+
+
+# ---------------------------------------------------------------------------------------------
+# grade: one image, and a class's processes with their render caches
+_PATCHED_MAIN = (
+    "import sys, minirt.memory as m; m.available = lambda: {}; sys.argv[0] = 'minirt'; "
+    "from minirt.cli import main; main()"
+)
+
+
+def _minirt_with(available: int, *args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """minirt in a child process that believes ``available`` bytes are left."""
+    cmd = [sys.executable, "-c", _PATCHED_MAIN.format(available), *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def graded(tmp_path_factory):
+    from students import small_scene, student_image
+
+    from minirt import rules as R
+    from minirt.imageio import write_image
+
+    tmp = tmp_path_factory.mktemp("grade-memory")
+    sc = small_scene("rules", 32, 32)
+    write_image(tmp / "student.png", student_image(sc, R.resolve(sc)))
+    for who in ("ann", "ben"):
+        (tmp / "class" / who).mkdir(parents=True)
+        write_image(tmp / "class" / who / "rules.png", student_image(sc, R.resolve(sc)))
+    return tmp
+
+
+def test_the_grade_estimate_follows_the_measured_peaks():
+    """The figures beside GRADE_PER_PIXEL: within -10 % .. +20 % of each measured peak."""
+    for side, peak in ((512, 0.98), (1024, 1.68), (1536, 3.68), (2048, 6.22)):
+        est = memory.grade_bytes(side * side) / 2**30
+        assert peak * 0.90 <= est <= peak * 1.20, (side, est, peak)
+    assert memory.grade_bytes(1 << 20, processes=3) == 3 * memory.grade_bytes(1 << 20)
+
+
+def test_a_grade_that_cannot_fit_is_one_line_and_exit_2(graded):
+    args = ["grade", "scenes/rules.toml", graded / "student.png", "--size", "32x32", "--out", graded / "one"]
+    p = _minirt_with(100 << 20, *args)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert lines[0].startswith("minirt: error: grading ") and "(32x32) needs about 0.5 GB" in lines[0], lines[0]
+    assert not (graded / "one").exists() or not list((graded / "one").iterdir())
+    # the same command with the memory it needs grades (exit 0: the image follows the scene's rules)
+    assert _minirt_with(64 << 30, *args).returncode == 0
+
+
+def test_a_class_that_cannot_fit_is_refused_before_any_grade(graded):
+    args = ["grade", "--class", graded / "class", "--scenes", ROOT / "scenes", "--size", "32x32", "-q"]
+    p = _minirt_with(200 << 20, *args, "--out", graded / "c1")
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert lines[0].startswith("minirt: error: grading a class at ") and "--workers" in lines[0], lines[0]
+    assert not (graded / "c1").exists() or not list((graded / "c1").rglob("*.png"))
+
+
+def test_the_class_cache_shrinks_to_the_memory_left(monkeypatch):
+    px, most = 256 * 256, 2 << 30
+    base = memory.grade_bytes(px, 2)
+    floor = 2 * int(memory.CACHE_MIN_BYTES * memory.CACHE_OVERHEAD)
+    monkeypatch.setattr(memory, "available", lambda: None)  # the system does not say: the full budget
+    assert memory.class_cache_bytes(px, 2, most, "x") == most
+    monkeypatch.setattr(memory, "available", lambda: 64 << 30)  # plenty
+    assert memory.class_cache_bytes(px, 2, most, "x") == most
+    monkeypatch.setattr(memory, "available", lambda: base + (1 << 30))  # 1 GB over the grades: shared
+    got = memory.class_cache_bytes(px, 2, most, "x")
+    assert got == int((1 << 30) / (2 * memory.CACHE_OVERHEAD)) and memory.CACHE_MIN_BYTES < got < most
+    monkeypatch.setattr(memory, "available", lambda: base + floor)  # just enough: the smallest cache
+    assert memory.class_cache_bytes(px, 2, most, "x") == memory.CACHE_MIN_BYTES
+    monkeypatch.setattr(memory, "available", lambda: base + floor - 1)  # less: refused, naming the job
+    with pytest.raises(MinirtError, match=r"^a class of 2 needs about .* GB of memory, .*fewer --workers"):
+        memory.class_cache_bytes(px, 2, most, "a class of 2")
