@@ -93,6 +93,7 @@ def _workers_opt(default: str) -> Any:
 CheckWorkersOpt = _workers_opt("every check in this process")
 GradeWorkersOpt = _workers_opt("with --class, one per core, none with fewer than 16 images")
 FuzzWorkersOpt = _workers_opt("one per core, none with fewer than 8 jobs each")
+SweepWorkersOpt = _workers_opt("1, one series after the other: series at once share cores, and so their times")
 
 SchedulerOpt = Annotated[
     str | None,
@@ -771,6 +772,10 @@ SWEEP_HELP = "\n\n".join([
     "Each setting is rendered once untimed (JIT compilation, caches), then --repeats times. Writes sweep.csv, "
     "sweep.md, sweep.json and log-log plots (colour and t error on separate axes) with the Pareto front and "
     "fitted slopes. At the default 256x256 the sweep takes about three minutes on two cores.",
+    "Each backend's series is one job: --workers N runs N at once in local processes, --scheduler on a Dask "
+    "cluster (times are then those of each worker, Dr.Jit on one thread; sweep.json's \"jobs\" says how they ran), "
+    "and --cache DIR keeps each series by content hash (scene, rules, knobs, size, versions, machine), so a rerun "
+    "renders only what changed.",
 ])  # fmt: skip
 
 
@@ -785,6 +790,17 @@ def sweep(
     ] = 3,
     profile: ProfileOpt = None,
     rule: RuleOpt = None,
+    workers: SweepWorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    cache: Annotated[
+        Path | None,
+        typer.Option(
+            "--cache",
+            metavar="DIR",
+            help="Keep each backend's series in DIR by content hash (scene text, rules, size, knobs, versions, "
+            "machine); a rerun renders only what changed.",
+        ),
+    ] = None,
     quiet: QuietOpt = False,
 ) -> None:
     """What accuracy costs in time (help text: SWEEP_HELP, paragraphs Rich wraps to the terminal)."""
@@ -793,6 +809,7 @@ def sweep(
 
     scene, rules = _load(scene_path, profile=profile, rules=rule)
     names = backends.parse_backends(backend)
+    workers = _pool(workers, scheduler, default=1)
     _out_dir(out_dir)
     with _progress(not quiet) as bar:
         task = bar.add_task("sweep", total=1) if bar else None
@@ -801,7 +818,10 @@ def sweep(
             if bar:
                 bar.update(task, completed=done, total=total, description=label[:40])
 
-        result = run_sweep(scene, rules, names, out_dir, size=size, repeats=repeats, progress=tick)
+        result = run_sweep(
+            scene, rules, names, out_dir, size=size, repeats=repeats, progress=tick,
+            workers=workers, scheduler=scheduler, cache=cache,
+        )  # fmt: skip
     for name, sl in sorted(result.get("slopes", {}).items()):
         if isinstance(sl, dict) and sl.get("slope_cost") is not None:
             err.print(f"  {name:<28} error ~ cost^{sl['slope_cost']:.2f}")

@@ -227,6 +227,15 @@ class SweepRow(_Open):
     pareto: bool = False
 
 
+class SweepJobs(_Open):
+    """How the series ran: one after the other here (workers 1), or at once (their times share cores)."""
+
+    workers: int = Field(description="Local processes the series ran in at once (1: one after the other).")
+    scheduler: str | None = Field(description="The Dask scheduler's address, or null for this machine.")
+    where: str = Field(description="The machine the times were taken on (host/cores), or the scheduler.")
+    cached: int = Field(description="Series taken from --cache instead of rendered.")
+
+
 class SweepDocument(_Document):
     """``minirt sweep``'s sweep.json: every setting's time and error, fits and the Pareto front."""
 
@@ -235,6 +244,7 @@ class SweepDocument(_Document):
     size: list[int]
     repeats: int
     rules: RuleValues
+    jobs: SweepJobs | None = None
     rows: list[SweepRow]
     slopes: dict[str, Any] = Field(default_factory=dict)
     pareto: dict[str, Any] = Field(default_factory=dict)

@@ -439,6 +439,96 @@ def _availability(name: str) -> tuple[bool, str]:
     return i.available, i.detail
 
 
+# ---------------------------------------------------------------------------------------------
+# Jobs: one backend's series each
+
+
+@dataclass(frozen=True)
+class SeriesJob:
+    """One backend's series: every setting of its knob and the converged answers they are measured
+    against (rendered once, by the first row that needs them), so the series is one job."""
+
+    scene: Scene  # at the sweep's size, one sample
+    rules: Rules
+    backend: str
+    knobs: Knobs
+    repeats: int
+
+
+# Set by run_sweep when the series run in this process: each task's label, as it starts.
+_notify: Callable[[str], None] | None = None
+
+
+def task_count(backend: str, knobs: Knobs) -> int:
+    """The rows a backend's series gives (one, a skip row, when the backend is unknown)."""
+    return {
+        "reference": len(knobs.reference_precisions) + len(knobs.reference_spp),
+        "mitsuba": len(knobs.mitsuba_spp),
+        "povray": len(knobs.povray_antialias) + len(knobs.povray_samples),
+        "embree": len(knobs.embree_subdivisions),
+    }.get(backend, 1)
+
+
+# The knobs each series depends on (a cache key holds only its own: changing Embree's levels keeps the
+# reference's series).
+SERIES_KNOBS = {
+    "reference": ("reference_precisions", "reference_spp", "converged_reference_spp"),
+    "mitsuba": ("mitsuba_spp", "converged_mitsuba_spp"),
+    "povray": ("povray_antialias", "povray_samples", "converged_reference_spp"),
+    "embree": ("embree_subdivisions",),
+}
+
+
+def run_series(job: SeriesJob) -> tuple[list[dict[str, Any]], dict[str, dict[str, Any]]]:
+    """A series' rows and the converged answers it rendered; a backend missing where the job runs is one
+    skip row (on a cluster: missing on that worker)."""
+    name = job.backend
+    ok, why = _availability(name)
+    if not ok:
+        return [_row(None, name, None, None, "skip", why)], {}
+    notify = _notify or (lambda label: None)
+    sweep = _Sweep(job.scene, job.rules, job.knobs, job.repeats)
+    sweep.notify = notify
+    rows = []
+    for t in sweep.tasks(name):
+        notify(t.label)
+        rows.append(sweep.run_task(t))
+    return rows, sweep.converged
+
+
+def sweep_cache(folder: Path, backends_used: list[str], where: str):
+    """The cache of run_sweep's series in ``folder`` (minirt.cache): keyed by the scene's text, the rules,
+    knobs, size and repeats, the versions -- and the machine the times were taken on (``where``: this
+    host and its cores, or the cluster's address), since a series' times are only that machine's."""
+    from minirt.cache import Cache, digest, pickle_codec, versions
+
+    v = versions([n for n in backends_used if n in bk.all_names() and n != bk.REFERENCE])
+
+    def own(job: SeriesJob) -> dict[str, Any]:
+        names = (*SERIES_KNOBS.get(job.backend, ()), "slow_seconds")
+        return {k: getattr(job.knobs, k) for k in names}
+
+    def key(job: SeriesJob) -> str:
+        sc = job.scene
+        return digest({"kind": "sweep", "source": sc.source, "digest": sc.digest, "name": sc.name,
+                       "size": [sc.camera.width, sc.camera.height], "rules": job.rules.as_dict(),
+                       "backend": job.backend, "knobs": own(job), "repeats": job.repeats,
+                       "minirt": v["minirt"], "drjit": v["drjit"], "oracle": v.get(job.backend, ""),
+                       "where": where})  # fmt: skip
+
+    # a series with a skip or error row may be the machine's (a renderer missing, a crash): redone next time
+    return Cache(folder, key, pickle_codec, keep=lambda got: all(r["status"] == "ok" for r in got[0]))
+
+
+def here() -> str:
+    """The machine a local sweep's times are taken on: its name and the cores this process may use."""
+    import platform
+
+    from minirt import jobs
+
+    return f"{platform.node()}/{jobs.cores()} cores"
+
+
 def run_sweep(
     scene: Scene,
     rules: Rules,
@@ -448,40 +538,63 @@ def run_sweep(
     repeats: int = REPEATS,
     progress: Progress | None = None,
     knobs: Knobs | None = None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    cache: Path | None = None,
 ) -> dict[str, Any]:
     """Sweep each backend's accuracy knob on `scene` at size x size; write the files; return sweep.json's dict.
 
     ``progress(done, total, label)`` is called before each render task (label: what runs now) and
     once at the end with done == total. ``repeats`` (>= 1) counts the timed runs after the untimed warm-up.
+
+    Each backend's series is one job (minirt.jobs): here, one after the other (``workers = 1``, the
+    default: a timing study wants the machine to itself), in ``workers`` local processes at once, or on
+    a Dask ``scheduler``'s workers -- concurrent series share cores, so their times are those of a
+    loaded machine (sweep.json's ``jobs`` says how they ran; a worker runs Dr.Jit on one thread). Progress
+    is then per series. ``cache``: a folder of series results by content hash (``sweep_cache``): a
+    rerun renders only the series whose inputs changed.
     """
+    global _notify
+    from minirt import jobs
+
     knobs = knobs or Knobs()
     repeats = max(int(repeats), 1)
     out_dir = Path(out_dir)
     sc = scene.with_overrides(width=size, height=size, samples=1)
-    sweep = _Sweep(sc, rules, knobs, repeats)
-    plan: list[tuple[str, list[_Task] | None, str]] = []
-    for name in backends:
-        ok, why = _availability(name)
-        plan.append((name, sweep.tasks(name) if ok else None, why))
-    total = sum(len(t) if t is not None else 1 for _, t, _ in plan)
+    todo = [SeriesJob(sc, rules, name, knobs, repeats) for name in backends]
+    total = sum(task_count(name, knobs) for name in backends)
     done = 0
-    rows: list[dict[str, Any]] = []
-    if progress:
-        sweep.notify = lambda label: progress(done, total, label)
-    for name, tasks, why in plan:
-        if tasks is None:
-            if progress:
-                progress(done, total, f"{name}: skipped")
-            rows.append(_row(None, name, None, None, "skip", why))
-            done += 1
-            continue
-        for t in tasks:
-            if progress:
-                progress(done, total, t.label)
-            rows.append(sweep.run_task(t))
-            done += 1
+    here_ = scheduler is None and workers <= 1
+
+    def started(label: str) -> None:
+        if progress:
+            progress(done, total, label)
+
+    def finished(job: SeriesJob, got) -> None:
+        nonlocal done
+        done += len(got[0]) if here_ else task_count(job.backend, knobs)
+        if progress and not here_:
+            progress(min(done, total), total, f"{job.backend}: done")
+
+    def failed(job: SeriesJob, message: str):
+        return [_row(None, job.backend, None, None, "error", message)], {}
+
+    where = scheduler if scheduler is not None else here()
+    store = None if cache is None else sweep_cache(Path(cache), backends, where)
+    if progress and not here_:
+        progress(0, total, f"sweeping {len(todo)} series")
+    _notify = started if here_ else None
+    try:
+        got = jobs.run(run_series, todo, workers=workers, scheduler=scheduler, on_done=finished, on_error=failed,
+                       cache=store)  # fmt: skip
+    finally:
+        _notify = None
+    rows = [r for series_rows, _ in got for r in series_rows]
+    converged = {k: v for _, conv in got for k, v in conv.items()}
     if progress:
         progress(total, total, "writing results")
+    hits = store.hits if store else 0
+    ran = {"workers": 1 if here_ else workers, "scheduler": scheduler, "where": where, "cached": hits}
     slopes = fit_slopes(rows)
     pareto = mark_pareto(rows)
     answer = answers(rows)
@@ -493,7 +606,8 @@ def run_sweep(
         "rules": rules.as_dict(),
         "knobs": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(knobs).items()},
         "series": SERIES,
-        "converged": sweep.converged,
+        "jobs": ran,
+        "converged": converged,
         "rows": [_clean(r) for r in rows],
         "slopes": slopes,
         "pareto": pareto,

@@ -13,6 +13,7 @@ import csv
 import itertools
 import json
 import re
+from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
@@ -245,3 +246,77 @@ def test_povray_antialias_command_line(exercise):
     assert "-A" in povray.command(sc, 1, 1, 1, "exr")
     cmd = povray.command(sc, 1, 1, 1, "exr", antialias=3)
     assert "-A" not in cmd and cmd[cmd.index("+A0.0") + 1] == "+R3"
+
+
+# ---------------------------------------------------------------------------------------------
+# Series as jobs (minirt.jobs): local processes, a cache
+
+SMALL = sweep.Knobs(reference_spp=(1, 4), embree_subdivisions=(0, 1), converged_reference_spp=16)
+
+
+def _errors(res) -> list:
+    return [(r["backend"], r["knob"], r["value"], r["status"], r["error"]) for r in res["rows"]]
+
+
+@pytest.fixture(scope="module")
+def in_process(exercise, tmp_path_factory):
+    sc, rules = exercise
+    return sweep.run_sweep(sc, rules, ["reference", "embree"], tmp_path_factory.mktemp("here"), size=8, repeats=1,
+                           knobs=SMALL)  # fmt: skip
+
+
+def test_series_on_worker_processes_give_the_same_rows(exercise, in_process, tmp_path):
+    sc, rules = exercise
+    calls: list[tuple[int, int, str]] = []
+    res = sweep.run_sweep(sc, rules, ["reference", "embree"], tmp_path, size=8, repeats=1, knobs=SMALL, workers=2,
+                          progress=lambda d, t, label: calls.append((d, t, label)))  # fmt: skip
+    assert _errors(res) == _errors(in_process)  # the same renders, wherever they ran
+    assert res["converged"].keys() == in_process["converged"].keys()
+    assert res["jobs"]["workers"] == 2 and in_process["jobs"]["workers"] == 1
+    total = len(res["rows"])
+    assert [d for d, _, _ in calls] == sorted(d for d, _, _ in calls) and calls[-1][:2] == (total, total)
+    assert {label for _, _, label in calls} >= {"reference: done", "embree: done"}  # per series, not per task
+    assert json.loads((tmp_path / "sweep.json").read_text())["jobs"]["where"].endswith("cores")
+
+
+def test_cache_renders_only_the_series_that_changed(exercise, in_process, tmp_path):
+    sc, rules = exercise
+    cache = tmp_path / "cache"
+
+    def go(knobs):
+        return sweep.run_sweep(sc, rules, ["reference", "embree"], tmp_path / "out", size=8, repeats=1, knobs=knobs,
+                               cache=cache)  # fmt: skip
+
+    first = go(SMALL)
+    assert first["jobs"]["cached"] == 0 and _errors(first) == _errors(in_process)
+    again = go(SMALL)
+    assert again["jobs"]["cached"] == 2 and again["rows"] == first["rows"]  # the very rows, times and all
+    more = go(replace(SMALL, embree_subdivisions=(0, 1, 2)))  # embree's knob changed: its series only
+    assert more["jobs"]["cached"] == 1
+    assert [r for r in more["rows"] if r["backend"] == "reference"] == [
+        r for r in first["rows"] if r["backend"] == "reference"
+    ]
+    assert sorted(r["value"] for r in more["rows"] if r["backend"] == "embree") == [0, 1, 2]
+
+
+def test_a_skipped_series_is_not_cached(exercise, tmp_path):
+    sc, rules = exercise
+    for _ in range(2):
+        res = sweep.run_sweep(sc, rules, ["no-such-backend"], tmp_path / "o", size=8, repeats=1, knobs=SMALL,
+                              cache=tmp_path / "c")  # fmt: skip
+        assert res["jobs"]["cached"] == 0 and res["rows"][0]["status"] == "skip"
+
+
+def test_cli_workers_and_scheduler_together_is_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    p = subprocess.run(
+        [sys.executable, "-m", "minirt", "sweep", "exercise", "--size", "8", "--workers", "2",
+         "--scheduler", "tcp://127.0.0.1:1", "--out", str(tmp_path / "o"), "-q"],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )  # fmt: skip
+    assert p.returncode == 2 and p.stderr.strip().splitlines() == [
+        "minirt: error: --workers and --scheduler: give one (the cluster has its own workers)"
+    ], p.stderr
+    assert not (tmp_path / "o").exists()
