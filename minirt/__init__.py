@@ -140,7 +140,7 @@ def check(
     backends: str | Sequence[str] = "all",
     *,
     size: tuple[int, int] | None = None,
-    workers: int = 1,
+    workers: int | None = None,
     scheduler: str | None = None,
     cache: str | PathLike[str] | None = None,
 ) -> CheckResult:
@@ -150,7 +150,8 @@ def check(
     ``scenes``: a scene file, a bundled scene's name, a folder of scene files, or a list of them;
     None checks every bundled scene. ``backends``: ``"all"``, a comma list or a list of names.
     ``size``: (width, height) to render at instead of each scene's own. ``workers`` / ``scheduler``:
-    each (scene, oracle) check as a Dask job on that many local processes or on a running cluster;
+    each (scene, oracle) check as a Dask job on that many local processes or on a running cluster (give
+    one; neither: every check in this process);
     ``cache``: a folder keeping each check's result by content hash (``minirt check --cache``).
 
     Returns the harness's CheckResult: ``verdict`` (the worst: pass, warn, fail, error or skip),
@@ -159,7 +160,7 @@ def check(
     2 error). Raises MinirtError for bad input (an unknown backend, a missing or invalid scene).
     """
     from minirt import backends as backends_mod
-    from minirt import harness
+    from minirt import harness, jobs
     from minirt.errors import MinirtError
     from minirt.scene import load_scene as _load_file
     from minirt.scenes import BUNDLED, find_scene
@@ -179,8 +180,7 @@ def check(
             raise MinirtError(f"check: no scene files in {scenes!s}")
     for p in paths:  # bad input first, before any long work
         _load_file(p)
-    if workers > 1 and scheduler is not None:
-        raise MinirtError("workers and scheduler: give one (the cluster has its own workers)")
+    workers = jobs.pool(workers, scheduler, default=1)
     folder = None if cache is None else Path(cache)
     return harness.run(paths, names, tuple(size) if size else None, workers=workers, scheduler=scheduler, cache=folder)
 

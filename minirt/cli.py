@@ -600,11 +600,10 @@ def _parse_size(size: str | None) -> tuple[int, int] | None:
 
 
 def _pool(workers: int | None, scheduler: str | None, default: int) -> int:
-    """The worker count of a command's --workers/--scheduler pair (``default`` when neither is given);
-    both given is an error: a cluster has its own workers."""
-    if workers is not None and scheduler is not None:
-        raise MinirtError("--workers and --scheduler: give one (the cluster has its own workers)")
-    return default if workers is None else workers
+    """The worker count of a command's --workers/--scheduler pair (minirt.jobs.pool)."""
+    from minirt import jobs
+
+    return jobs.pool(workers, scheduler, default, "--workers and --scheduler")
 
 
 def _render_fits(names: list[str], w: int, h: int, rules) -> None:

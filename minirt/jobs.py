@@ -51,6 +51,16 @@ def default_workers(n_items: int, per_worker: int = 16) -> int:
     return max(1, min(cores(), n_items // per_worker))
 
 
+def pool(workers: int | None, scheduler: str | None, default: int, spelled: str = "workers and scheduler") -> int:
+    """The worker count of a ``workers``/``scheduler`` pair (``default`` when neither is given); both
+    given is an error (``spelled``: how the caller names the two): a cluster has its own workers."""
+    if workers is not None and scheduler is not None:
+        from minirt.errors import MinirtError
+
+        raise MinirtError(f"{spelled}: give one (the cluster has its own workers)")
+    return default if workers is None else workers
+
+
 def run(
     fn: Callable[[T], R],
     items: Sequence[T],

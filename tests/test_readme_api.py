@@ -41,3 +41,15 @@ def test_import_minirt_is_cheap():
     )
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert p.returncode == 0, p.stdout + p.stderr
+
+
+def test_check_with_workers_and_a_scheduler_is_bad_input_before_any_work():
+    import pytest
+
+    import minirt
+    from minirt.errors import MinirtError
+
+    with pytest.raises(MinirtError, match=r"^workers and scheduler: give one"):
+        minirt.check("exercise", "embree", workers=2, scheduler="tcp://127.0.0.1:1")
+    with pytest.raises(MinirtError, match=r"^workers and scheduler: give one"):
+        minirt.check("exercise", "embree", workers=1, scheduler="tcp://127.0.0.1:1")  # 1 is still a choice
