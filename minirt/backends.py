@@ -42,6 +42,15 @@ def parse_backends(spec: str) -> list[str]:
     return names
 
 
+def require_oracle(names: list[str], spelled: str = "--backend") -> None:
+    """A comparison needs something to compare with: the reference alone is bad input."""
+    if not [n for n in names if n != REFERENCE]:
+        raise MinirtError(
+            f"{spelled} {','.join(names)}: no oracle to compare with (give one or more of "
+            f"{', '.join(oracle_names())}, or all)"
+        )
+
+
 @dataclass
 class BackendInfo:
     name: str

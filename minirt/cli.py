@@ -636,6 +636,7 @@ def run_checks(
 
     scenes_ = _scene_paths(paths)
     names = backends.parse_backends(backend)
+    backends.require_oracle(names)
     wh = _parse_size(size)
     for p in scenes_:  # bad input first, before any long work
         _load(p)
@@ -751,7 +752,7 @@ def check(
     for s in result.scenes:
         for b in s.backends.values():
             counts[b.verdict] += 1
-    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n) or "no oracle to compare with (--backend)"
+    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
     vague = sum(b.inconclusive for s in result.scenes for b in s.backends.values())
     if vague:
         summary += f" ({vague} inconclusive: the oracle cannot judge the scene)"
@@ -857,6 +858,9 @@ def report(
             sweep_data = json_.loads(f.read_text())
         except (OSError, ValueError) as e:
             raise MinirtError(f"{f}: not a readable sweep ({e})") from None
+    from minirt import backends
+
+    backends.require_oracle(backends.parse_backends(backend))  # before the folder is made
     _out_dir(out_dir)
     result = run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
     _print_check(result)
@@ -1130,9 +1134,9 @@ def fuzz(
         raise MinirtError(
             f"--families: unknown family {', '.join(unknown) or repr(families)} (known: all, {', '.join(FAMILIES)})"
         )
-    names = [n for n in backends.parse_backends(backend) if n != backends.REFERENCE]
-    if not names:
-        raise MinirtError("no oracle to compare with (--backend)")
+    names = backends.parse_backends(backend)
+    backends.require_oracle(names)
+    names = [n for n in names if n != backends.REFERENCE]
     kinds = campaign.parse_defects(defects)
     workers = _pool(workers, scheduler, default=0)  # 0: sized below, from the jobs' count
     if json_out not in (None, "-"):

@@ -179,3 +179,18 @@ def test_missing_llvm_is_explained(monkeypatch):
     monkeypatch.setattr(engine, "llvm_status", lambda: (False, "Dr.Jit found no libLLVM; " + engine.INSTALL_HINT))
     with pytest.raises(MinirtError, match="apt-get install -y libllvm19"):
         engine.require_llvm()
+
+
+@pytest.mark.parametrize("command", ["check", "report"])
+def test_the_reference_alone_has_nothing_to_compare_with(command, tmp_path):
+    """A comparison with no oracle would check nothing: bad input, before any work, not a PASS."""
+    p = subprocess.run(
+        [sys.executable, "-m", "minirt", command, "exercise", "-b", "reference", "--out" if command == "report"
+         else "--json", str(tmp_path / "o"), "-q"],
+        capture_output=True, text=True, cwd=Path(__file__).resolve().parent.parent, timeout=120,
+    )  # fmt: skip
+    assert p.returncode == 2 and p.stderr.strip().splitlines() == [
+        "minirt: error: --backend reference: no oracle to compare with (give one or more of mitsuba, povray, "
+        "embree, or all)"
+    ], p.stderr
+    assert not (tmp_path / "o").exists()

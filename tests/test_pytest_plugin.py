@@ -76,8 +76,10 @@ def test_assert_scene_passes_returns_the_check():
 
 
 def test_skip_does_not_pass_unless_allowed():
-    """A scene with no oracle to compare with (reference only) is not "passes against every oracle"."""
-    with pytest.raises(AssertionError, match="no oracle to compare with"):
+    """A scene with no oracle to compare with (reference only) is not "passes against every oracle": bad input."""
+    from minirt.errors import MinirtError
+
+    with pytest.raises(MinirtError, match="no oracle to compare with"):
         assert_scene_passes("exercise", "reference", size=(8, 8))
 
 
