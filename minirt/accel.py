@@ -20,9 +20,12 @@ rejects a ray that reaches the exact box. Tests: bit-identical buffers against t
 (tests/test_accel.py), on the bundled scenes, random scenes and tangent rays.
 
 Build: median split of the centroids along their widest axis down to leaves of at most ``LEAF`` balls,
-flattened depth first (left child = next node). Traversal pops a node, tests its (widened) box against
-the ray and the best t so far, then tests a leaf's balls or pushes the far child and visits the near one
-(by the sign of the ray's direction along the split axis).
+flattened depth first (left child = next node). Traversal visits one node per loop iteration: a leaf's
+balls are tested; at an interior node both children's (widened) boxes are slab-tested, the ray descends
+into the one it enters first and pushes the other with its entry t, and a popped node whose entry t is
+beyond the best t found since is dropped without a box test. Measured against testing each node's own box
+when it is popped (and ordering by the sign of the direction): 13-20 % less trace time, 512², 16 to
+100,000 balls, same buffers bit for bit.
 """
 
 from __future__ import annotations
@@ -279,32 +282,38 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
     (blocked, None) and t_best is the distance beyond which boxes are skipped (inf for shadow_range "any").
     """
     T = tracer.T
-    U, Int = T.UInt, T.Int
+    U, Int, F = T.UInt, T.Int, T.Float
     n = dr.width(d)
     inv = _inverse(T, d)
     lo = dr.norm(o)
     pa, ps = tab.pad_a * lo, dr.sqrt(lo)  # the per-ray parts of _Pad: a |o| and sqrt|o|
+    grow = 1 + 2 * gamma(3, T.u)
     stack = dr.alloc_local(U, STACK)
+    tstack = dr.alloc_local(F, STACK)
+
+    def box(node, t_best, on):
+        pad = pa + ps * dr.gather(F, tab.n_pad_b, node, on) + dr.gather(F, tab.n_pad_c, node, on)
+        t_near, t_far = _slab(T, tab, node, o, inv, pad, on)
+        return on & (t_near <= t_far) & (t_far >= 0) & (t_near <= t_best * grow), t_near
+
     node = dr.zeros(U, n)
+    root, tn = box(node, t_best, dr.full(T.Bool, True, n))
     sp = dr.zeros(U, n)
-    active = dr.full(T.Bool, True, n)
     blocked = dr.full(T.Bool, False, n)
 
-    def cond(node, sp, active, t_best, id_best, blocked, stack):
+    def cond(node, tn, sp, active, t_best, id_best, blocked, stack, tstack):
         return active
 
-    def body(node, sp, active, t_best, id_best, blocked, stack):
-        pad = pa + ps * dr.gather(T.Float, tab.n_pad_b, node, active) + dr.gather(T.Float, tab.n_pad_c, node, active)
-        t_near, t_far = _slab(T, tab, node, o, inv, pad, active)
-        enter = active & (t_near <= t_far) & (t_far >= 0) & (t_near <= t_best * (1 + 2 * gamma(3, T.u)))
-        count = dr.gather(U, tab.n_count, node, active)
-        leaf = enter & (count > 0)
+    def body(node, tn, sp, active, t_best, id_best, blocked, stack, tstack):
+        live = active & (tn <= t_best * grow)
+        count = dr.gather(U, tab.n_count, node, live)
+        leaf = live & (count > 0)
         first = dr.gather(U, tab.n_first, node, leaf)
         for j in range(LEAF):
             on = leaf & (j < count)
             k = first + j
             c = dr.gather(T.Array3, tab.b_center, k, on)
-            r = dr.gather(T.Float, tab.b_radius, k, on)
+            r = dr.gather(F, tab.b_radius, k, on)
             if blocks is None:
                 sid = dr.gather(Int, tab.b_id, k, on)
                 tk = tracer._ball_t(c, r, o, d)
@@ -313,25 +322,26 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
                 id_best = dr.select(closer, sid, id_best)
             else:
                 blocked |= on & blocks(c, r)
-        inner = enter & (count == 0)
-        axis = dr.gather(U, tab.n_axis, node, inner)
-        dneg = dr.select(axis == 0, d[0] < 0, dr.select(axis == 1, d[1] < 0, d[2] < 0))
-        left, right = node + 1, dr.gather(U, tab.n_right, node, inner)
-        near, far = dr.select(dneg, right, left), dr.select(dneg, left, right)
-        stack.write(far, sp, inner)
-        sp = dr.select(inner, sp + 1, sp)
-        pop = active & ~inner
-        more = pop & (sp > 0)
+        inner = live & (count == 0)
+        kids = (node + 1, dr.gather(U, tab.n_right, node, inner))
+        (e0, t0), (e1, t1) = box(kids[0], t_best, inner), box(kids[1], t_best, inner)
+        both = e0 & e1
+        go_left = e0 & (~e1 | (t0 <= t1))
+        stack.write(dr.select(go_left, kids[1], kids[0]), sp, both)
+        tstack.write(dr.select(go_left, t1, t0), sp, both)
+        sp = dr.select(both, sp + 1, sp)
+        down = e0 | e1
+        more = active & ~down & (sp > 0)
         sp = dr.select(more, sp - 1, sp)
-        popped = stack.read(sp, more)
-        node = dr.select(inner, near, popped)
-        active = inner | more
+        node = dr.select(down, dr.select(go_left, kids[0], kids[1]), stack.read(sp, more))
+        tn = dr.select(down, dr.select(go_left, t0, t1), tstack.read(sp, more))
+        active = down | more
         if blocks is not None:
             active &= ~blocked
-        return node, sp, active, t_best, id_best, blocked, stack
+        return node, tn, sp, active, t_best, id_best, blocked, stack, tstack
 
-    _, _, _, t_best, id_best, blocked, _ = dr.while_loop(
-        (node, sp, active, t_best, id_best, blocked, stack), cond, body, label="bvh"
+    _, _, _, _, t_best, id_best, blocked, _, _ = dr.while_loop(
+        (node, tn, sp, root, t_best, id_best, blocked, stack, tstack), cond, body, label="bvh"
     )
     if blocks is not None:
         return blocked, None
