@@ -83,13 +83,65 @@ def _judge(scene: Scene, rules: Rules, g: dict[str, np.ndarray], precision: str)
         v = g[kind] if rules.offset_along == "ray" else g["n"]
         normal_part = off * np.abs(np.einsum("ij,ij->i", v, g["n"]))
         below |= spawn & (normal_part < rounding)
-        q = g["p"] + off * v
-        for k, shape in enumerate(scene.shapes):
-            other = g["id"] != k
-            with np.errstate(invalid="ignore"):
-                crossed = np.sign(_surface(shape, g["p"])) != np.sign(_surface(shape, q))
-            jumped |= spawn & other & crossed
+        jumped |= spawn & _jumped(scene, g["p"], g["p"] + off * v, g["id"])
     return {"below": below, "jumped": jumped, "rounding": rounding}
+
+
+CHUNK = 1 << 20  # points per pass of _jumped: bounds its (point, node) pairs whatever the image size
+
+
+def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray) -> np.ndarray:
+    """Per point: whether the segment p -> q crosses the surface of a shape other than its own (sid), i.e.
+    the shape's implicit function, as computed, changes sign between p and q.
+
+    Planes are tested at every point. Balls only where the segment's box meets the ball's box in the BVH
+    of minirt.accel, widened by ``pad``: outside it the ball's implicit function is > pad at both ends
+    (|x - C| - r is at least the distance to the box), and its computed value errs by a few roundings of
+    |x| + |C| + r, far less than pad = 16 u (max|x| + max(|C| + r)), so it is positive at both ends and the
+    sign cannot change. The answer is the one testing every ball gives (tests/test_hazards.py), at a
+    cost that grows with the balls near each point instead of all of them (1,024 balls at 512²: 17 s -> 0.2 s).
+    """
+    from minirt import accel  # deferred: accel imports Dr.Jit, which only this part of hazards needs
+
+    out = np.zeros(len(p), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        for k, shape in enumerate(scene.shapes):
+            if not isinstance(shape, Ball):
+                out |= (sid != k) & (np.sign(_surface(shape, p)) != np.sign(_surface(shape, q)))
+    balls = [k for k, s in enumerate(scene.shapes) if isinstance(s, Ball)]
+    if not balls or not len(p):
+        return out
+    center = np.array([scene.shapes[k].center for k in balls], dtype=np.float64)
+    radius = np.array([scene.shapes[k].radius for k in balls], dtype=np.float64)
+    tree, order = accel.build(center, radius)
+    shape_of = np.asarray(balls)[order]  # ball slot of the tree -> shape id
+    for a in range(0, len(p), CHUNK):
+        pc, qc, ic = p[a : a + CHUNK], q[a : a + CHUNK], sid[a : a + CHUNK]
+        seg_lo, seg_hi = np.minimum(pc, qc), np.maximum(pc, qc)
+        x_max = float(np.max(np.abs(np.concatenate([pc, qc])).sum(axis=1)))
+        pad = 16 * UNIT_ROUNDOFF["f64"] * (x_max + float(tree.reach.max()))
+        pi, node = np.arange(len(pc)), np.zeros(len(pc), dtype=np.int64)
+        pairs_p, pairs_b = [], []
+        while len(pi):
+            meets = np.all((seg_lo[pi] <= tree.hi[node] + pad) & (seg_hi[pi] >= tree.lo[node] - pad), axis=1)
+            pi, node = pi[meets], node[meets]
+            count = tree.count[node]
+            leaf = count > 0
+            rep = count[leaf]
+            pairs_p.append(np.repeat(pi[leaf], rep))
+            starts = np.repeat(tree.first[node[leaf]], rep)
+            pairs_b.append(starts + np.arange(rep.sum()) - np.repeat(np.cumsum(rep) - rep, rep))
+            inner = node[~leaf]
+            pi = np.concatenate([pi[~leaf], pi[~leaf]])
+            node = np.concatenate([inner + 1, tree.right[inner]])
+        pp, bb = np.concatenate(pairs_p), np.concatenate(pairs_b)
+        c, r = center[order[bb]], radius[order[bb]]
+        with np.errstate(invalid="ignore"):
+            fp = np.linalg.norm(pc[pp] - c, axis=-1) - r
+            fq = np.linalg.norm(qc[pp] - c, axis=-1) - r
+        crossed = (np.sign(fp) != np.sign(fq)) & (ic[pp] != shape_of[bb])
+        out[a : a + len(pc)] |= np.bincount(pp[crossed], minlength=len(pc)) > 0
+    return out
 
 
 def offset_warnings(scene: Scene, rules: Rules, res: RenderResult, precision: str = "f64") -> list[str]:

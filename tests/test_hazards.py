@@ -8,10 +8,14 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
 
 from minirt import hazards
 from minirt.rules import resolve
-from minirt.scene import parse_scene
+from minirt.scene import Ball, Plane, parse_scene
 from minirt.tracer import render
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -126,3 +130,47 @@ def test_probe_explains_the_offset_at_a_pixel(tmp_path):
     assert "(acne risk)" in far.stdout
     near = minirt("probe", "three_balls", "128", "120", "--precision", "f32", cwd=tmp_path)
     assert "offset 1e-06 along the normal (the hit point's rounding is 3.5e-07: safe)" in near.stdout
+
+
+def _brute_jumped(shapes, p, q, sid):
+    """The definition _jumped must match: every shape but the point's own, sign of its implicit function at
+    both ends of the segment."""
+    out = np.zeros(len(p), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        for k, shape in enumerate(shapes):
+            crossed = np.sign(hazards._surface(shape, p)) != np.sign(hazards._surface(shape, q))
+            out |= (sid != k) & crossed
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_bvh_finds_the_same_jumps_as_testing_every_shape(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 300))
+    center = rng.uniform(-5, 5, (n, 3)) * 10.0 ** rng.integers(-2, 4)
+    radius = np.exp(rng.normal(-1, 1.5, n))
+    # near contacts: ball k + 1 touches ball k from outside, with gaps 1e-9 ... 1e-3
+    for k in range(0, n - 1, 4):
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        center[k + 1] = center[k] + u * (radius[k] + radius[k + 1] + 10.0 ** rng.uniform(-9, -3))
+    shapes = [Ball(tuple(c), float(r), None) for c, r in zip(center, radius, strict=True)]
+    shapes.append(Ball((0.0, -1e8 - 1.0, 0.0), 1e8, None))  # a planet-sized ground
+    shapes.append(Plane((0.0, 0.0, 1.0), 2.0, None))
+    m = 20_000
+    sid = rng.integers(0, len(shapes), m)
+    p = np.empty((m, 3))
+    for i, k in enumerate(sid):
+        s = shapes[k]
+        if isinstance(s, Ball):
+            u = rng.normal(size=3)
+            p[i] = np.asarray(s.center) + s.radius * u / np.linalg.norm(u)
+        else:
+            p[i] = (*rng.uniform(-50, 50, 2), 2.0)
+    v = rng.normal(size=(m, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    q = p + 10.0 ** rng.uniform(-9, 1, (m, 1)) * v
+    got = hazards._jumped(SimpleNamespace(shapes=shapes), p, q, sid)
+    want = _brute_jumped(shapes, p, q, sid)
+    assert 0 < want.sum() < m  # the case can fail both ways
+    np.testing.assert_array_equal(got, want)
