@@ -26,6 +26,8 @@ intersector, or a hit POV-Ray drops as too near -- a decision the oracle cannot 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from minirt import camera
@@ -33,8 +35,25 @@ from minirt.rules import Rules
 from minirt.scene import Ball, Scene
 
 
-def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-ray margins (N,) for silhouettes, grazing planes and depth ties, and their minimum."""
+def margins(
+    scene: Scene,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    scale: Sequence[float] | None = None,
+    origin_scale: Sequence[float] | None = None,
+    inside_scale: Sequence[float] | None = None,
+) -> dict[str, np.ndarray]:
+    """Per-ray margins (N,) for silhouettes, grazing planes and depth ties, and their minimum.
+
+    ``scale`` (one positive number per shape): an oracle's precision that differs from shape to shape
+    (a ball 1e6 away is held far less exactly than the ground under the camera); every margin is then
+    divided by the scale of the shape it is about -- a depth tie by the larger of its two shapes' -- so a
+    ray is within that precision of flipping where the scaled margin is below 1, whichever shape it
+    meets. One scene-wide threshold would be the worst shape's, and would put every ray in the band.
+    ``origin_scale`` (default: ``scale``) does the same for the origin margin: whether a ray starts inside
+    a ball is decided at the ray's origin, where an oracle's error need not be what it is along the ray.
+    ``inside_scale`` (default: ``scale``) divides the silhouette margin of rays that meet the ball (h < r):
+    an error that can only lose a hit (POV-Ray's bounding boxes) bands the disc, not the space around it."""
     o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
     n = o.shape[0]
@@ -45,14 +64,17 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
     nds = []  # per candidate: |n·d| for a plane's hit, inf for a ball's roots
     coss = []  # per candidate: |n·d| at it, the ray's cosine against the surface (a ball's root: sqrt(disc) / r)
     owner = []  # per candidate: its shape's index
+    sc = np.ones(len(scene.shapes)) if scale is None else np.asarray(scale, dtype=np.float64)
+    so = sc if origin_scale is None else np.asarray(origin_scale, dtype=np.float64)
+    si = sc if inside_scale is None else np.asarray(inside_scale, dtype=np.float64)
     for k, s in enumerate(scene.shapes):
         if isinstance(s, Ball):
             f = o - np.asarray(s.center)
             b = np.einsum("ij,ij->i", f, d)
             g = f - b[:, None] * d
             h = np.linalg.norm(g, axis=1)
-            sil = np.minimum(sil, np.abs(h - s.radius) / s.radius)
-            origin = np.minimum(origin, np.abs(np.linalg.norm(f, axis=1) - s.radius) / s.radius)
+            sil = np.minimum(sil, np.abs(h - s.radius) / s.radius / np.where(h < s.radius, si[k], sc[k]))
+            origin = np.minimum(origin, np.abs(np.linalg.norm(f, axis=1) - s.radius) / s.radius / so[k])
             disc = (s.radius - h) * (s.radius + h)
             sq = np.sqrt(np.maximum(disc, 0.0))
             lf = np.linalg.norm(f, axis=1)
@@ -69,7 +91,7 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
         else:
             nn = np.asarray(s.normal)
             nd = d @ nn
-            graze = np.minimum(graze, np.abs(nd))
+            graze = np.minimum(graze, np.abs(nd) / sc[k])
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = ((np.asarray(s.point) - o) @ nn) / nd
             ts.append(np.where(np.isfinite(t) & (t > 0), t, np.inf))
@@ -99,8 +121,9 @@ def margins(scene: Scene, origins: np.ndarray, directions: np.ndarray) -> dict[s
             t1, t2 = tt[:, 0], np.where(exists, tt[rows, j], np.inf)
             both = np.isfinite(t1) & np.isfinite(t2)
             cos = np.minimum(np.minimum(cc[:, 0], cc[rows, j]), 1.0)
+            pair = np.maximum(sc[ow[:, 0]], sc[ow[rows, j]])
             with np.errstate(invalid="ignore"):  # inf - inf where fewer than two shapes are hit
-                return np.where(both, (t2 - t1) / np.where(both, t2, 1.0) * cos, np.inf)
+                return np.where(both, (t2 - t1) / np.where(both, t2, 1.0) * cos / pair, np.inf)
 
         tie = gap(np.ones(n, dtype=int), np.ones(n, dtype=bool))
         id_tie = gap(second, other.any(axis=1))
@@ -178,15 +201,28 @@ def start_band(
 
 
 def sample_band(
-    scene: Scene, rules: Rules, samples: int, eps: float, t_min: float = 0.0, start_err: float = 0.0
+    scene: Scene,
+    rules: Rules,
+    samples: int,
+    eps: float,
+    t_min: float = 0.0,
+    start_err: float = 0.0,
+    scale: Sequence[float] | None = None,
+    origin_scale: Sequence[float] | None = None,
+    t_max: float = np.inf,
+    inside_scale: Sequence[float] | None = None,
 ) -> np.ndarray:
     """(H, W) bool: pixels where any of the ``samples`` stratified rays (camera.sample_offsets) has a
-    margin below ``eps`` or lies in ``start_band(t_min, start_err)`` (for planes and balls alike)."""
+    margin below ``eps`` or lies in ``start_band(t_min, start_err)`` (for planes and balls alike). With
+    a per-shape ``scale``, ``origin_scale`` and ``inside_scale`` (see margins), the scaled margin below 1
+    instead of ``eps``. Rays whose nearest candidate hit lies at ``t_max`` or beyond (an oracle's farthest
+    hit) too."""
     w, h = scene.camera.width, scene.camera.height
     out = np.zeros(w * h, dtype=bool)
     for s in range(samples):
         o, d = camera.rays_through(scene, rules, *camera.sample_offsets(samples, s, w * h))
         with np.errstate(invalid="ignore"):
-            m = margins(scene, o, d)
-        out |= (m["margin"] < eps) | start_band(scene, o, d, t_min, start_err, start_err)
+            m = margins(scene, o, d, scale, origin_scale, inside_scale)
+        out |= (m["margin"] < (eps if scale is None else 1.0)) | start_band(scene, o, d, t_min, start_err, start_err)
+        out |= np.isfinite(m["near"]) & (m["near"] >= t_max)
     return out.reshape(h, w)

@@ -165,9 +165,9 @@ def changes(
     h = a.hit & w
     if h.any() and tolerance is not None:
         t_tol, n_tol = tolerance
-        if a.t is not None and b.t is not None and (np.abs(a.t - b.t)[h] > t_tol[h]).any():
+        if a.t is not None and b.t is not None and (np.abs(a.t[h] - b.t[h]) > t_tol[h]).any():
             return True
-        if a.normal is not None and b.normal is not None and (angle_deg(a.normal, b.normal)[h] > n_tol[h]).any():
+        if a.normal is not None and b.normal is not None and (angle_deg(a.normal[h], b.normal[h]) > n_tol[h]).any():
             return True
     elif h.any():
         for x, y in ((a.t, b.t), (a.normal, b.normal)):

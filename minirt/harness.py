@@ -265,7 +265,13 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderResult) -> Check:
     o, d = camera.primary_rays(scene, rules)
     margins = band.margins(scene, o, d)
-    tol = geometry_tolerance(res, ref, margins, start=lambda **kw: band.start_band(scene, o, d, **kw))
+    tol = geometry_tolerance(
+        res,
+        ref,
+        margins,
+        start=lambda **kw: band.start_band(scene, o, d, **kw),
+        scaled=lambda **scales: band.margins(scene, o, d, **scales),
+    )
     mism = ref.hit != res.hit
     inside, outside = mism & tol.band, mism & ~tol.band
     both = ref.hit & res.hit
@@ -933,7 +939,16 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache) ->
     ref = refs.get(rules)
     p = res.meta.get("precision") or {}
     band_px = band.sample_band(
-        scene, rules, n, p.get("band_threshold", 0.0), p.get("min_distance", 0.0), p.get("start_err", 0.0)
+        scene,
+        rules,
+        n,
+        p.get("band_threshold", 0.0),
+        p.get("min_distance", 0.0),
+        p.get("start_err", 0.0),
+        p.get("band_scale"),
+        p.get("band_origin_scale"),
+        p.get("max_distance", np.inf) * (1 - 1e-6) - p.get("max_distance_lift", 0.0),
+        p.get("band_inside_scale"),
     )
     classes = edge_classes(ref)
     edges = _edges(classes, band_px)

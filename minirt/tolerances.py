@@ -105,12 +105,15 @@ def geometry_tolerance(
     ref: RenderResult,
     margins: dict[str, np.ndarray],
     start: Callable[..., np.ndarray] | None = None,
+    scaled: Callable[..., dict[str, np.ndarray]] | None = None,
 ) -> GeometryTolerance:
     """Translate an oracle's recorded precision into per-pixel tolerances (see each oracle's docstring).
 
     ``start(t_min=, plane_err=, ball_err=)``: minirt.band.start_band on the checked rays (flat, per ray),
     the rays whose "does this candidate count" decision lies within the oracle's position error of its
-    minimum distance; without it no such band is applied."""
+    minimum distance; without it no such band is applied. ``scaled(scale=, origin_scale=, inside_scale=)``:
+    minirt.band.margins on the same rays with per-shape scales, for an oracle that records them (POV-Ray's
+    band_scale); without it the scene-wide threshold is used."""
     h, w = ref.height, ref.width
 
     def start_band(**kw) -> np.ndarray:
@@ -166,21 +169,52 @@ def geometry_tolerance(
         # its minimum distance along the harness's rays and its position error there (oracles.povray.start_decision)
         t_min, start_err = p.get("min_distance", 0.0), p.get("start_err", 0.0)
         starts = start_band(t_min=t_min, plane_err=start_err, ball_err=start_err)
-        band = (m["margin"] < eps) | starts
+        if scaled is not None and p.get("band_scale"):  # each shape's own threshold (oracles.povray.band_scales)
+            scaled_m = scaled(
+                scale=p["band_scale"],
+                origin_scale=p.get("band_origin_scale"),
+                inside_scale=p.get("band_inside_scale"),
+            )
+            band = (scaled_m["margin"].reshape(h, w) < 1.0) | starts
+        else:
+            band = (m["margin"] < eps) | starts
+        # POV-Ray drops hits beyond MAX_DISTANCE 1e7 from its ray's origin (a pinhole ray's origin is the
+        # camera, up to max_distance_lift before the harness's): where the nearest candidate lies that far,
+        # POV-Ray misses what the reference hits -- a decision it cannot make, like its minimum distance
+        # (fuzz far_2026_6: rays starting just inside a ground of radius 4.5e7 meet its far side 1.04e7 away).
+        if "max_distance" in p:
+            far = p["max_distance"] * (1 - 1e-6) - p.get("max_distance_lift", 0.0)
+            band |= np.isfinite(m["near"]) & (m["near"] >= far)
         # plus the conditioning of the hit: a ray whose origin and direction err by dir_err (R + t) -- the mesh
         # camera's single-precision rays, R its origins' reach -- meets a surface dir_err (R + t)/cos away, cos = |n·d|
         # at the hit, ball or plane (fuzz start_2026_83: a ball met at an angle, dt 1.65e-6 > t_abs 1.54e-6)
+        # and POV-Ray's own sphere root, 12 2^-53 |f|^2/(r cos) along the ray (oracles.povray.root_errors; fuzz
+        # f32_2026_22: a ball 2.4e4 away, its hit 8.6e-7 off along the ray near its silhouette), which turns
+        # the normal (P - C)/r by as much over r
+        root = np.zeros((h, w))
+        root_n = np.zeros((h, w))
+        if p.get("root_err"):
+            ids = np.where(ref.hit, ref.shape_id, -1)
+            k = np.maximum(ids, 0)
+            per_t = np.asarray(p["root_err"], dtype=np.float64)[k]
+            per_n = np.asarray(p.get("root_normal_err", np.zeros(len(p["root_err"]))), dtype=np.float64)[k]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                root = np.where(ids >= 0, per_t / m["hit_cos"], 0.0)
+                root_n = np.where(ids >= 0, per_n / m["hit_cos"], 0.0)
         with np.errstate(divide="ignore"):
-            t_abs = p["t_abs"] + p.get("dir_err", 0.0) * (p.get("ray_reach", 1.0) + t_ref) / m["hit_cos"]
+            t_abs = p["t_abs"] + p.get("dir_err", 0.0) * (p.get("ray_reach", 1.0) + t_ref) / m["hit_cos"] + root
         deg = math.degrees(math.asin(min(1.0, 2 * p["normal_abs"]))) + 1e-9
-        nd = np.full((h, w), deg)
+        nd = np.degrees(np.arcsin(np.minimum(1.0, 2 * (p["normal_abs"] + root_n)))) + 1e-9
         why = {
-            "band": f"margin < {eps:.3g}: single-precision bounding boxes and textbook sphere roots in POV-Ray; "
+            "band": f"margin < each shape's own threshold (at most {eps:.3g}): single-precision bounding boxes "
+            "and textbook sphere roots in POV-Ray, its mesh camera's single-precision rays; "
             f"or a candidate hit with t cos within {start_err:.3g} of [0, {t_min:.3g}] (POV-Ray drops hits within "
             "its minimum distance 1e-4 of a mesh-camera ray's origin; its rays are off by start_err there)",
-            "t": f"|dt| <= {p['t_abs']:.3g} + {p.get('dir_err', 0.0):.3g}*(R + t)/|n·d| (n at the hit, R = ray_reach): "
+            "t": f"|dt| <= {p['t_abs']:.3g} + {p.get('dir_err', 0.0):.3g}*(R + t)/|n·d| (n at the hit, R = ray_reach) "
+            "+ 12 2^-53 |f|^2/(r |n·d|) (POV-Ray's textbook sphere root, |f| from its ray's origin to the centre): "
             f"{p.get('derivation', '')}",
-            "normal": f"{deg:.3g} deg: normals from decoded positions, |dn| <= {p['normal_abs']:.3g}",
+            "normal": f"{deg:.3g} deg: normals from decoded positions, |dn| <= {p['normal_abs']:.3g}, plus per pixel "
+            "POV-Ray's root error over r: 12 2^-53 |f|^2/(r^2 |n·d|)",
         }
         summary = {
             "band_eps": eps,

@@ -17,7 +17,9 @@ Conventions bridged (each measured with Debian's povray 3.7.0.10):
   to its direction. POV-Ray gives image row j the triangles of row j - 1, so H + 1 rows are rendered
   and the first dropped (measured: with it the hit mask and ids equal the reference's). Mesh vertices
   and normals are single precision: origins err by ~2^-24 |P|, directions by ~2^-23, which adds
-  2^-22 (1 + t) to positions (``precision``) and a relative margin to the band (``band_threshold``).
+  2^-22 (1 + t) to positions (``precision``) and a relative margin to the band, per shape
+  (``band_scales``: each ball's own distance; ``band_inside_scales`` adds the bounding boxes;
+  ``band_threshold`` is the largest).
   Antialiasing cannot be combined with it (the mesh camera maps a pixel to one triangle). t is
   re-based on the image-plane origin: t = |P - cam| * z / (z + d) (the part of the camera ray before
   z = 0 removed; with the mesh camera the same line starts at z = 0, so the same formula).
@@ -98,6 +100,8 @@ NAME = "povray"
 INSTALL_HINT = "povray not found on PATH; install: sudo apt-get install povray"
 MAX_DISTANCE = 1e7  # POV-Ray drops hits beyond this (configbackend.h MAX_DISTANCE)
 MIN_ISECT_DEPTH = 1e-4  # ... and hits nearer than this to the ray's origin (configcore.h MIN_ISECT_DEPTH)
+BOUNDING_THRESHOLD = 3  # with this many finite objects or more POV-Ray builds its bounding tree (+MB default)
+FAR_ROOT_MARGIN = 10 * MIN_ISECT_DEPTH  # encoding_ranges: a near root this close to the start may be dropped
 SPLIT = 1024  # coarse/fine split of an encoded value
 MAX_ANTIALIAS = 9  # POV-Ray accepts Antialias_Depth 1..9
 ID_SCALE = 2048  # shape id k is the constant (k + 1)/2048: exact in half float for k < 2047
@@ -198,13 +202,18 @@ def _pinhole_directions(scene: Scene, rules: Rules) -> np.ndarray:
 
 def encoding_ranges(scene: Scene, rules: Rules) -> list[dict[str, tuple[float, float]] | None]:
     """Per shape, the (lo, hi) of x, y, z and t over every hit of POV-Ray's primary rays with that shape
-    alone (both roots, t < 1e7), padded by 1e-4 of the span so rounded hits stay inside [lo, hi).
+    alone (a ball's near root, and its far root where the near one may not count; t < 1e7), padded by
+    1e-4 of the span so rounded hits stay inside [lo, hi).
 
     A superset of what is visible (occlusion ignored), so every decoded value lies in its range. None
     for a shape no primary ray reaches."""
     d = _pinhole_directions(scene, rules)
     cam = np.array(scene.camera.position)
     dist = scene.camera.distance
+    # where a ray starts, as a t from the camera: the image plane z = 0 for rule ray_origin "image-plane"
+    # (rays with d_z <= 0 never reach it), the camera itself otherwise
+    with np.errstate(divide="ignore"):
+        t_start = np.where(d[:, 2] > 0, -cam[2] / d[:, 2], np.inf) if rules.ray_origin == "image-plane" else 0.0
     out = []
     for s in scene.shapes:
         ts = []
@@ -215,8 +224,15 @@ def encoding_ranges(scene: Scene, rules: Rules) -> list[dict[str, tuple[float, f
             disc = b * b - c
             ok = disc >= 0
             sq = np.sqrt(np.where(ok, disc, 0.0))
-            for t in (-b - sq, -b + sq):
-                ts.append(np.where(ok & (t > 0), t, np.nan))
+            near, far = -b - sq, -b + sq
+            ts.append(np.where(ok & (near > 0), near, np.nan))
+            # The far root is the visible hit only where the near one is not: before the ray's start, or
+            # within POV-Ray's MIN_ISECT_DEPTH of it. FAR_ROOT_MARGIN is ten times that depth plus 1e-6 of
+            # the distance, far above the rays' own error there (MESH_RAY_ERROR (R + t) at t ~ 1e-4, and
+            # the pinhole's 2^-22 t). Elsewhere the far root cannot be what POV-Ray reports, and leaving it
+            # out keeps a huge ball's range (a ground of radius 1e6: its far side 2e6 away) to what is seen.
+            maybe = near - t_start < FAR_ROOT_MARGIN + 1e-6 * np.abs(near)
+            ts.append(np.where(ok & (far > 0) & maybe, far, np.nan))
         else:
             n = np.array(s.normal)
             nd = d @ n
@@ -242,10 +258,13 @@ def encoding_ranges(scene: Scene, rules: Rules) -> list[dict[str, tuple[float, f
         # A constant coordinate (a plane's y) still gets a span of 1e-6 of the scene's scale, so POV-Ray's
         # rounding of far hits (~1e-16 of |P|) stays far inside the padding.
         scale = max(1.0, float(np.abs(p).max()), float(t.max()))
+        # POV-Ray's own rays hit up to MESH_RAY_ERROR (R + t) from these (the pinhole's error is smaller):
+        # the ranges hold that too, now that a ball's far side no longer widens them.
+        ray = MESH_RAY_ERROR * (mesh_reach(scene, rules) + float(t.max()))
         for name, q in (("x", p[:, 0]), ("y", p[:, 1]), ("z", p[:, 2]), ("t", tq)):
             lo, hi = float(q.min()), float(q.max())
             span = max(hi - lo, 1e-6 * scale)
-            ranges[name] = (lo - 1e-4 * span, hi + 1e-4 * span)
+            ranges[name] = (lo - 1e-4 * span - ray, hi + 1e-4 * span + ray)
         out.append(ranges)
     return out
 
@@ -345,31 +364,120 @@ def start_decision(scene: Scene, rules: Rules, mesh_camera: bool) -> dict[str, A
     return {"min_distance": 0.0, "start_err": 2.0**-22 * reach}
 
 
-def band_threshold(scene: Scene, rules: Rules, samples: int = 1) -> float:
-    """K·eps for minirt.band: rays whose relative margin is below it may legitimately flip in POV-Ray.
+def band_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
+    """K·eps per shape for minirt.band (its ``scale``): rays whose relative margin about that shape is below
+    it may legitimately flip in POV-Ray, either way (hit to miss or miss to hit).
 
-    - With 3 or more finite objects POV-Ray bounds them with single-precision boxes: a box face can sit
-      2^-24 (|C| + r) inside the true silhouette, i.e. a relative margin of 2^-24 (|C| + r)/r;
     - its double-precision sphere test uses the textbook discriminant b^2 - (|f|^2 - r^2), whose error
       is about 2^-53 |f|^2, a relative margin 2^-53 |f|^2/r^2 (silhouettes and depth ties alike);
     - a plane is missed when |n·d| < 1e-10 (the grazing margin).
     - with a mesh camera, rays start and point off by MESH_RAY_ERROR (1 + t): at a ball, t < |C| + r, a
       relative margin MESH_RAY_ERROR (1 + |C| + r)/r; at a plane, |n·d| moves by MESH_RAY_ERROR.
-    eps is the largest of these over the scene's balls; K = 8 covers the few roundings chained in each.
+    Each term belongs to one ball (its discriminant, its distance), so each shape gets its own (fuzz far
+    family: one ball 1e6 radii away made the scene-wide eps 0.3, and every pixel of the well-held ground
+    fell in the band). K = 8 covers the few roundings chained in each. The bounding boxes, which can only
+    lose a hit, are band_inside_scales.
     """
-    eps = 1e-10
+    base = 1e-10
     mesh = uses_mesh_camera(scene, rules, samples)
     if mesh:
-        eps = max(eps, MESH_RAY_ERROR)
+        base = max(base, MESH_RAY_ERROR)
     cam = scene.camera.position
+    out = []
     for s in scene.shapes:
+        eps = base
         if isinstance(s, Ball):
             c = math.hypot(*s.center)
             f = math.dist(cam, s.center) + s.radius
-            eps = max(eps, 2.0**-24 * (c + s.radius) / s.radius, 2.0**-53 * f * f / (s.radius * s.radius))
+            eps = max(eps, 2.0**-53 * f * f / (s.radius * s.radius))
             if mesh:
                 eps = max(eps, MESH_RAY_ERROR * (mesh_reach(scene, rules) + c + s.radius) / s.radius)
-    return 8 * eps
+        out.append(8 * eps)
+    return out
+
+
+def band_inside_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
+    """K·eps per shape for the silhouette margin of rays that meet the ball (minirt.band ``inside_scale``):
+    band_scales plus POV-Ray's bounding boxes, which are tested before the exact sphere and so can only
+    make it miss a ball the ray meets, never hit one it misses.
+
+    With 3 or more finite objects POV-Ray bounds them with a tree of single-precision boxes stored as a
+    lower corner and lengths, upper = lower + length in float: a face of any box holding ball k -- a
+    node's box spans other balls too, up to the union box of every ball, largest coordinate E -- can sit
+    2^-24 (|lower| + length + |upper|) <= 2^-24 4E inside the ball's extent. A ray whose closest approach
+    h to the centre is below r - delta passes through every such box, so it is lost only where
+    (r - h)/r < 2^-24 4E/r (fuzz far_2026_112: a ball of radius 0.27 beside one 1e8 away lost the top of
+    its disc, its upper y off by ulp(1.6e7)). With fewer, no tree: the ball's own box, 2^-24 (|C| + r)/r.
+    K = 8 as in band_scales. Planes are unbounded (no box): their band_scales."""
+    balls = [s for s in scene.shapes if isinstance(s, Ball)]
+    union = max((max(abs(x) for x in b.center) + b.radius for b in balls), default=0.0)
+    out = []
+    for s, sym in zip(scene.shapes, band_scales(scene, rules, samples), strict=True):
+        if isinstance(s, Ball):
+            box = 4 * union if len(balls) >= BOUNDING_THRESHOLD else math.hypot(*s.center) + s.radius
+            sym = max(sym, 8 * 2.0**-24 * box / s.radius)
+        out.append(sym)
+    return out
+
+
+def root_errors(scene: Scene, rules: Rules) -> list[float]:
+    """Per shape, the error of POV-Ray's own sphere root times the cosine at the hit (minirt.tolerances divides
+    by |n·d| per pixel): its double-precision textbook discriminant b^2 - (|f|^2 - r^2) errs by about
+    3 2^-53 |f|^2 (|f| the distance from the ray's origin to the centre, at most the camera's distance plus
+    origin_lift plus r), and sqrt(disc) = r cos, so t errs by 1.5 2^-53 |f|^2/(r cos) and the hit point by
+    as much along the ray. K = 8 as for the bands (12 2^-53 |f|^2/r). The normal (P - C)/r then errs by
+    that over r. A ball 2.4e4 from the camera, radius 0.46 (fuzz f32_2026_22): 1.4e-6/cos, beside the
+    encoding's 1.7e-7 -- measured 8.6e-7 along the ray near a silhouette. Planes: their t is one division,
+    exact to a few ulps (0)."""
+    cam = scene.camera.position
+    lift = origin_lift(scene, rules) if scene.shapes else 0.0
+    out = []
+    for s in scene.shapes:
+        if isinstance(s, Ball):
+            f = math.dist(cam, s.center) + lift + s.radius
+            out.append(12 * 2.0**-53 * f * f / s.radius)
+        else:
+            out.append(0.0)
+    return out
+
+
+def band_threshold(scene: Scene, rules: Rules, samples: int = 1) -> float:
+    """The largest of band_inside_scales: one threshold for the whole scene (its worst-held shape)."""
+    base = 8 * (MESH_RAY_ERROR if uses_mesh_camera(scene, rules, samples) else 1e-10)
+    return max(band_inside_scales(scene, rules, samples), default=base)
+
+
+def origin_lift(scene: Scene, rules: Rules) -> float:
+    """max |o - camera| over the harness's ray origins: 0 for rays from the camera (rule ray_origin
+    "camera"), else the image plane's farthest pixel, distance / min d_z. A pinhole POV-Ray ray starts at
+    the camera, so its t exceeds the harness's by at most this much."""
+    if rules.ray_origin != "image-plane":
+        return 0.0
+    dz = float(_pinhole_directions(scene, rules)[:, 2].min())
+    return scene.camera.distance / dz if dz > 0 else math.inf
+
+
+def band_origin_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
+    """K·eps per shape for the origin margin (minirt.band ``origin_scale``): whether a ray starts inside
+    ball k, |o - C| < r, which POV-Ray decides at the ray's origin -- |f|^2 < r^2 in double precision,
+    an error of about 2^-53 |f|^2, a relative margin 2^-53 |f|^2/r^2; the mesh camera's origins err by
+    MESH_RAY_ERROR R (R = mesh_reach), MESH_RAY_ERROR R / r. Neither the distance along the ray nor the
+    bounding boxes enter (the ground of a far scene, radius 1.5e6 and 0.47 under the camera: 3e-7 of its
+    radius, far outside both). Planes: 1e-10 (unused: the origin margin is about balls)."""
+    mesh = uses_mesh_camera(scene, rules, samples)
+    reach = mesh_reach(scene, rules)
+    cam = scene.camera.position
+    lift = origin_lift(scene, rules) if scene.shapes else 0.0
+    out = []
+    for s in scene.shapes:
+        eps = 1e-10
+        if isinstance(s, Ball):
+            f = math.dist(cam, s.center) + lift
+            eps = max(eps, 2.0**-53 * f * f / (s.radius * s.radius))
+            if mesh:
+                eps = max(eps, MESH_RAY_ERROR * reach / s.radius)
+        out.append(8 * eps)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -944,7 +1052,18 @@ class PovrayOracle(Oracle):
         if gframes or geometry or samples > 1:  # geometry asked for (even with no shapes), or the exercise's samples
             meta["precision"] = precision(scene, ranges or [None] * len(scene.shapes), mesh, mesh_reach(scene, rules))
             meta["precision"].update(
-                band_threshold=band_threshold(scene, rules, samples), **start_decision(scene, rules, mesh)
+                band_threshold=band_threshold(scene, rules, samples),
+                band_scale=band_scales(scene, rules, samples),
+                band_origin_scale=band_origin_scales(scene, rules, samples),
+                band_inside_scale=band_inside_scales(scene, rules, samples),
+                root_err=root_errors(scene, rules),
+                root_normal_err=[
+                    e / s.radius if isinstance(s, Ball) else 0.0
+                    for e, s in zip(root_errors(scene, rules), scene.shapes, strict=True)
+                ],
+                max_distance=MAX_DISTANCE,
+                max_distance_lift=0.0 if mesh else origin_lift(scene, rules),
+                **start_decision(scene, rules, mesh),
             )
         if gframes:
             meta["encoding_ranges"] = ranges

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -77,10 +78,13 @@ def test_rerun_comes_from_the_cache_with_the_same_bytes(subset, tmp_path):
     assert p.returncode == 0, p.stderr
     assert f"{3 * count} of {3 * count} jobs from the cache" in p.stdout
     assert (out / "fuzz.json").read_bytes() == before
-    # and without the cache, in this process, the same bytes again (a few scenes: the same seed's first ones)
+    # and without the cache, in this process, the same bytes again (a few scenes: the same seed's first ones),
+    # as those scenes' results read back from the cache the two-worker cluster wrote
     q = fuzz("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "--no-cache", "-o", tmp_path, "-q")
-    r = fuzz("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "-o", out / "again", "-q")
+    shutil.copytree(out / "cache", out / "again" / "cache")
+    r = fuzz("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "-o", out / "again")
     assert q.returncode == r.returncode == 0, q.stderr + r.stderr
+    assert f"{3 * len(FAMILIES)} of {3 * len(FAMILIES)} jobs from the cache" in r.stdout
     assert (tmp_path / "fuzz.json").read_bytes() == (out / "again" / "fuzz.json").read_bytes()
     assert not (tmp_path / "cache").exists()
 

@@ -175,16 +175,23 @@ PLANET = _BALL + _BALL.replace("0.0, 0.0, 3.0", "0.0, -100000001.0, 0.0").replac
 
 
 @pytest.mark.slow
-def test_a_planet_sized_ground_is_inconclusive_not_pass(tmp_path):
-    """A ground that is a ball of radius 1e8 puts every pixel in every oracle's band (relative silhouette
-    margins ~1e-8 against float32 / tessellation / bounding-box precision): hit/miss is judged nowhere."""
+def test_a_planet_sized_ground_is_inconclusive_for_the_float32_oracles(tmp_path):
+    """A ground that is a ball of radius 1e8 puts every pixel in the band of the single-precision oracles
+    (relative silhouette margins ~1e-8 against float32 / tessellation precision): hit/miss is judged
+    nowhere, inconclusive. POV-Ray decides it in double precision, and its band is per shape: the camera
+    starts 1 above the ground, 1e-8 of its radius, against its origin test's 2^-53 |f|^2 / r^2 -- so
+    POV-Ray judges nearly every pixel, and agrees."""
     path = tmp_path / "planet.toml"
     path.write_text(f"[camera]\ndistance = 2.0\nwidth = 24\nheight = 24\n{_EDGE_MATERIAL}{PLANET}")
     sc = harness.check_scene(path, ["reference", *oracle_names()])
     for name, b in sc.backends.items():
+        fig = b.checks["geometry"].figures["inconclusive"]
+        if name == "povray":
+            assert b.verdict == "pass" and not b.inconclusive, b.reason
+            assert fig["band_fraction"] < 0.1 and fig["judged_pixels"] > 0.9 * fig["hit_pixels"]
+            continue
         assert b.verdict == "warn" and b.inconclusive, (name, b.verdict, b.reason)
         assert b.reason.startswith("inconclusive: this oracle cannot judge this scene (the band holds")
-        fig = b.checks["geometry"].figures["inconclusive"]
         assert fig["band_fraction"] > 0.5 and fig["limit"] == 0.5
 
 
