@@ -41,7 +41,7 @@ from minirt.errors import MinirtError
 from minirt.result import RenderResult
 from minirt.rules import Rules, resolve
 from minirt.scene import Scene, load_scene
-from minirt.tolerances import THRESHOLDS, geometry_tolerance
+from minirt.tolerances import THRESHOLDS, farthest_hit, geometry_tolerance
 
 if TYPE_CHECKING:
     from minirt.cache import Cache
@@ -947,7 +947,7 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache) ->
         p.get("start_err", 0.0),
         p.get("band_scale"),
         p.get("band_origin_scale"),
-        p.get("max_distance", np.inf) * (1 - 1e-6) - p.get("max_distance_lift", 0.0),
+        farthest_hit(p),
         p.get("band_inside_scale"),
     )
     classes = edge_classes(ref)

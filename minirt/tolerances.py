@@ -100,6 +100,13 @@ class GeometryTolerance:
     summary: dict[str, float | str] = field(default_factory=dict)  # figures; "<key>_reason" beside a non-finite one
 
 
+def farthest_hit(p: dict) -> float:
+    """The farthest t along the harness's rays at which an oracle that records ``max_distance`` (POV-Ray's
+    MAX_DISTANCE from its own ray's origin, ``max_distance_lift`` before the harness's) still reports a
+    hit, less 1e-6 of it for the rounding of t; inf for an oracle without one."""
+    return p.get("max_distance", math.inf) * (1 - 1e-6) - p.get("max_distance_lift", 0.0)
+
+
 def geometry_tolerance(
     result: RenderResult,
     ref: RenderResult,
@@ -183,8 +190,7 @@ def geometry_tolerance(
         # POV-Ray misses what the reference hits -- a decision it cannot make, like its minimum distance
         # (fuzz far_2026_6: rays starting just inside a ground of radius 4.5e7 meet its far side 1.04e7 away).
         if "max_distance" in p:
-            far = p["max_distance"] * (1 - 1e-6) - p.get("max_distance_lift", 0.0)
-            band |= np.isfinite(m["near"]) & (m["near"] >= far)
+            band |= np.isfinite(m["near"]) & (m["near"] >= farthest_hit(p))
         # plus the conditioning of the hit: a ray whose origin and direction err by dir_err (R + t) -- the mesh
         # camera's single-precision rays, R its origins' reach -- meets a surface dir_err (R + t)/cos away, cos = |n·d|
         # at the hit, ball or plane (fuzz start_2026_83: a ball met at an angle, dt 1.65e-6 > t_abs 1.54e-6)

@@ -383,6 +383,7 @@ def band_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
     if mesh:
         base = max(base, MESH_RAY_ERROR)
     cam = scene.camera.position
+    reach = mesh_reach(scene, rules)
     out = []
     for s in scene.shapes:
         eps = base
@@ -391,7 +392,7 @@ def band_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
             f = math.dist(cam, s.center) + s.radius
             eps = max(eps, 2.0**-53 * f * f / (s.radius * s.radius))
             if mesh:
-                eps = max(eps, MESH_RAY_ERROR * (mesh_reach(scene, rules) + c + s.radius) / s.radius)
+                eps = max(eps, MESH_RAY_ERROR * (reach + c + s.radius) / s.radius)
         out.append(8 * eps)
     return out
 
@@ -441,10 +442,11 @@ def root_errors(scene: Scene, rules: Rules) -> list[float]:
     return out
 
 
-def band_threshold(scene: Scene, rules: Rules, samples: int = 1) -> float:
-    """The largest of band_inside_scales: one threshold for the whole scene (its worst-held shape)."""
+def band_threshold(scene: Scene, rules: Rules, samples: int = 1, inside: list[float] | None = None) -> float:
+    """The largest of band_inside_scales (``inside``, if already computed): one threshold for the whole
+    scene (its worst-held shape)."""
     base = 8 * (MESH_RAY_ERROR if uses_mesh_camera(scene, rules, samples) else 1e-10)
-    return max(band_inside_scales(scene, rules, samples), default=base)
+    return max(band_inside_scales(scene, rules, samples) if inside is None else inside, default=base)
 
 
 def origin_lift(scene: Scene, rules: Rules) -> float:
@@ -1051,15 +1053,16 @@ class PovrayOracle(Oracle):
         meta.update(passes=passes, commands=[p["command"] for p in passes], timings=timings)
         if gframes or geometry or samples > 1:  # geometry asked for (even with no shapes), or the exercise's samples
             meta["precision"] = precision(scene, ranges or [None] * len(scene.shapes), mesh, mesh_reach(scene, rules))
+            inside = band_inside_scales(scene, rules, samples)
+            root = root_errors(scene, rules)
             meta["precision"].update(
-                band_threshold=band_threshold(scene, rules, samples),
+                band_threshold=band_threshold(scene, rules, samples, inside),
                 band_scale=band_scales(scene, rules, samples),
                 band_origin_scale=band_origin_scales(scene, rules, samples),
-                band_inside_scale=band_inside_scales(scene, rules, samples),
-                root_err=root_errors(scene, rules),
+                band_inside_scale=inside,
+                root_err=root,
                 root_normal_err=[
-                    e / s.radius if isinstance(s, Ball) else 0.0
-                    for e, s in zip(root_errors(scene, rules), scene.shapes, strict=True)
+                    e / s.radius if isinstance(s, Ball) else 0.0 for e, s in zip(root, scene.shapes, strict=True)
                 ],
                 max_distance=MAX_DISTANCE,
                 max_distance_lift=0.0 if mesh else origin_lift(scene, rules),
