@@ -101,6 +101,7 @@ def renders():
             sc = _scene(stem)
             rules = _rules(sc, ov)
             res = ORACLE.render(sc, rules)
+            assert res.ok, f"{case}: POV-Ray {res.status}: {res.reason}"  # say why, not a KeyError below
             ref = tracer.render(sc, rules)
             o, d = camera.primary_rays(sc, rules)
             with np.errstate(invalid="ignore"):
