@@ -42,6 +42,7 @@ def margins(
     scale: Sequence[float] | None = None,
     origin_scale: Sequence[float] | None = None,
     inside_scale: Sequence[float] | None = None,
+    tie_scale: Sequence[float] | None = None,
 ) -> dict[str, np.ndarray]:
     """Per-ray margins (N,) for silhouettes, grazing planes and depth ties, and their minimum.
 
@@ -53,7 +54,10 @@ def margins(
     ``origin_scale`` (default: ``scale``) does the same for the origin margin: whether a ray starts inside
     a ball is decided at the ray's origin, where an oracle's error need not be what it is along the ray.
     ``inside_scale`` (default: ``scale``) divides the silhouette margin of rays that meet the ball (h < r):
-    an error that can only lose a hit (POV-Ray's bounding boxes) bands the disc, not the space around it."""
+    an error that can only lose a hit (POV-Ray's bounding boxes) bands the disc, not the space around it.
+    ``tie_scale`` (default: ``scale``) divides the depth ties: an oracle whose hit/miss decision and whose
+    t err differently (Mitsuba's float32 discriminant: hit/miss flips where its error reaches r^2 - h^2,
+    a quantity quadratic in the margin far from the silhouette, t moves linearly) scales them apart."""
     o = np.asarray(origins, dtype=np.float64)
     d = np.asarray(directions, dtype=np.float64)
     n = o.shape[0]
@@ -67,6 +71,7 @@ def margins(
     sc = np.ones(len(scene.shapes)) if scale is None else np.asarray(scale, dtype=np.float64)
     so = sc if origin_scale is None else np.asarray(origin_scale, dtype=np.float64)
     si = sc if inside_scale is None else np.asarray(inside_scale, dtype=np.float64)
+    st = sc if tie_scale is None else np.asarray(tie_scale, dtype=np.float64)
     for k, s in enumerate(scene.shapes):
         if isinstance(s, Ball):
             f = o - np.asarray(s.center)
@@ -121,7 +126,7 @@ def margins(
             t1, t2 = tt[:, 0], np.where(exists, tt[rows, j], np.inf)
             both = np.isfinite(t1) & np.isfinite(t2)
             cos = np.minimum(np.minimum(cc[:, 0], cc[rows, j]), 1.0)
-            pair = np.maximum(sc[ow[:, 0]], sc[ow[rows, j]])
+            pair = np.maximum(st[ow[:, 0]], st[ow[rows, j]])
             with np.errstate(invalid="ignore"):  # inf - inf where fewer than two shapes are hit
                 return np.where(both, (t2 - t1) / np.where(both, t2, 1.0) * cos / pair, np.inf)
 

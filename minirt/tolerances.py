@@ -98,6 +98,9 @@ class GeometryTolerance:
     normal_deg: np.ndarray  # float (H, W): allowed angle between normals
     why: dict[str, str] = field(default_factory=dict)
     summary: dict[str, float | str] = field(default_factory=dict)  # figures; "<key>_reason" beside a non-finite one
+    # bool (H, W) or None: where two shapes' nearest hits are a depth tie at the oracle's per-shape precision
+    # (an id mismatch there is not a defect); None: the harness's scene-wide rule, id_tie < 4 band_eps
+    ties: np.ndarray | None = None
 
 
 def farthest_hit(p: dict) -> float:
@@ -130,6 +133,7 @@ def geometry_tolerance(
     m = {k: v.reshape(h, w) for k, v in margins.items()}
     t_ref = np.where(ref.hit, ref.t, 0.0)
     name = result.backend
+    ties = None
     if name == "mitsuba":
         eps = p["band_k"] * p["band_eps"]
         plane_abs = max([pl.get("abs_error", 0.0) for pl in result.meta.get("planes", {}).values()] or [0.0])
@@ -145,6 +149,16 @@ def geometry_tolerance(
         )
         start_err = plane_normal + 4 * U32 * m["origin_norm"]
         starts = start_band(t_min=0.0, plane_err=start_err.reshape(-1))
+        if scaled is not None and p.get("band_scale"):  # each shape's own band (oracles.mitsuba.band_scales)
+            scaled_m = scaled(
+                scale=p["band_scale"],
+                origin_scale=p.get("band_origin_scale"),
+                inside_scale=p.get("band_inside_scale"),
+                tie_scale=p.get("band_tie_scale"),
+            )
+            band = scaled_m["margin"].reshape(h, w) < 1.0
+            # the scene-wide rule id_tie < 4 band_eps, with each pair's own K eps in place of band_eps
+            ties = scaled_m["id_tie"].reshape(h, w) < 4.0
         band = band | starts
         # A plane's t = n·(Q - o)/(n·d): the rectangle's absolute error and the float32 rounding of the ray's
         # direction (dir_err) move t by (plane_abs + t dir_err)/|n·d| -- large where the ray grazes the plane.
@@ -155,7 +169,8 @@ def geometry_tolerance(
         t_abs = t_abs + result.aux.get("t_silhouette_bound", 0.0)
         nd = np.full((h, w), p["normal_deg"])
         why = {
-            "band": f"margin < band_k*band_eps = {eps:.3g}: {p.get('why', '')}; or a ray starting within "
+            "band": f"margin < each shape's own band (at most band_k*band_eps = {eps:.3g}; a ball's discriminant "
+            "error against r^2 - h^2, exact in the margin): {p.get('why', '')}; or a ray starting within "
             f"normal_error + 4 u32 |o| = {plane_normal:.3g} + 4 u32 |o| of a plane (float32 decides t > 0 there)",
             "t": f"t_rel*t + plane_abs + (plane_abs + dir_err*t)/|n·d| = {p['t_rel']:.3g}*t + {plane_abs:.3g} + "
             f"({plane_abs:.3g} + {dir_err:.3g}*t)/|n·d| (float32 roots; rectangles interpolate their corners; "
@@ -273,4 +288,4 @@ def geometry_tolerance(
         nd = np.full((h, w), p.get("normal_deg", 1e-3))
         why = {"band": f"margin < {eps:.3g}", "t": "t_rel*t + t_abs from the backend", "normal": "normal_deg"}
         summary = {"band_eps": eps}
-    return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary)
+    return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary, ties=ties)

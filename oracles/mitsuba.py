@@ -147,6 +147,41 @@ def band_eps(scene: Scene, origins: np.ndarray) -> float:
 BAND_K = 16.0  # 4 roundings in D (|f|^2 term, b^2 term, subtraction, sqrt) with a factor 4 of safety
 
 
+def band_scales(scene: Scene, origins: np.ndarray) -> dict[str, list[float]]:
+    """Each shape's own band (``minirt.band.margins``' per-shape scales): a ball 1e6 radii away is held
+    far less exactly than a ball beside the camera, and one scene-wide eps (:func:`band_eps`) is the
+    worst ball's, which puts every ray of such a scene in the band.
+
+    Ball k: eps_k = u32 |f_k|^2 / r_k^2 as in :func:`band_eps`, and its float32 discriminant
+    D = r^2 - h^2 errs by up to 4 u32 |f|^2 = 4 eps r^2. With the band's safety (BAND_K: the linear band
+    m < K eps is 8 times the linear flip point m = 2 eps) the decision is taken as uncertain where
+    |D| < 2 K eps r^2, and |D| is exact in the margin m = |h - r| / r, not linear in it:
+    outside (h = r (1 + m)): |D| = r^2 (m^2 + 2m), uncertain for m < sqrt(1 + 2 K eps) - 1;
+    inside (h = r (1 - m)): |D| = r^2 (2m - m^2), uncertain for m < 1 - sqrt(1 - 2 K eps), every hit
+    when 2 K eps >= 1 (the discriminant's error exceeds r^2: not one hit on that ball can be judged).
+    Both are K eps for small eps (the scene-wide band's value). A far ball (eps 1e6) bands the rays within
+    ~6e3 radii of it -- the pixel it is on -- not every ray. Whether an origin is inside a ball is the sign
+    of |f|^2 - r^2, the same quadratic in the origin's margin: the wider of the two forms. Depth ties keep
+    the linear K eps_k (a root's t moves linearly with D's error). Planes: K u32, the floor of
+    :func:`band_eps` (their float32 error is in the rectangle bounds, meta["planes"])."""
+    o = np.asarray(origins, dtype=np.float64)
+    out: dict[str, list[float]] = {"scale": [], "inside": [], "origin": [], "tie": []}
+    for s in scene.shapes:
+        if isinstance(s, Ball):
+            f = float(np.max(np.linalg.norm(o - np.asarray(s.center), axis=1))) + s.radius
+            x = 2 * BAND_K * max(U32, U32 * f * f / (s.radius * s.radius))
+            outside = math.sqrt(1 + x) - 1
+            inside = 1 - math.sqrt(1 - x) if x < 1 else 2.0  # margins <= 1 inside: 2 bands every hit
+            out["scale"].append(outside)
+            out["inside"].append(inside)
+            out["origin"].append(max(outside, inside))
+            out["tie"].append(x / 2)
+        else:
+            for key in out:
+                out[key].append(BAND_K * U32)
+    return out
+
+
 def silhouette_t_bound(scene: Scene, o: np.ndarray, d: np.ndarray, shape_id: np.ndarray) -> np.ndarray:
     """Per ray, the part of Mitsuba's t error that grows near a ball's silhouette (0 elsewhere).
 
@@ -704,6 +739,8 @@ class _Base:
 
     def meta(self, mode: str, extra: dict[str, Any]) -> dict[str, Any]:
         sc = self.scene
+        origins = camera.primary_rays(sc, self.rules)[0]
+        scales = band_scales(sc, origins)
         return {
             "backend": BACKEND,
             "version": f"mitsuba {self.mi.__version__} ({self.variant})",
@@ -721,12 +758,17 @@ class _Base:
                 "t_rel": T_REL,
                 "dir_err": DIR_ERR,
                 "normal_deg": NORMAL_DEG,
-                "band_eps": band_eps(sc, camera.primary_rays(sc, self.rules)[0]),
+                "band_eps": band_eps(sc, origins),
                 "band_k": BAND_K,
+                "band_scale": scales["scale"],
+                "band_inside_scale": scales["inside"],
+                "band_origin_scale": scales["origin"],
+                "band_tie_scale": scales["tie"],
                 "why": (
                     "float32 sphere roots: relative t error ~8 u32 |f|/t away from silhouettes (t_rel = 64 u32); "
                     "at a silhouette the discriminant r^2-h^2 has absolute error ~4 u32 |f|^2, so hit/miss flips "
-                    "for band margin m < K eps with eps = u32 max|f|^2/r^2 and t errs by ~u32 |f|^2/(r t sqrt(2m)); "
+                    "for band margin m < K eps with eps = u32 max|f|^2/r^2 (per shape: band_scale, band_inside_scale, "
+                    "band_origin_scale, band_tie_scale) and t errs by ~u32 |f|^2/(r t sqrt(2m)); "
                     "rectangles (2-triangle meshes) add an absolute error 8 u32 (|c|+|S|) per plane (meta.planes)"
                 ),
             },

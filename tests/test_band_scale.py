@@ -174,3 +174,93 @@ def test_povray_root_error_grows_with_the_square_of_the_distance():
     d_near, d_far = np.hypot(0.6, 6.0), np.hypot(0.6, 60.0)
     assert e_far[0] / e_near[0] == pytest.approx(((d_far + 1 + lift) / (d_near + 1 + lift)) ** 2, rel=1e-12)
     assert e_far[1] == e_near[1]
+
+
+# ---- Mitsuba (oracles.mitsuba.band_scales) --------------------------------------------------------
+
+
+def _one_ball(distance: float, radius: float):
+    """A ball `distance` away from the origin along (0.6, 0, 0.8), and its per-shape scales seen from there."""
+    from minirt.oracles import mitsuba
+
+    c = np.array([0.6, 0.0, 0.8]) * distance
+    sc = parse_scene(
+        "[camera]\ndistance = 1.0\n[light]\nposition = [0.0, 5.0, 0.0]\n[materials.m]\ndiffuse = [0.5, 0.5, 0.5]\n"
+        f'[[shapes]]\ntype = "ball"\ncenter = [{float(c[0])!r}, {float(c[1])!r}, {float(c[2])!r}]\n'
+        f'radius = {radius!r}\nmaterial = "m"\n'
+    )
+    return c, mitsuba.band_scales(sc, np.zeros((1, 3)))
+
+
+def _float32_hits(c: np.ndarray, radius: float, h: float, n: int = 400) -> np.ndarray:
+    """Mitsuba's float32 sphere test (f = o - c, A = d.d, B = 2 f.d, C = f.f - r^2, D = B^2 - 4AC >= 0), one
+    rounding per operation, for n rays from the origin passing at distance h from the centre c in random
+    directions around it (the rounding differs from ray to ray)."""
+    rng = np.random.default_rng(7)
+    e = c / np.linalg.norm(c)
+    u = np.cross(e, [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(e, u)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    side = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
+    L = np.linalg.norm(c)
+    s = h / L  # sin of the angle between the ray and the centre's direction
+    d = np.sqrt(1 - s * s) * e + s * side
+    f32 = np.float32
+    d32, c32, r32 = d.astype(f32), c.astype(f32), f32(radius)
+    f = f32(0.0) - c32
+    a = (d32 * d32).sum(axis=1, dtype=f32)
+    b = f32(2.0) * (f * d32).sum(axis=1, dtype=f32)
+    cc = (f * f).sum(dtype=f32) - r32 * r32
+    return (b * b - f32(4.0) * a * cc) >= 0
+
+
+@pytest.mark.parametrize("ratio", [200.0, 3e3, 1e5])
+def test_mitsuba_band_holds_every_float32_flip_and_is_needed(ratio):
+    """The per-shape band against Mitsuba's own float32 arithmetic, simulated: outside the band (margin
+    above the scale) the float32 decision is the exact one on every ray; well inside it (a 50th of the
+    scale) some float32 decisions are wrong -- the band is not wider than the flips make it. (The band
+    carries BAND_K's safety: scales divided by 4 still pass at the nearer distances, divided by 30 they
+    let float32 flips through at every distance here.)"""
+    r = 1.0
+    c, s = _one_ball(ratio * r, r)
+    out, inside = s["scale"][0], s["inside"][0]
+    assert not _float32_hits(c, r, r * (1 + 1.05 * out)).any()  # misses, decided right
+    if inside < 1:
+        assert _float32_hits(c, r, r * (1 - 1.05 * inside)).all()  # hits, decided right
+    wrong = _float32_hits(c, r, r * (1 + out / 50))
+    assert wrong.any()  # exact: a miss; float32 says hit on some rays
+
+
+def test_mitsuba_scales_agree_with_the_scene_wide_band_where_it_is_small():
+    """For a ball held well (eps small) each shape's band is the scene-wide K eps; for a far one the exact
+    form is far narrower than the linear K eps (which would band every ray in view), and every hit on a
+    ball whose discriminant error exceeds r^2 is in the band (inside scale 2 > any margin)."""
+    from minirt.oracles import mitsuba
+
+    c, s = _one_ball(8.0, 1.0)
+    eps = mitsuba.band_eps(parse_scene(_TWO), np.zeros((1, 3)))  # ~ u32 (|f|/r)^2, small
+    assert eps < 1e-5
+    f = np.linalg.norm(c) + 1.0
+    k_eps = mitsuba.BAND_K * mitsuba.U32 * f * f
+    assert s["scale"][0] == pytest.approx(k_eps, rel=1e-3)
+    assert s["inside"][0] == pytest.approx(k_eps, rel=1e-3)
+    assert s["tie"][0] == pytest.approx(k_eps, rel=1e-12)
+    c, s = _one_ball(1e6, 1.0)
+    k_eps = mitsuba.BAND_K * mitsuba.U32 * (1e6 + 1) ** 2
+    assert s["scale"][0] == pytest.approx(np.sqrt(2 * k_eps), rel=1e-3)  # ~7.8e3 radii, not 9.5e5
+    assert s["inside"][0] == 2.0 and s["origin"][0] == s["scale"][0]
+
+
+@pytest.mark.slow
+def test_mitsuba_judges_the_near_balls_beside_a_far_one():
+    """Two balls before the camera and one 3.3e6 radii away on one pixel's ray. The scene-wide band
+    (K eps of the far ball, ~9e5) put every ray in it: inconclusive. Per shape, only the far ball's pixel
+    is in Mitsuba's band, and the near balls are judged, and agree."""
+    sc = harness.check_scene(SCENES / "far_ball_beside_near_ones.toml", ["mitsuba"])
+    b = sc.backends["mitsuba"]
+    assert b.verdict == "pass" and not b.inconclusive, b.reason
+    fig = b.checks["geometry"].figures
+    assert fig["tolerance"]["band_eps"] > 1.0  # the scene-wide band: every margin in view is below it
+    assert 1 <= fig["band_pixels"] <= 4
+    assert fig["mask_mismatch_outside_band"] == 0 and fig["id_mismatch"] == 0 and fig["depth_violations"] == 0
