@@ -215,7 +215,10 @@ def geometry_tolerance(
         root = np.zeros((h, w))
         root_n = np.zeros((h, w))
         if p.get("root_err"):
-            ids = np.where(ref.hit, ref.shape_id, -1)
+            # ids the scene does not have (a defective reference's, fuzz --defects ids-swapped on a one-ball
+            # scene) get no root term: those pixels are id mismatches, never compared in t or normal
+            n_shapes = len(p["root_err"])
+            ids = np.where(ref.hit & (ref.shape_id < n_shapes), ref.shape_id, -1)
             k = np.maximum(ids, 0)
             per_t = np.asarray(p["root_err"], dtype=np.float64)[k]
             per_n = np.asarray(p.get("root_normal_err", np.zeros(len(p["root_err"]))), dtype=np.float64)[k]

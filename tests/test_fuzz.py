@@ -220,3 +220,17 @@ def test_a_reference_that_misses_a_ball_fails_against_embree():
     bad = campaign._DefectiveReference(scene, campaign.DEFECTS["last-shape-skipped"])
     dc = harness.check_backend(scene, rules, "embree", bad, rendered=bc.result, explain=False)
     assert dc.verdict == "fail" and dc.checks["geometry"].figures["mask_mismatch_outside_band"] == 46, dc.reason
+
+
+def test_a_reference_with_ids_the_scene_lacks_is_judged_not_a_crash():
+    """The defect campaign's far_2027_3 (seed 2027, 32x32): one ball, and the ids-swapped defect reports it
+    as shape 1. POV-Ray's per-shape root error was indexed by the reference's id and raised IndexError
+    (16 ERRORs in the far family); an id the scene lacks is an id mismatch, and the check FAILs."""
+    from minirt import fuzz
+
+    text = fuzz.scene_text("far", 2027, 3, 32, 32)
+    job = campaign.Job(scene="far_2027_3", family="far", text=text, backend="povray", defects=("ids-swapped",))
+    out = campaign.run_job(job)
+    assert out["verdict"] != "error", out["reason"]
+    found = out["defects"]["ids-swapped"]
+    assert found["changes"] and found["verdict"] == "fail"
