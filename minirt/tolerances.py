@@ -198,6 +198,10 @@ def geometry_tolerance(
                 inside_scale=p.get("band_inside_scale"),
             )
             band = (scaled_m["margin"].reshape(h, w) < 1.0) | starts
+            # depth ties per pair too: the scene-wide rule (id_tie < 4 band_threshold, the worst ball's box
+            # error) excused every id mismatch of a scene with a far ball (defect campaign f32_2027_22:
+            # ids-swapped passed on judged pixels)
+            ties = scaled_m["id_tie"].reshape(h, w) < 4.0
         else:
             band = (m["margin"] < eps) | starts
         # POV-Ray drops hits beyond MAX_DISTANCE 1e7 from its ray's origin (a pinhole ray's origin is the

@@ -234,3 +234,16 @@ def test_a_reference_with_ids_the_scene_lacks_is_judged_not_a_crash():
     assert out["verdict"] != "error", out["reason"]
     found = out["defects"]["ids-swapped"]
     assert found["changes"] and found["verdict"] == "fail"
+
+
+def test_swapped_ids_beside_a_far_ball_fail_against_povray():
+    """The defect campaign's f32_2027_22 (seed 2027, 32x32): the ids-swapped defect changed pixels POV-Ray's
+    per-shape band judges, and passed -- its id-tie excuse was still the scene-wide one, 4 times the worst
+    ball's bounding-box error, which excused every mismatch. Ties are per pair now, and the check FAILs."""
+    from minirt import fuzz
+
+    text = fuzz.scene_text("f32", 2027, 22, 32, 32)
+    job = campaign.Job(scene="f32_2027_22", family="f32", text=text, backend="povray", defects=("ids-swapped",))
+    out = campaign.run_job(job)
+    assert out["verdict"] == "pass", out["reason"]
+    assert out["defects"]["ids-swapped"] == {"changes": True, "changes_judged": True, "verdict": "fail"}
