@@ -287,10 +287,10 @@ def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderRes
             said[name] = int(bad.sum())
     nf_out = nonfinite & ~tol.band
     idm = both & (ref.shape_id != res.shape_id)
-    tie_eps = tol.summary.get("band_eps", 1e-6)
     if tol.ties is not None:  # the oracle's per-shape depth ties
         ties = idm & tol.ties
     else:
+        tie_eps = tol.summary.get("band_eps", 1e-6)
         ties = idm & (margins["id_tie"].reshape(ref.height, ref.width) < max(tie_eps, 1e-12) * 4)
     id_out = idm & ~tol.band & ~ties
     same = both & ~idm & ~nonfinite

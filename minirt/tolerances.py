@@ -110,6 +110,22 @@ def farthest_hit(p: dict) -> float:
     return p.get("max_distance", math.inf) * (1 - 1e-6) - p.get("max_distance_lift", 0.0)
 
 
+def _per_shape_band(scaled: Callable[..., dict[str, np.ndarray]], p: dict, h: int, w: int):
+    """(band, ties), both bool (H, W), from the per-shape scales an oracle records (``band_scale`` and the
+    optional ``band_origin_scale``, ``band_inside_scale``, ``band_tie_scale``): a ray is in the band where
+    a margin divided by its shape's scale is below 1; an id mismatch is a depth tie where the id-tie margin
+    divided by the pair's scale is below 4 -- the scene-wide rule id_tie < 4 band_eps with each pair's own
+    scale for band_eps (one scene-wide value excused every id mismatch beside a far ball: defect campaign
+    f32_2027_22, ids-swapped passed POV-Ray on judged pixels)."""
+    m = scaled(
+        scale=p["band_scale"],
+        origin_scale=p.get("band_origin_scale"),
+        inside_scale=p.get("band_inside_scale"),
+        tie_scale=p.get("band_tie_scale"),
+    )
+    return m["margin"].reshape(h, w) < 1.0, m["id_tie"].reshape(h, w) < 4.0
+
+
 def geometry_tolerance(
     result: RenderResult,
     ref: RenderResult,
@@ -150,15 +166,7 @@ def geometry_tolerance(
         start_err = plane_normal + 4 * U32 * m["origin_norm"]
         starts = start_band(t_min=0.0, plane_err=start_err.reshape(-1))
         if scaled is not None and p.get("band_scale"):  # each shape's own band (oracles.mitsuba.band_scales)
-            scaled_m = scaled(
-                scale=p["band_scale"],
-                origin_scale=p.get("band_origin_scale"),
-                inside_scale=p.get("band_inside_scale"),
-                tie_scale=p.get("band_tie_scale"),
-            )
-            band = scaled_m["margin"].reshape(h, w) < 1.0
-            # the scene-wide rule id_tie < 4 band_eps, with each pair's own K eps in place of band_eps
-            ties = scaled_m["id_tie"].reshape(h, w) < 4.0
+            band, ties = _per_shape_band(scaled, p, h, w)
         band = band | starts
         # A plane's t = n·(Q - o)/(n·d): the rectangle's absolute error and the float32 rounding of the ray's
         # direction (dir_err) move t by (plane_abs + t dir_err)/|n·d| -- large where the ray grazes the plane.
@@ -192,16 +200,8 @@ def geometry_tolerance(
         t_min, start_err = p.get("min_distance", 0.0), p.get("start_err", 0.0)
         starts = start_band(t_min=t_min, plane_err=start_err, ball_err=start_err)
         if scaled is not None and p.get("band_scale"):  # each shape's own threshold (oracles.povray.band_scales)
-            scaled_m = scaled(
-                scale=p["band_scale"],
-                origin_scale=p.get("band_origin_scale"),
-                inside_scale=p.get("band_inside_scale"),
-            )
-            band = (scaled_m["margin"].reshape(h, w) < 1.0) | starts
-            # depth ties per pair too: the scene-wide rule (id_tie < 4 band_threshold, the worst ball's box
-            # error) excused every id mismatch of a scene with a far ball (defect campaign f32_2027_22:
-            # ids-swapped passed on judged pixels)
-            ties = scaled_m["id_tie"].reshape(h, w) < 4.0
+            band, ties = _per_shape_band(scaled, p, h, w)
+            band = band | starts
         else:
             band = (m["margin"] < eps) | starts
         # POV-Ray drops hits beyond MAX_DISTANCE 1e7 from its ray's origin (a pinhole ray's origin is the

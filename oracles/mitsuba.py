@@ -135,19 +135,26 @@ def band_eps(scene: Scene, origins: np.ndarray) -> float:
     and depth ties are decided on float32 values, relative error ~ u32 (|c| + S) / t, bounded by
     the same form with |c| + S in place of |f|, but those are covered by meta's plane bounds.
     """
-    eps = U32
+    return max(shape_eps(scene, origins), default=U32)
+
+
+def shape_eps(scene: Scene, origins: np.ndarray) -> list[float]:
+    """Per shape, the eps of :func:`band_eps`: u32 |f|^2 / r^2 for a ball (at least u32), u32 for a plane."""
     o = np.asarray(origins, dtype=np.float64)
+    out = []
     for s in scene.shapes:
+        eps = U32
         if isinstance(s, Ball):
             f = float(np.max(np.linalg.norm(o - np.asarray(s.center), axis=1))) + s.radius
             eps = max(eps, U32 * f * f / (s.radius * s.radius))
-    return eps
+        out.append(eps)
+    return out
 
 
 BAND_K = 16.0  # 4 roundings in D (|f|^2 term, b^2 term, subtraction, sqrt) with a factor 4 of safety
 
 
-def band_scales(scene: Scene, origins: np.ndarray) -> dict[str, list[float]]:
+def band_scales(scene: Scene, origins: np.ndarray, eps: list[float] | None = None) -> dict[str, list[float]]:
     """Each shape's own band (``minirt.band.margins``' per-shape scales): a ball 1e6 radii away is held
     far less exactly than a ball beside the camera, and one scene-wide eps (:func:`band_eps`) is the
     worst ball's, which puts every ray of such a scene in the band.
@@ -163,13 +170,12 @@ def band_scales(scene: Scene, origins: np.ndarray) -> dict[str, list[float]]:
     ~6e3 radii of it -- the pixel it is on -- not every ray. Whether an origin is inside a ball is the sign
     of |f|^2 - r^2, the same quadratic in the origin's margin: the wider of the two forms. Depth ties keep
     the linear K eps_k (a root's t moves linearly with D's error). Planes: K u32, the floor of
-    :func:`band_eps` (their float32 error is in the rectangle bounds, meta["planes"])."""
-    o = np.asarray(origins, dtype=np.float64)
+    :func:`band_eps` (their float32 error is in the rectangle bounds, meta["planes"]). ``eps``: the
+    shapes' :func:`shape_eps`, if already computed."""
     out: dict[str, list[float]] = {"scale": [], "inside": [], "origin": [], "tie": []}
-    for s in scene.shapes:
+    for s, e in zip(scene.shapes, shape_eps(scene, origins) if eps is None else eps, strict=True):
         if isinstance(s, Ball):
-            f = float(np.max(np.linalg.norm(o - np.asarray(s.center), axis=1))) + s.radius
-            x = 2 * BAND_K * max(U32, U32 * f * f / (s.radius * s.radius))
+            x = 2 * BAND_K * e
             outside = math.sqrt(1 + x) - 1
             inside = 1 - math.sqrt(1 - x) if x < 1 else 2.0  # margins <= 1 inside: 2 bands every hit
             out["scale"].append(outside)
@@ -740,7 +746,8 @@ class _Base:
     def meta(self, mode: str, extra: dict[str, Any]) -> dict[str, Any]:
         sc = self.scene
         origins = camera.primary_rays(sc, self.rules)[0]
-        scales = band_scales(sc, origins)
+        eps = shape_eps(sc, origins)  # one pass over the origins per ball, for band_eps and the scales
+        scales = band_scales(sc, origins, eps)
         return {
             "backend": BACKEND,
             "version": f"mitsuba {self.mi.__version__} ({self.variant})",
@@ -758,7 +765,7 @@ class _Base:
                 "t_rel": T_REL,
                 "dir_err": DIR_ERR,
                 "normal_deg": NORMAL_DEG,
-                "band_eps": band_eps(sc, origins),
+                "band_eps": max(eps, default=U32),
                 "band_k": BAND_K,
                 "band_scale": scales["scale"],
                 "band_inside_scale": scales["inside"],
