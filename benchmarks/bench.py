@@ -11,7 +11,8 @@ Sections (JSON keys; the Markdown on stdout follows the same order):
 - ``reference``: ``scenes/three_balls.toml`` (3 balls, mirror floor, max_depth 3, every effect) at
   1024x1024, float64 and float32. ``trace`` is the kernel alone (primary rays + ``Tracer.trace`` +
   ``dr.eval`` + ``dr.sync_thread``); ``render`` is the whole ``Tracer.render()`` including the buffers
-  back to NumPy. Steady state: warm-up runs first (the JIT compiles), then the median of >= 5 runs.
+  back to NumPy (``render_checked``: keeping only the two terms a check reads, harness.CHECKED_TERMS).
+  Steady state: warm-up runs first (the JIT compiles), then the median of >= 5 runs.
 - ``numpy``: a compact vectorised NumPy implementation of the same model (exercise rules: primary
   rays, closest hit, shadow rays, ambient + diffuse + (r·s)^8 specular, 3 reflection levels), timed
   in the same run; its image is checked against the reference (max abs difference reported), and the
@@ -149,6 +150,7 @@ def _scene(path: Path, size: int | None = None) -> Scene:
 def bench_reference(cfg: Config) -> dict[str, Any]:
     import drjit as dr
 
+    from minirt.harness import CHECKED_TERMS
     from minirt.tracer import Tracer
 
     sc = _scene(REF_SCENE, cfg.ref_size)
@@ -174,14 +176,18 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
             kernel()
             times.append(time.perf_counter() - t0)
         trace = _stats(times, px)
-        for _ in range(cfg.warmup):
-            tr.render()
-        times = []
-        for _ in range(cfg.reps):
-            t0 = time.perf_counter()
-            tr.render()
-            times.append(time.perf_counter() - t0)
-        out[prec] = {"trace": trace, "render": _stats(times, px), "effects": tr.effects.simulated()}
+        out[prec] = {"trace": trace, "effects": tr.effects.simulated()}
+        # render: every buffer, as `minirt render` writes them; render_checked: the two terms a check
+        # keeps of its reference renders (harness.CHECKED_TERMS), the other three never written.
+        for kind, terms in (("render", None), ("render_checked", CHECKED_TERMS)):
+            for _ in range(cfg.warmup):
+                tr.render(terms=terms)
+            times = []
+            for _ in range(cfg.reps):
+                t0 = time.perf_counter()
+                tr.render(terms=terms)
+                times.append(time.perf_counter() - t0)
+            out[prec][kind] = _stats(times, px)
     # Thread scaling: the f64 trace kernel on one Dr.Jit worker thread against the default (every core).
     cores = dr.thread_count()
     tr = Tracer(sc, rules, precision="f64")
@@ -327,7 +333,7 @@ def bench_numpy(cfg: Config, ref: dict[str, Any]) -> dict[str, Any]:
     ref_img = Tracer(sc, rules, precision="f64").render().color
     diff = float(np.abs(img - ref_img).max())
     speedup = {f"{kind}_{prec}": st["median_s"] / ref[prec][kind]["median_s"]
-               for prec in ("f64", "f32") for kind in ("trace", "render")}  # fmt: skip
+               for prec in ("f64", "f32") for kind in ("trace", "render", "render_checked")}  # fmt: skip
     return {"scene": sc.name, "width": cfg.ref_size, "height": cfg.ref_size, "reps": cfg.numpy_reps, **st,
             "max_abs_diff_vs_reference": diff, "speedup": speedup}  # fmt: skip
 
@@ -537,7 +543,7 @@ def markdown(res: dict[str, Any]) -> str:
           f"median of {ref['reps']} after {ref['warmup']} warm-up", "",
           "| precision | part | median s | min s | Mpixel/s | NumPy / this |", "|---|---|---|---|---|---|"]  # fmt: skip
     for prec in ("f64", "f32"):
-        for kind in ("trace", "render"):
+        for kind in ("trace", "render", "render_checked"):
             s = ref[prec][kind]
             L.append(f"| {prec} | {kind} | {_f(s['median_s'], 4)} | {_f(s['min_s'], 4)} | {_f(s['mpix_s'], 3)} | "
                      f"{_f(npy['speedup'][f'{kind}_{prec}'], 3)}x |")  # fmt: skip

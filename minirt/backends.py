@@ -104,6 +104,7 @@ def render(name: str, scene: Scene, rules: Rules, options: dict[str, Any] | None
                 prune=options.get("prune", True),
                 progress=progress,
                 diagnostics=bool(options.get("diagnostics", False)),
+                terms=options.get("terms"),
             )
         else:
             from minirt import oracles

@@ -123,7 +123,7 @@ class _DefectiveReference:
         self.scene, self.defect, self.cache = scene, defect, {}
 
     def get(self, rules: Rules, samples: int | None = None) -> RenderResult:
-        from minirt import tracer
+        from minirt import harness, tracer
 
         key = (rules, samples)
         if key not in self.cache:
@@ -134,7 +134,7 @@ class _DefectiveReference:
             t = tracer.Tracer(sc, ru)
             if d.effects:
                 t.effects = replace(t.effects, **d.effects)
-            r = t.render(diagnostics=True)
+            r = t.render(diagnostics=True, terms=harness.CHECKED_TERMS)
             if d.buffers:
                 d.buffers(r)
             r.meta["shapes"] = len(self.scene.shapes)

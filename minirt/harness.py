@@ -764,6 +764,12 @@ def check_stochastic(scene, ref, res, classes, edges, centre: RenderResult) -> C
 # Whole scenes
 
 
+# The reference terms the checks read (the lit mask, the shading comparison, the report's diffuse
+# preview): a reference render for a check writes only these (each term is 24 bytes a pixel of kernel
+# writes; tracer.Tracer.render).
+CHECKED_TERMS = ("diffuse", "specular")
+
+
 class ReferenceCache:
     """Reference renders of one scene, keyed by rules (many oracles share the same adapted rules)."""
 
@@ -775,7 +781,7 @@ class ReferenceCache:
         if key not in self.cache:
             sc = self.scene if samples is None else self.scene.with_overrides(samples=samples)
             # diagnostics: the ray-tree labels and shadow margins the edge classes and shading checks use
-            r = backends.render(backends.REFERENCE, sc, rules, {"diagnostics": True})
+            r = backends.render(backends.REFERENCE, sc, rules, {"diagnostics": True, "terms": CHECKED_TERMS})
             if not r.ok:
                 raise MinirtError(f"{self.scene.source}: the reference tracer failed: {r.reason}")
             r.meta["shapes"] = len(self.scene.shapes)

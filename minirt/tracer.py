@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -602,7 +603,13 @@ class Tracer:
         return lvl, spawn
 
     def trace(
-        self, o, d, record: bool = False, tree: bool = False, out: dict[str, Any] | None = None
+        self,
+        o,
+        d,
+        record: bool = False,
+        tree: bool = False,
+        out: dict[str, Any] | None = None,
+        terms: Collection[str] | None = None,
     ) -> tuple[Any, list[Level]]:
         """TraceRay for a batch: returns the colour of each ray and the wavefront levels.
 
@@ -616,6 +623,8 @@ class Tracer:
         being stored per component and copied by a read-out kernel afterwards. ``out`` then holds
         "color", "position", "normal", "term.<name>" (3 N) and "t" (N, float64); the first level's
         colour, terms, hit points and normals are not kept per component (unless ``record``).
+        ``terms``: the names of the terms written to ``out`` (default every term the effects compute);
+        the others still add to the colour, but their 24 bytes a ray are never written.
         """
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))  # the first level's
@@ -633,7 +642,9 @@ class Tracer:
                     if "shadow_margin" in lvl.record:
                         outputs.append(lvl.record["shadow_margin"])
                 if level == 0 and out is not None:
-                    vectors = {"position": lvl.p, "normal": lvl.n} | {"term." + k: v for k, v in lvl.terms.items()}
+                    vectors = {"position": lvl.p, "normal": lvl.n} | {
+                        "term." + k: v for k, v in lvl.terms.items() if terms is None or k in terms
+                    }
                     self._scatter_out(out, vectors, rays, lvl.shape_id >= 0, masked=("position", "normal"))
                     out["t"] = dr.llvm.Float64(lvl.t)
                     outputs.append(out["t"])
@@ -676,7 +687,7 @@ class Tracer:
                     c = c + lvl.bg
                 extra = [lvl.record["tree"]] if tree else []
                 if k == 0 and out is not None:
-                    late = [name for name in ("reflection", "background") if name in lvl.terms]
+                    late = [k for k in ("reflection", "background") if k in lvl.terms and (terms is None or k in terms)]
                     vectors = {"color": c} | {"term." + name: lvl.terms[name] for name in late}
                     self._scatter_out(out, vectors, rays)
                     dr.eval(*extra, *([c, lvl.terms] if record else []))  # runs the scatters too
@@ -803,7 +814,13 @@ class Tracer:
             o = at_camera if self.rules.ray_origin == "camera" else A3(px, py, pz)
         return o, d
 
-    def render(self, progress=None, diagnostics: bool = False, tile_pixels: int | None = None) -> RenderResult:
+    def render(
+        self,
+        progress=None,
+        diagnostics: bool = False,
+        tile_pixels: int | None = None,
+        terms: Collection[str] | None = None,
+    ) -> RenderResult:
         """The image and its buffers. ``diagnostics`` adds what the harness needs to classify pixels
         (aux ray_tree: every decision of each pixel's ray tree, hashed; aux shadow_margin): ~20 % more
         time, so a plain render skips them.
@@ -811,15 +828,19 @@ class Tracer:
         An image larger than ``tile_pixels`` (default ``TILE_PIXELS``) is traced in tiles of whole rows
         (``tiles``) and assembled: Dr.Jit's working memory is then one tile's, whatever the image size;
         the same bits as one pass (tested). For images too big to hold at all, write the tiles as they
-        come (``minirt.imageio.write_tiles``)."""
+        come (``minirt.imageio.write_tiles``).
+
+        ``terms``: the terms the result holds (default all of ``TERMS``). Each costs the kernels 24 bytes
+        a pixel of writes (a float64 3-vector); a caller that reads only some asks for those: the colour
+        and the terms asked for are the same bits either way (tested)."""
         sc = self.scene
         w, h = sc.camera.width, sc.camera.height
         rows = tile_rows(w, tile_pixels)
         if rows >= h:
-            return self.render_rows(0, h, progress, diagnostics)
+            return self.render_rows(0, h, progress, diagnostics, terms)
         t0 = time.perf_counter()
         full: RenderResult | None = None
-        for y0, tile in self.tiles(progress, diagnostics, tile_pixels):
+        for y0, tile in self.tiles(progress, diagnostics, tile_pixels, terms):
             if full is None:
                 full = _empty_like(tile, h)
             _paste(full, tile, y0)
@@ -827,7 +848,13 @@ class Tracer:
         full.meta["timings"] = {"total": time.perf_counter() - t0}
         return full
 
-    def tiles(self, progress=None, diagnostics: bool = False, tile_pixels: int | None = None):
+    def tiles(
+        self,
+        progress=None,
+        diagnostics: bool = False,
+        tile_pixels: int | None = None,
+        terms: Collection[str] | None = None,
+    ):
         """(first row, RenderResult of the rows from there) for each tile of whole rows, top to bottom."""
         sc = self.scene
         w, h = sc.camera.width, sc.camera.height
@@ -840,9 +867,11 @@ class Tracer:
                 if progress:
                     progress(k * total + done, count * total)
 
-            yield y0, self.render_rows(y0, y1, sub, diagnostics)
+            yield y0, self.render_rows(y0, y1, sub, diagnostics, terms)
 
-    def render_rows(self, y0: int, y1: int, progress=None, diagnostics: bool = False) -> RenderResult:
+    def render_rows(
+        self, y0: int, y1: int, progress=None, diagnostics: bool = False, terms: Collection[str] | None = None
+    ) -> RenderResult:
         """Rows y0 .. y1 - 1 of the image as a RenderResult of height y1 - y0 (the whole image: 0, height)."""
         sc = self.scene
         w = sc.camera.width
@@ -852,7 +881,11 @@ class Tracer:
         t0 = time.perf_counter()
         o, d = self.primary_rays(pixels)
         bufs: dict[str, Any] = {}
-        color, levels = self.trace(o, d, tree=diagnostics, out=bufs)
+        unknown = sorted(set(terms or ()) - set(TERMS))
+        if unknown:
+            raise ValueError(f"unknown term(s) {', '.join(unknown)}: the terms are {', '.join(TERMS)}")
+        wanted = TERMS if terms is None else tuple(k for k in TERMS if k in terms)
+        color, levels = self.trace(o, d, tree=diagnostics, out=bufs, terms=wanted)
         lvl0 = levels[0]
         dr.sync_thread()
         out = {k: np.asarray(b).reshape(h, w, 3) for k, b in bufs.items() if k != "t"}
@@ -876,10 +909,10 @@ class Tracer:
             aux["shadow_margin"] = np.asarray(lvl0.record["shadow_margin"]).astype(np.float64).reshape(h, w)
         del lvl0, levels
         if sc.samples > 1:
-            col, terms, more = self._render_samples(progress, y0, y1, falloff=diagnostics)
+            col, terms, more = self._render_samples(progress, y0, y1, falloff=diagnostics, terms=wanted)
             aux.update(more)
         timings["total"] = time.perf_counter() - t0
-        for k in TERMS:
+        for k in wanted:  # a term the effects skip is exactly zero
             if k not in terms:
                 terms[k] = np.zeros((h, w, 3))
         meta = {
@@ -898,12 +931,18 @@ class Tracer:
         return RenderResult(backend="reference", width=w, height=h, color=col, terms=terms, aux=aux, meta=meta, **geom)
 
     def _render_samples(
-        self, progress=None, y0: int = 0, y1: int | None = None, falloff: bool = False
+        self,
+        progress=None,
+        y0: int = 0,
+        y1: int | None = None,
+        falloff: bool = False,
+        terms: Collection[str] = TERMS,
     ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Average `samples` stratified, jittered rays per pixel (see camera.sample_offsets).
 
         Also returns the per-pixel sample variance (unbiased, of one sample; divide by n for the
-        mean's) of the colour and of the diffuse term, for statistical comparisons. ``falloff``: also
+        mean's) of the colour and of the diffuse term (when among ``terms``, the terms summed), for
+        statistical comparisons. ``falloff``: also
         the mean and variance of each sample's diffuse term over its squared distance to the light
         (aux diffuse_r2, variance_diffuse_r2) -- what a physical renderer's point light averages over
         the pixel, so the harness compares like with like however much r varies across the pixel.
@@ -923,7 +962,7 @@ class Tracer:
             for s in range(n):
                 u, v = camera.sample_offsets(n, s, w * h, start=y0 * w)
                 c, levels = self.trace(*self._sample_rays(u, v, pixels))
-                add = {"color": A64(c), **{"term." + k: A64(val) for k, val in levels[0].terms.items()}}
+                add = {"color": A64(c)} | {"term." + k: A64(v) for k, v in levels[0].terms.items() if k in terms}
                 add["color2"] = add["color"] * add["color"]
                 if "term.diffuse" in add:
                     add["diffuse2"] = add["term.diffuse"] * add["term.diffuse"]
@@ -1036,7 +1075,15 @@ def _versions() -> dict[str, str]:
 
 
 def render(
-    scene: Scene, rules: Rules, precision: str = "f64", prune: bool = True, progress=None, diagnostics: bool = False
+    scene: Scene,
+    rules: Rules,
+    precision: str = "f64",
+    prune: bool = True,
+    progress=None,
+    diagnostics: bool = False,
+    terms: Collection[str] | None = None,
 ) -> RenderResult:
-    """Render a scene with the reference tracer (``diagnostics``: also aux ray_tree and shadow_margin)."""
-    return Tracer(scene, rules, precision=precision, prune=prune).render(progress=progress, diagnostics=diagnostics)
+    """Render a scene with the reference tracer (``diagnostics``: also aux ray_tree and shadow_margin;
+    ``terms``: the terms to keep, default all)."""
+    tr = Tracer(scene, rules, precision=precision, prune=prune)
+    return tr.render(progress=progress, diagnostics=diagnostics, terms=terms)

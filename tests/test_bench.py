@@ -50,14 +50,14 @@ def test_sections_present(quick):
 def test_reference_and_numpy(quick):
     res, _ = quick
     for prec in ("f64", "f32"):
-        for kind in ("trace", "render"):
+        for kind in ("trace", "render", "render_checked"):
             _stats_ok(res["reference"][prec][kind])
     smp = res["reference"]["samples"]
     _stats_ok(smp["render"])
     assert smp["spp"] == 16 and smp["width"] >= 4
     npy = res["numpy"]
     _stats_ok(npy)
-    assert set(npy["speedup"]) == {"trace_f64", "render_f64", "trace_f32", "render_f32"}
+    assert set(npy["speedup"]) == {f"{k}_{p}" for k in ("trace", "render", "render_checked") for p in ("f64", "f32")}
     assert all(_positive(v) for v in npy["speedup"].values())
     # the NumPy version is the same model: it must reproduce the reference image
     assert npy["max_abs_diff_vs_reference"] < 1e-9

@@ -65,6 +65,28 @@ def test_buffers_written_by_the_kernel_are_the_traced_values(name, precision):
     assert np.asarray(dr.llvm.Float64(lvl.t)).tobytes() == res.t.reshape(-1).tobytes()
 
 
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+@pytest.mark.parametrize(
+    ("name", "samples", "tile"), [("three_balls", 1, None), ("soft", 4, None), ("rules", 1, 31 * 5)]
+)
+def test_only_the_terms_asked_for(name, samples, tile, precision):
+    """render(terms=...) keeps only those terms (the check's reference renders write two of five), and
+    everything it keeps is the same bits as the render of every term: the skipped terms still add to
+    the colour."""
+    from minirt.harness import CHECKED_TERMS
+
+    scene = load_scene(f"scenes/{name}.toml").with_overrides(width=31, height=17, samples=samples)
+    tr = Tracer(scene, resolve(scene), precision)
+    every = tr.render(diagnostics=True, tile_pixels=tile)
+    some = tr.render(diagnostics=True, tile_pixels=tile, terms=CHECKED_TERMS)
+    assert set(every.terms) == {"ambient", "diffuse", "specular", "reflection", "background"}
+    assert set(some.terms) == set(CHECKED_TERMS)
+    assert (some.terms["diffuse"] > 0).any()  # a term really computed, not zeros
+    assert _same(some, every) == []  # every field, every kept term, every aux buffer
+    with pytest.raises(ValueError, match=r"unknown term.*difuse"):
+        tr.render(terms=("difuse",))
+
+
 def test_tiles_with_the_tree():
     scene = parse_scene(balls_scene(300, seed=4, width=40, height=33))
     tr = Tracer(scene, PROFILES["conventional"], accel="bvh")
