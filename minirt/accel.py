@@ -231,10 +231,11 @@ class _Pad:
     pad = a |o| + b sqrt|o| + c, with b and c per node (r_max, S = max(|C| + r) of its balls).
 
     Derivation (u the unit round-off, f = o - C, |f| <= |o| + S):
-    - The hit decision compares |g| = |f - (f·d) d| with r. f, f·d, (f·d) d, the difference and the norm
-      each round; |g| errs by δ <= 12 u |f| (a generous count of ~8 roundings of magnitude |f|). A ball
-      the ball test calls hit has its centre within r + δ of the ray, so it lies in the box widened by δ.
-    - Its t: t = -b ± sqrt(D), D = (r - |g|)(r + |g|). D errs by <= 2 (r + δ) δ + 3 u r^2, so sqrt(D) by
+    - The hit decision is the sign of D = r^2 - |g|^2, g = f - (f·d) d (one fused multiply-add of the
+      exact r^2). f, f·d, (f·d) d and the difference round by ~8 u |f|, the squared length by 1.5 u |g|
+      more in |g| terms, and |g| <= |f|: |g| errs by δ <= 12 u |f| (generous). A ball the ball test calls
+      hit has its centre within r + δ of the ray, so it lies in the box widened by δ.
+    - Its t: t = -b ± sqrt(D). D errs by <= 2 (r + δ) δ + 3 u r^2, so sqrt(D) by
       <= sqrt(2.2 r δ) (the square root of a perturbation, the tangent ray's worst case; generous for
       u r^2 too), b by <= 3 u |f|, and the final roundings by u t with t <= |f| + r. The Vieta form c / q
       of the near root is no worse.

@@ -12,9 +12,10 @@ recursive form's arithmetic. Dr.Jit's FastMath is switched off while tracing: th
 below and the stable intersection forms rely on IEEE semantics.
 
 Numerics (see "Numerics" in the README and the notes in the code):
-- Ball: f = o - C, b = f·d (d unit), discriminant r^2 - |f - b d|^2 computed as (r - |g|)(r + |g|)
-  with g = f - b d, then q = -(b + sign(b) sqrt(disc)), roots c/q and q with c = (|f| - r)(|f| + r).
-  This avoids both cancellations of the textbook form (small/far balls, near root of big balls).
+- Ball: f = o - C, b = f·d (d unit), discriminant r^2 - |g|^2 with g = f - b d (one fused
+  multiply-add of the exact r^2), then q = -(b + sign(b) sqrt(disc)), roots c/q and q with
+  c = (|f| - r)(|f| + r). This avoids both cancellations of the textbook form (small/far balls: the
+  ray's length leaves g before anything is squared; near root of big balls: Vieta).
 - Plane: point-normal form t = n·(Q - o) / (n·d) with Q = a n; a parallel ray (n·d = 0) misses.
 - Only t > 0 counts (the exercise's "positive side"); ties go to the lower shape id.
 """
@@ -205,11 +206,30 @@ class Tracer:
 
     # ---- Ball, Plane: intersect -------------------------------------------------------------
     def _ball_ray(self, center, r, o, d) -> tuple[Any, Any, Any, Any]:
-        """What every ball test starts from: r, f = o - C, b = f·d and |f - b d|, the ray's distance
-        from the centre (d unit). center, r: Dr.Jit values (constants or gathered from the table)."""
+        """What every ball test starts from: r, f = o - C, b = f·d and |f - b d|^2, the ray's squared
+        distance from the centre (d unit). center, r: Dr.Jit values (constants or gathered from the table)."""
         f = o - center
         b = dr.dot(f, d)
-        return r, f, b, dr.norm(f - b * d)
+        g = f - b * d
+        return r, f, b, dr.dot(g, g)
+
+    @staticmethod
+    def _ball_disc_c(r, f, gg) -> tuple[Any, Any]:
+        """r^2 - |g|^2 (the discriminant over 4) and c = |f|^2 - r^2 = (|f| - r)(|f| + r).
+
+        The discriminant is one fused multiply-add: r^2 exact inside it, minus a once-rounded squared
+        length. What removes the textbook form's cancellation there is g = f - (f·d) d (the ray's length
+        is gone before anything is squared), not the factored (r - |g|)(r + |g|), which errs by the same
+        ~2u |g|^2 and costs a square root per ball and ray.
+
+        c keeps its factored form on purpose: a secondary ray that starts on the ball (an offset of 0, or
+        one below the hit point's rounding) has |f| within a few ulps of r, and the rounded square root
+        often snaps to r itself, c = 0 exactly: the near root is exactly 0 (not t > 0) and the ray does
+        not meet its own surface there. |f|^2 - r^2 in one fused multiply-add would give c the sign of the last
+        bit of |f|^2 instead -- a coin toss between self-hit and not at every such point (acne), and one
+        that another tracer's arithmetic tosses differently (tests/test_diagnose.py's offset 0)."""
+        lf = dr.norm(f)
+        return dr.fma(r, r, -gg), (lf - r) * (lf + r)
 
     def _ball(self, ball: Ball) -> tuple[Any, Any]:
         return self._vec(ball.center), self.T.Float(ball.radius)
@@ -219,13 +239,11 @@ class Tracer:
 
     def _ball_t(self, center, radius, o, d) -> Any:
         F = self.T.Float
-        r, f, b, lg = self._ball_ray(center, radius, o, d)
-        disc = (r - lg) * (r + lg)  # r^2 - |f - (f·d) d|^2 without cancellation
+        r, f, b, gg = self._ball_ray(center, radius, o, d)
+        disc, c = self._ball_disc_c(r, f, gg)  # r^2 - |f - (f·d) d|^2, |f|^2 - r^2: no cancellation
         hit = disc >= 0
         sq = dr.sqrt(dr.maximum(disc, 0))
         q = -(b + dr.copysign(sq, b))  # Vieta: never subtracts nearly equal numbers
-        lf = dr.norm(f)
-        c = (lf - r) * (lf + r)  # |f|^2 - r^2, accurate when the origin is near the surface
         q_ok = q != 0  # q = 0 only for a ray starting on the surface, tangent: both roots 0
         t0 = dr.select(q_ok, c / q, 0)
         t1 = dr.select(q_ok, q, 0)
@@ -308,8 +326,9 @@ class Tracer:
         back on it; elsewhere p and n as given."""
         reproject = self.rules.offset == "error-bound"
         # pbrt-style under error-bound: put the point back on the sphere, normal from it. Otherwise
-        # a true division (r is a lane value here, so Dr.Jit cannot turn it into a reciprocal).
-        nb = dr.normalize(p - c) if reproject else (p - c) / r
+        # (p - C) times the radius's reciprocal: one division instead of three (the normal moves by at
+        # most an ulp more; it is not of unit length to within rounding either way).
+        nb = dr.normalize(p - c) if reproject else (p - c) * (1.0 / r)
         # A ball smaller than an ulp of its centre: the hit point can round onto the centre,
         # and p - C = 0 has no direction. Then the normal faces the ray.
         degenerate = ~(dr.squared_norm(nb) > 0) | ~dr.isfinite(dr.squared_norm(nb))
@@ -471,10 +490,9 @@ class Tracer:
         has the sign of -b (or is 0 only where both roots are 0), so c / q and q carry these signs; the
         two differ only if c / q underflows to 0, i.e. a hit closer than 1e-308 relative, which the
         scene's 1e-100 limits and the ray offsets exclude."""
-        r, f, b, lg = self._ball_ray(center, radius, o, d)
-        hit = (r - lg) * (r + lg) >= 0
-        lf = dr.norm(f)
-        c = (lf - r) * (lf + r)
+        r, f, b, gg = self._ball_ray(center, radius, o, d)
+        disc, c = self._ball_disc_c(r, f, gg)
+        hit = disc >= 0
         both = (c > 0) & (b < 0)
         nro = self._rule(self.rules.near_root_only)
         if nro is True:
@@ -492,11 +510,11 @@ class Tracer:
         out = dr.full(F, 1e30, dr.width(s))
 
         def nearer(out, center, radius, _id=None):
-            r, _, b, h = self._ball_ray(center, radius, o, s)
+            r, _, b, gg = self._ball_ray(center, radius, o, s)
             front = -b > -r
             if self.rules.shadow_range != "any":
                 front &= -b < light_dist + r
-            return dr.select(front, dr.minimum(out, dr.abs(h - r)), out)
+            return dr.select(front, dr.minimum(out, dr.abs(dr.sqrt(gg) - r)), out)
 
         if self.table is not None:
             if self.table.n_balls:
@@ -537,7 +555,7 @@ class Tracer:
             light_dist = dr.norm(to_light)
             # The light exactly at the hit point has no direction: that point is unlit (not 0/0).
             at_light = ~(light_dist > 0)
-            s = dr.select(at_light, zero, to_light / dr.select(at_light, 1, light_dist))
+            s = dr.select(at_light, zero, to_light * (1.0 / dr.select(at_light, 1, light_dist)))
             sn = dr.dot(s, ns)
             lit = hit & ~at_light
             if fx.shadows:
@@ -805,8 +823,8 @@ class Tracer:
         if self.table is not None:  # one kernel for every camera distance, not one per scene
             cz = self.table.camera_z(F)
         dx, dy, dz = px - 0.0, py - 0.0, pz - cz
-        nrm = dr.sqrt(dx * dx + dy * dy + dz * dz)
-        d = A3(dx / nrm, dy / nrm, dz / nrm)
+        inv = 1.0 / dr.sqrt(dx * dx + dy * dy + dz * dz)  # one division, three products
+        d = A3(dx * inv, dy * inv, dz * inv)
         at_camera = A3(0.0, 0.0, cz) + dr.zeros(A3, n)
         if self.runtime:
             o = dr.select(dr.opaque(dr.llvm.Bool, self.rules.ray_origin == "camera"), at_camera, A3(px, py, pz))
