@@ -95,10 +95,28 @@ def test_oracle_rows(quick):
 @pytest.mark.slow
 def test_targets(quick):
     res, _ = quick
-    assert len(res["targets"]) == 2
+    assert len(res["targets"]) == 6
     for t in res["targets"]:
         assert _positive(t["measured"]) and t["verdict"] in ("PASS", "MISS", "n/a")
         assert t["verdict"] == "n/a"  # --quick sizes are not the targets' conditions
+
+
+@pytest.mark.slow
+def test_rivals_are_timed_beside_the_reference(quick):
+    """The issue's yardsticks: Mitsuba's own `direct` render and POV-Ray's own trace time of the same scene
+    and size, interleaved with the reference's f64 trace; both renderers are installed by make test."""
+    res, stdout = quick
+    riv = res["rivals"]
+    assert (riv["width"], riv["height"]) == (res["reference"]["width"], res["reference"]["height"])
+    assert _positive(riv["reference_trace_f64_median_s"])
+    mit, pov = riv["mitsuba_direct"], riv["povray"]
+    assert mit["status"] == "ok", mit
+    assert mit["integrator"] == "direct" and len(mit["runs_s"]) == res["meta"]["config"]["reps"]
+    assert all(_positive(t) for t in mit["runs_s"]) and _positive(riv["speedup_vs_mitsuba_direct"])
+    assert pov["status"] == "ok", pov
+    assert pov["frames"] == 1 and all(_positive(t) for t in pov["trace_runs_s"])
+    assert pov["trace_median_s"] < pov["wall_median_s"]  # its statistic leaves out start-up and parsing
+    assert "## The same scene in Mitsuba and POV-Ray" in stdout
 
 
 @pytest.mark.slow
