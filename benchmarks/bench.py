@@ -55,7 +55,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+    # After PYTHONPATH, so that PYTHONPATH=TREE times TREE's minirt (--reference-only's A/B runs).
+    sys.path.insert(1 + len([p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]), str(ROOT))
 
 from minirt import backends, camera  # noqa: E402
 from minirt.rules import PROFILES, Rules, resolve  # noqa: E402
@@ -762,7 +763,20 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="small sizes, 1-2 repetitions (for tests)")
     ap.add_argument("--out", type=Path, help="write the results as JSON here")
+    ap.add_argument(
+        "--reference-only",
+        action="store_true",
+        help="time the reference tracer alone and print its figures as JSON (for A/B runs of two trees: "
+        "PYTHONPATH=TREE python benchmarks/bench.py --reference-only, the trees in turn)",
+    )
     args = ap.parse_args(argv)
+    if args.reference_only:
+        import minirt
+
+        ref = bench_reference(Config.make(args.quick))
+        ref["tree"] = str(Path(minirt.__file__).resolve().parent.parent)
+        print(json.dumps(ref, default=float))
+        return 0
     res = run(Config.make(args.quick))
     print(markdown(res))
     if args.out:
