@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from inproc import minirt
 
 from minirt import harness, memory
 from minirt.errors import MinirtError
@@ -45,10 +46,7 @@ def test_no_figure_from_the_system_means_no_refusal(monkeypatch):
 
 def test_the_cli_says_so_in_one_line_and_exit_2():
     """16384² against every oracle: ~1.25 TB by the estimate, beyond any machine this runs on."""
-    p = subprocess.run(
-        [sys.executable, "-m", "minirt", "check", "exercise", "--size", "16384x16384", "-q"],
-        capture_output=True, text=True, cwd=ROOT, timeout=120,
-    )  # fmt: skip
+    p = minirt("check", "exercise", "--size", "16384x16384", "-q", cwd=ROOT)  # in this process: tests/inproc.py
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1, p.stderr
     assert lines[0].startswith("minirt: error: checking the scene at 16384x16384") and "--size" in lines[0]
@@ -70,11 +68,8 @@ def test_a_render_that_cannot_fit_is_one_line_and_the_reference_alone_streams(tm
     from minirt.rules import resolve
     from minirt.scene import load_scene
 
-    p = subprocess.run(
-        [sys.executable, "-m", "minirt", "render", "exercise", "--width", "16384", "--height", "16384",
-         "--backend", "mitsuba", "--out", str(tmp_path), "-q"],
-        capture_output=True, text=True, cwd=ROOT, timeout=120,
-    )  # fmt: skip
+    size = ["--width", "16384", "--height", "16384"]
+    p = minirt("render", "exercise", *size, "--backend", "mitsuba", "--out", tmp_path, "-q", cwd=ROOT)  # inproc.py
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1, p.stderr
     assert lines[0].startswith("minirt: error: rendering 16384x16384 with mitsuba needs about")
