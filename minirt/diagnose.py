@@ -118,6 +118,7 @@ class VariantCache:
     def __init__(self, max_bytes: int = 2 << 30):
         self.max_bytes = max_bytes
         self._items: OrderedDict[tuple, Variant] = OrderedDict()
+        self._bytes = 0  # the kept variants' nbytes summed, kept up to date as they come, grow and go
         self._pinned: set[tuple] = set()
         self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.alternatives: dict[tuple, tuple[list[dict[str, Any]], set]] = {}  # see ``indistinguishable``
@@ -139,6 +140,7 @@ class VariantCache:
         if v is None:
             v = self._trace(scene, rules.traced(), None)
             self._items[key] = v
+            self._bytes += v.nbytes
             self._trim()
         else:
             self.hits += 1
@@ -146,7 +148,10 @@ class VariantCache:
         if f32:
             self.requested.add((key, "f32"))
             if v.f32_flips is None:
+                before = v.nbytes
                 v.f32_stored, v.f32_flips = self._f32_render(scene, v)
+                if self._items.get(key) is v:  # still kept (not trimmed when it came in)
+                    self._bytes += v.nbytes - before
                 self._trim()
         return v
 
@@ -233,17 +238,18 @@ class VariantCache:
         return Variant(rules, c, sill, idx)
 
     def _trim(self) -> None:
-        total = self.nbytes
-        if total <= self.max_bytes:
+        if self._bytes <= self.max_bytes:
             return
         for key in [k for k in self._items if k not in self._pinned]:  # oldest first
-            if total <= self.max_bytes or len(self._items) <= 1:
+            if self._bytes <= self.max_bytes or len(self._items) <= 1:
                 break
-            total -= self._items.pop(key).nbytes
+            self._bytes -= self._items.pop(key).nbytes
 
     @property
     def nbytes(self) -> int:
-        return sum(v.nbytes for v in self._items.values())
+        """The kept renders' bytes: a running sum (summing over the cache at every insertion made a long
+        session's check runs quadratic in its size)."""
+        return self._bytes
 
 
 def _ray_key(rules: Rules) -> tuple:

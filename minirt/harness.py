@@ -27,6 +27,7 @@ Verdicts: PASS, WARN, FAIL, ERROR (the backend broke), SKIP (does not apply, wit
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -881,7 +882,14 @@ def check_backend(
     t0 = time.perf_counter()
     followed = backends.rules_for(name, rules) if backends.info(name).available else rules
     bc = BackendCheck(backend=name, verdict="skip", rules_followed=followed.as_dict())
-    if rendered is None:
+    if rendered is None and name in CONCURRENT_BACKENDS and backends.info(name).available:
+        # a child process that mostly waits: it renders while the reference it is compared with does
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            started = pool.submit(backends.render, name, scene, rules, options)
+            with contextlib.suppress(MinirtError):  # raised again below, where it always was
+                refs.get(followed, samples=1)
+            res = started.result()
+    elif rendered is None:
         res = backends.render(name, scene, rules, options)
     else:
         res = rendered.result() if hasattr(rendered, "result") else rendered
@@ -987,6 +995,14 @@ def check_scene(
     ``rendered``: backend name -> its render started earlier, ``loaded``: the file's scene and rules
     already parsed (both from ``run``)."""
     scene, rules = loaded or _scene_and_rules(path, size)
+    if rendered is None:
+        # POV-Ray's render, a child process that mostly waits, starts now on a thread of its own and
+        # overlaps the reference's and the other oracles' work here (as ``run`` does): the same results
+        ahead = [n for n in names if n in CONCURRENT_BACKENDS and backends.info(n).available]
+        if ahead:
+            with ThreadPoolExecutor(max_workers=1) as pool:
+                started = {n: pool.submit(backends.render, n, scene, rules) for n in ahead}
+                return check_scene(path, names, size, progress, variants, started, (scene, rules))
     sc = SceneCheck(scene=scene.name, file=str(path), verdict="skip", description=scene.description)
     refs = ReferenceCache(scene)
     sc.reference = refs.get(rules)

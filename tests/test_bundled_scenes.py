@@ -5,10 +5,10 @@ unknown name is one line naming the bundled ones (exit 2)."""
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from inproc import minirt
 
 from minirt import scenes
 from minirt.imageio import read_image_u8
@@ -36,7 +36,7 @@ material = "m"
 
 
 def run(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "minirt", *args], cwd=cwd, capture_output=True, text=True)
+    return minirt(*args, cwd=cwd)  # in this process (tests/inproc.py), run from the folder ``cwd``
 
 
 def test_bundled_scenes_are_the_package_data():

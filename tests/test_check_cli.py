@@ -11,6 +11,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+from inproc import minirt
 
 from minirt import backends, harness
 from minirt.result import RenderResult
@@ -18,7 +19,13 @@ from minirt.result import RenderResult
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def run(*args: str, env=None) -> subprocess.CompletedProcess:
+def run(*args: str) -> subprocess.CompletedProcess:
+    """The command's entry point in this process (tests/inproc.py): its exit status and both streams."""
+    return minirt(*args, cwd=ROOT)
+
+
+def run_child(*args: str, env=None) -> subprocess.CompletedProcess:
+    """A child process: for a changed environment, or Dask worker processes of its own."""
     return subprocess.run(
         [sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=ROOT, env=env, timeout=300
     )
@@ -59,8 +66,8 @@ def test_check_bad_input_exits_2(tmp_path):
 def test_missing_povray_is_a_skip_and_the_others_render(tmp_path):
     env = dict(os.environ)
     env["PATH"] = str(Path(sys.executable).parent)  # no povray on this PATH
-    p = run("render", "scenes/exercise.toml", "--backend", "all", "--width", "32", "--height", "32",
-            "--out", str(tmp_path), env=env)  # fmt: skip
+    p = run_child("render", "scenes/exercise.toml", "--backend", "all", "--width", "32", "--height", "32",
+                  "--out", str(tmp_path), env=env)  # fmt: skip
     assert p.returncode == 0, p.stderr
     assert "povray    SKIP" in p.stderr and "apt-get install" in p.stderr
     names = {f.name for f in tmp_path.iterdir()}
@@ -113,8 +120,12 @@ def test_check_as_jobs_on_a_local_cluster_gives_the_same_document(tmp_path):
     """--workers 2: each (scene, oracle) is a Dask job on a LocalCluster; verdicts, figures and reasons are
     those of the in-process run (only the seconds differ)."""
     args = ["check", "exercise", "shadows", "--size", "24x24", "-q"]
-    here = run(*args, "--json", str(tmp_path / "here.json"))
-    there = run(*args, "--workers", "2", "--json", str(tmp_path / "there.json"))
+    # the cluster's run starts first, in a child, and the in-process run overlaps its start-up
+    cmd = [sys.executable, "-m", "minirt", *args, "--workers", "2", "--json", str(tmp_path / "there.json")]
+    with subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as child:
+        here = run(*args, "--json", str(tmp_path / "here.json"))
+        out, err = child.communicate(timeout=300)
+    there = subprocess.CompletedProcess(cmd, child.returncode, out, err)
     assert here.returncode == there.returncode == 0, here.stderr + there.stderr
     a = json.loads((tmp_path / "here.json").read_text())
     b = json.loads((tmp_path / "there.json").read_text())

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from inproc import minirt
 
 GOOD = """
 [camera]
@@ -84,7 +84,7 @@ CASES = [
 
 
 def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=cwd, timeout=120)
+    return minirt(*args, cwd=cwd)  # in this process: the command's own exit status and messages (tests/inproc.py)
 
 
 @pytest.mark.parametrize(("what", "edit", "message"), CASES, ids=[c[0] for c in CASES])
@@ -184,11 +184,8 @@ def test_missing_llvm_is_explained(monkeypatch):
 @pytest.mark.parametrize("command", ["check", "report"])
 def test_the_reference_alone_has_nothing_to_compare_with(command, tmp_path):
     """A comparison with no oracle would check nothing: bad input, before any work, not a PASS."""
-    p = subprocess.run(
-        [sys.executable, "-m", "minirt", command, "exercise", "-b", "reference", "--out" if command == "report"
-         else "--json", str(tmp_path / "o"), "-q"],
-        capture_output=True, text=True, cwd=Path(__file__).resolve().parent.parent, timeout=120,
-    )  # fmt: skip
+    p = run(command, "exercise", "-b", "reference", "--out" if command == "report" else "--json", str(tmp_path / "o"),
+            "-q", cwd=Path(__file__).resolve().parent.parent)  # fmt: skip
     assert p.returncode == 2 and p.stderr.strip().splitlines() == [
         "minirt: error: --backend reference: no oracle to compare with (give one or more of mitsuba, povray, "
         "embree, or all)"

@@ -10,12 +10,19 @@ import sys
 from pathlib import Path
 
 import pytest
+from inproc import minirt
 
 ROOT = Path(__file__).resolve().parent.parent
 MINIRT = [sys.executable, "-m", "minirt"]
 
 
 def run(*args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """In this process (tests/inproc.py): the command's exit status and what it writes to both streams."""
+    return minirt(*args, cwd=cwd)
+
+
+def run_child(*args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """In a child process: all it writes, also what a library writes to the file descriptors directly."""
     return subprocess.run([*MINIRT, *map(str, args)], cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
@@ -73,8 +80,8 @@ def test_check_json_dash_is_stdout_and_nothing_else(tmp_path):
 
 def test_render_quiet(tmp_path):
     args = ["render", "scenes/exercise.toml", "--width", "8", "--height", "6"]
-    loud = run(*args, "-o", tmp_path / "a")
-    quiet = run(*args, "-o", tmp_path / "b", "--quiet")
+    loud = run_child(*args, "-o", tmp_path / "a")
+    quiet = run_child(*args, "-o", tmp_path / "b", "--quiet")
     assert loud.returncode == quiet.returncode == 0, quiet.stderr
     assert "reference" in loud.stderr and "exercise" in loud.stderr
     assert quiet.stderr == ""

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+from inproc import minirt
 
 FAKE = r"""#!/bin/sh
 # a fake povray: $FAKE_MODE says how it misbehaves
@@ -59,15 +60,6 @@ def fake_povray(tmp_path, monkeypatch):
     return mode
 
 
-def _minirt(*args, env, cwd, timeout=180):
-    p = subprocess.Popen(
-        [sys.executable, "-m", "minirt", *args], cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True,
-    )  # fmt: skip
-    out, err = p.communicate(timeout=timeout)
-    return subprocess.CompletedProcess(p.args, p.returncode, out, err), p.pid
-
-
 def _pov_temp(pid: int) -> list[Path]:
     """The temporary folders run ``pid`` made (others may be running minirt beside the tests)."""
     return list(Path(tempfile.gettempdir()).glob(f"minirt-povray-{pid}-*"))
@@ -85,11 +77,13 @@ def _pov_temp(pid: int) -> list[Path]:
         ("wrong-size", "out1.exr at 4x4, not the 8x8 asked for"),
     ],
 )
-def test_a_faulty_povray_does_not_stop_the_others(fake_povray, tmp_path, mode, words):
-    p, pid = _minirt(
+def test_a_faulty_povray_does_not_stop_the_others(fake_povray, tmp_path, monkeypatch, mode, words):
+    monkeypatch.setenv("FAKE_MODE", mode)  # the fake povray is first on this process's PATH (fake_povray)
+    p = minirt(
         "render", "exercise", "--backend", "reference,povray,embree", "--out", "out", "--width", "8", "--height", "8",
-        env=fake_povray(mode), cwd=tmp_path,
+        cwd=tmp_path,
     )  # fmt: skip
+    pid = os.getpid()  # the command ran in this process (tests/inproc.py): its temporary folders carry this pid
     text = p.stdout + p.stderr
     assert p.returncode == 0, text  # the reference and Embree rendered
     assert "Traceback" not in text and "MarkupError" not in text
@@ -168,10 +162,11 @@ def test_stale_temporaries_are_swept(tmp_path):
     assert not left.exists() and alive.exists()
 
 
-def test_render_timeout_option(fake_povray, tmp_path):
-    p, _ = _minirt(
+def test_render_timeout_option(fake_povray, tmp_path, monkeypatch):
+    monkeypatch.setenv("FAKE_MODE", "hang")
+    p = minirt(
         "render", "exercise", "--backend", "povray", "--timeout", "1", "--width", "8", "--height", "8",
-        "--out", "out", env=fake_povray("hang"), cwd=tmp_path, timeout=60,
+        "--out", "out", cwd=tmp_path,
     )  # fmt: skip
     assert p.returncode == 2  # no backend rendered
     assert "POV-Ray timed out after 1 s" in p.stderr and "Traceback" not in p.stderr

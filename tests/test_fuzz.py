@@ -18,6 +18,7 @@ from pathlib import Path
 import jsonschema
 import numpy as np
 import pytest
+from inproc import minirt
 
 from minirt import campaign, documents
 from minirt.fuzz import FAMILIES
@@ -29,22 +30,47 @@ SIZE = "16x16"
 
 
 def fuzz(*args, cwd: Path = ROOT, env=None, timeout: int = 900) -> subprocess.CompletedProcess:
+    """`minirt fuzz` in a child process: for a LocalCluster of worker processes, or a changed environment."""
     return subprocess.run(
         [sys.executable, "-m", "minirt", "fuzz", *map(str, args)],
         cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env,
     )  # fmt: skip
 
 
+def fuzz_here(*args) -> subprocess.CompletedProcess:
+    """`minirt fuzz` in this process (tests/inproc.py): --workers 1 runs its jobs here, no child needed."""
+    return minirt("fuzz", *args, cwd=ROOT)
+
+
 @pytest.fixture(scope="module")
 def subset(tmp_path_factory):
+    """The subset on a LocalCluster of two worker processes (a child process), and -- while the child runs,
+    so the two overlap -- the same seed's first scene of each family without the cache in this process
+    (for test_rerun_comes_from_the_cache_with_the_same_bytes)."""
     out = tmp_path_factory.mktemp("fuzz") / "campaign"
+    alone = tmp_path_factory.mktemp("fuzz-here")
     count = PER_FAMILY * len(FAMILIES)
-    p = fuzz("--count", count, "--seed", 7, "--size", SIZE, "--workers", 2, "-o", out, "-q")
-    return out, count, p
+    cmd = [sys.executable, "-m", "minirt", "fuzz", *map(str, ("--count", count, "--seed", 7, "--size", SIZE,
+                                                              "--workers", 2, "-o", out, "-q"))]  # fmt: skip
+    logs = tmp_path_factory.mktemp("fuzz-logs")
+    with (logs / "out").open("w+") as so, (logs / "err").open("w+") as se:
+        child = subprocess.Popen(cmd, cwd=ROOT, stdout=so, stderr=se, text=True, stdin=subprocess.DEVNULL)
+        try:
+            q = fuzz_here("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "--no-cache",
+                          "-o", alone, "-q")  # fmt: skip
+            child.wait(timeout=900)
+        finally:
+            if child.poll() is None:
+                child.kill()
+                child.wait()
+        so.seek(0)
+        se.seek(0)
+        p = subprocess.CompletedProcess(cmd, child.returncode, so.read(), se.read())
+    return out, count, p, (alone, q)
 
 
 def test_subset_every_family_every_oracle_on_a_local_cluster(subset):
-    out, count, p = subset
+    out, count, p, _ = subset
     assert p.returncode == 0, p.stdout + p.stderr
     doc = json.loads((out / "fuzz.json").read_text())
     assert doc["scenes"] == count and doc["jobs"] == 3 * count
@@ -59,7 +85,7 @@ def test_subset_every_family_every_oracle_on_a_local_cluster(subset):
 
 
 def test_every_non_pass_keeps_its_scene_and_evidence(subset):
-    out, _, _ = subset
+    out, _, _, _ = subset
     doc = json.loads((out / "fuzz.json").read_text())
     kept = {p.stem for p in out.glob("*.toml")}
     non_pass = sum(v for k, v in doc["verdicts"].items() if k != "pass")
@@ -71,28 +97,27 @@ def test_every_non_pass_keeps_its_scene_and_evidence(subset):
         assert json.loads(f.read_text())["verdict"] != "pass"
 
 
-def test_rerun_comes_from_the_cache_with_the_same_bytes(subset, tmp_path):
-    out, count, _ = subset
+def test_rerun_comes_from_the_cache_with_the_same_bytes(subset):
+    out, count, _, (alone, q) = subset
     before = (out / "fuzz.json").read_bytes()
-    p = fuzz("--count", count, "--seed", 7, "--size", SIZE, "--workers", 1, "-o", out)
+    p = fuzz_here("--count", count, "--seed", 7, "--size", SIZE, "--workers", 1, "-o", out)
     assert p.returncode == 0, p.stderr
     assert f"{3 * count} of {3 * count} jobs from the cache" in p.stdout
     assert (out / "fuzz.json").read_bytes() == before
     # and without the cache, in this process, the same bytes again (a few scenes: the same seed's first ones),
     # as those scenes' results read back from the cache the two-worker cluster wrote
-    q = fuzz("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "--no-cache", "-o", tmp_path, "-q")
     shutil.copytree(out / "cache", out / "again" / "cache")
-    r = fuzz("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "-o", out / "again")
+    r = fuzz_here("--count", len(FAMILIES), "--seed", 7, "--size", SIZE, "--workers", 1, "-o", out / "again")
     assert q.returncode == r.returncode == 0, q.stderr + r.stderr
     assert f"{3 * len(FAMILIES)} of {3 * len(FAMILIES)} jobs from the cache" in r.stdout
-    assert (tmp_path / "fuzz.json").read_bytes() == (out / "again" / "fuzz.json").read_bytes()
-    assert not (tmp_path / "cache").exists()
+    assert (alone / "fuzz.json").read_bytes() == (out / "again" / "fuzz.json").read_bytes()
+    assert not (alone / "cache").exists()
 
 
 def test_defects_are_caught_where_they_change_judged_pixels(tmp_path):
     kinds = ",".join(campaign.DEFECTS)
-    p = fuzz("--count", 6, "--seed", 3, "--families", "random", "--size", "24x24", "--workers", 1, "--defects", kinds,
-             "-o", tmp_path, "-q")  # fmt: skip
+    p = fuzz_here("--count", 6, "--seed", 3, "--families", "random", "--size", "24x24", "--workers", 1, "--defects",
+                  kinds, "-o", tmp_path, "-q")  # fmt: skip
     assert p.returncode == 0, p.stderr
     doc = json.loads((tmp_path / "fuzz.json").read_text())
     assert set(doc["defects"]) == set(campaign.DEFECTS)
@@ -136,14 +161,14 @@ def test_a_crashing_oracle_is_an_error_with_its_scene_kept(tmp_path):
     ],
 )
 def test_bad_options_are_one_line_and_exit_2(args, words, tmp_path):
-    p = fuzz(*args, "-o", tmp_path, "-q")
+    p = fuzz_here(*args, "-o", tmp_path, "-q")
     assert p.returncode == 2, p.stderr
     assert words in p.stderr
     assert "Traceback" not in p.stderr
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path):
-    p = fuzz("--count", 1, "--scheduler", "tcp://127.0.0.1:9", "-o", tmp_path, "-q", timeout=120)
+    p = fuzz_here("--count", 1, "--scheduler", "tcp://127.0.0.1:9", "-o", tmp_path, "-q")
     assert p.returncode == 2, p.stderr
     assert "cannot reach a Dask scheduler" in p.stderr and "Traceback" not in p.stderr
 

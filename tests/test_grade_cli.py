@@ -1,7 +1,8 @@
-"""`minirt grade` as a user runs it (a subprocess, cwd the repository): exit codes (0 match, 1 differs,
-2 bad input with exactly one `minirt: error:` line and no traceback), a transposed image, strict JSON on
-standard output, the reproduce command as the acceptance test of a diagnosis, a bundled scene by name,
-and class mode (a missing and a corrupt image are rows, the same command writes the same bytes).
+"""`minirt grade` as a user runs it (its entry point, cwd the repository; a child process where only a
+process shows it: all of stdout, Dask workers of its own): exit codes (0 match, 1 differs, 2 bad input
+with exactly one `minirt: error:` line and no traceback), a transposed image, strict JSON on standard
+output, the reproduce command as the acceptance test of a diagnosis, a bundled scene by name, and class
+mode (a missing and a corrupt image are rows, the same command writes the same bytes).
 
 Student images come from tests/plain.py (tests/students.py) on small copies of bundled scenes (48x48).
 """
@@ -21,6 +22,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from inproc import minirt
 from students import levels_off, student_image
 
 from minirt import rules as R
@@ -34,6 +36,13 @@ MISTAKES = {"pixel_sample": "center", "rows": "bottom-up"}
 
 
 def run(*args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """The command's entry point in this process (tests/inproc.py): its exit status and both streams."""
+    return minirt(*args, cwd=cwd)
+
+
+def run_child(*args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """A child process, as a user starts it: for what only a process shows (all of its stdout and stderr,
+    Dask worker processes of its own)."""
     return subprocess.run([*MINIRT, *map(str, args)], cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
@@ -183,7 +192,7 @@ def test_transposed_size_is_accepted(work, tmp_path):
 
 
 def test_json_on_stdout_is_strict(work):
-    p = run("grade", work.rules_toml, work.differs, "--json", "-")
+    p = run_child("grade", work.rules_toml, work.differs, "--json", "-")
     assert p.returncode == 1, p.stderr
     g = strict_json(p.stdout)
     assert {"verdict", "scene", "image", "pixels", "as_given", "diagnosis", "indistinguishable", "reproduce"} <= set(g)
@@ -264,7 +273,7 @@ def klass(work) -> SimpleNamespace:
     tree = _tree(out)
     second = run(*args)
     out2 = work.tmp / "class-out-2"
-    two = run(*args[:-1], out2, "--workers", "2")
+    two = run_child(*args[:-1], out2, "--workers", "2")
     return SimpleNamespace(dir=c, out=out, first=first, second=second, files=files, tree=tree, two=two, out2=out2)
 
 

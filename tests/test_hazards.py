@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+import inproc
 import numpy as np
 import pytest
 
@@ -48,7 +48,7 @@ PLANET = (
 
 
 def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "minirt", *args], cwd=cwd, capture_output=True, text=True)
+    return inproc.minirt(*args, cwd=cwd)  # in this process: the command's exit status and streams
 
 
 def _write(tmp_path: Path, name: str, text: str) -> Path:

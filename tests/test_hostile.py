@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from inproc import minirt
 
 from minirt.untrusted import MAX_STEM, file_stem, printable, terminal_text
 
@@ -49,6 +50,12 @@ def _toml_string(s: str) -> str:
 
 
 def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """In this process (tests/inproc.py): the command's own exit status, stdout and stderr."""
+    return minirt(*args, cwd=cwd)
+
+
+def _run_child(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """In a child process with a time-out, for a command that could block."""
     return subprocess.run(
         [sys.executable, "-m", "minirt", *args], cwd=cwd, capture_output=True, text=True, timeout=120,
         env={**os.environ, "COLUMNS": "200"},
@@ -132,7 +139,7 @@ def test_deep_nesting_is_one_line(tmp_path, text, message):
 def test_a_fifo_is_not_a_scene(tmp_path):
     fifo = tmp_path / "scene.toml"
     os.mkfifo(fifo)
-    p = _run("render", str(fifo), cwd=tmp_path)  # would block for ever on open()
+    p = _run_child("render", str(fifo), cwd=tmp_path)  # would block for ever on open()
     assert p.returncode == 2 and "not a regular file" in p.stderr
 
 

@@ -1,10 +1,10 @@
 """Every JSON document the commands write is strict JSON, carries schema_version, and validates against
 the JSON Schema shipped in minirt/schemas/ -- and those schemas are the ones the models generate.
 
-The documents come from the commands as a user runs them (subprocesses, small images): render sidecars
-(reference and Embree), check --json - (Embree's tolerance maxima are infinite: null with a reason),
-report.json with an embedded sweep, sweep.json, grade --json, a class's grades.json (one row an error),
-probe --json, fuzz.json with a defect.
+The documents come from the commands as a user runs them (their entry point, minirt.cli.main, in this
+process; small images): render sidecars (reference and Embree), check --json - (Embree's tolerance
+maxima are infinite: null with a reason), report.json with an embedded sweep, sweep.json, grade --json,
+a class's grades.json (one row an error), probe --json, fuzz.json with a defect.
 """
 
 from __future__ import annotations
@@ -13,21 +13,20 @@ import copy
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import jsonschema
 import pytest
+from inproc import minirt
 
 from minirt import documents
 
 ROOT = Path(__file__).resolve().parent.parent
-MINIRT = [sys.executable, "-m", "minirt"]
 
 
 def run(*args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
-    return subprocess.run([*MINIRT, *map(str, args)], cwd=cwd, capture_output=True, text=True, timeout=300)
+    return minirt(*args, cwd=cwd)  # the command's entry point, in this process (tests/inproc.py)
 
 
 def strict_loads(text: str):

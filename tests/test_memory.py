@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from inproc import minirt
 
 from minirt import harness, memory
 from minirt.errors import MinirtError
@@ -45,10 +45,7 @@ def test_no_figure_from_the_system_means_no_refusal(monkeypatch):
 
 def test_the_cli_says_so_in_one_line_and_exit_2():
     """16384² against every oracle: ~1.25 TB by the estimate, beyond any machine this runs on."""
-    p = subprocess.run(
-        [sys.executable, "-m", "minirt", "check", "exercise", "--size", "16384x16384", "-q"],
-        capture_output=True, text=True, cwd=ROOT, timeout=120,
-    )  # fmt: skip
+    p = minirt("check", "exercise", "--size", "16384x16384", "-q", cwd=ROOT)  # in this process: tests/inproc.py
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1, p.stderr
     assert lines[0].startswith("minirt: error: checking the scene at 16384x16384") and "--size" in lines[0]
@@ -70,11 +67,8 @@ def test_a_render_that_cannot_fit_is_one_line_and_the_reference_alone_streams(tm
     from minirt.rules import resolve
     from minirt.scene import load_scene
 
-    p = subprocess.run(
-        [sys.executable, "-m", "minirt", "render", "exercise", "--width", "16384", "--height", "16384",
-         "--backend", "mitsuba", "--out", str(tmp_path), "-q"],
-        capture_output=True, text=True, cwd=ROOT, timeout=120,
-    )  # fmt: skip
+    size = ["--width", "16384", "--height", "16384"]
+    p = minirt("render", "exercise", *size, "--backend", "mitsuba", "--out", tmp_path, "-q", cwd=ROOT)  # inproc.py
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1, p.stderr
     assert lines[0].startswith("minirt: error: rendering 16384x16384 with mitsuba needs about")
@@ -87,16 +81,10 @@ def test_a_render_that_cannot_fit_is_one_line_and_the_reference_alone_streams(tm
 
 # ---------------------------------------------------------------------------------------------
 # grade: one image, and a class's processes with their render caches
-_PATCHED_MAIN = (
-    "import sys, minirt.memory as m; m.available = lambda: {}; sys.argv[0] = 'minirt'; "
-    "from minirt.cli import main; main()"
-)
-
-
-def _minirt_with(available: int, *args, cwd: Path = ROOT) -> subprocess.CompletedProcess:
-    """minirt in a child process that believes ``available`` bytes are left."""
-    cmd = [sys.executable, "-c", _PATCHED_MAIN.format(available), *map(str, args)]
-    return subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, timeout=300)
+def _minirt_with(monkeypatch, available: int, *args) -> subprocess.CompletedProcess:
+    """minirt, in this process (tests/inproc.py), believing ``available`` bytes are left."""
+    monkeypatch.setattr(memory, "available", lambda: available)
+    return minirt(*args, cwd=ROOT)
 
 
 @pytest.fixture(scope="module")
@@ -123,20 +111,20 @@ def test_the_grade_estimate_follows_the_measured_peaks():
     assert memory.grade_bytes(1 << 20, processes=3) == 3 * memory.grade_bytes(1 << 20)
 
 
-def test_a_grade_that_cannot_fit_is_one_line_and_exit_2(graded):
+def test_a_grade_that_cannot_fit_is_one_line_and_exit_2(graded, monkeypatch):
     args = ["grade", "scenes/rules.toml", graded / "student.png", "--size", "32x32", "--out", graded / "one"]
-    p = _minirt_with(100 << 20, *args)
+    p = _minirt_with(monkeypatch, 100 << 20, *args)
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
     assert lines[0].startswith("minirt: error: grading ") and "(32x32) needs about 0.5 GB" in lines[0], lines[0]
     assert not (graded / "one").exists() or not list((graded / "one").iterdir())
     # the same command with the memory it needs grades (exit 0: the image follows the scene's rules)
-    assert _minirt_with(64 << 30, *args).returncode == 0
+    assert _minirt_with(monkeypatch, 64 << 30, *args).returncode == 0
 
 
-def test_a_class_that_cannot_fit_is_refused_before_any_grade(graded):
+def test_a_class_that_cannot_fit_is_refused_before_any_grade(graded, monkeypatch):
     args = ["grade", "--class", graded / "class", "--scenes", ROOT / "scenes", "--size", "32x32", "-q"]
-    p = _minirt_with(200 << 20, *args, "--out", graded / "c1")
+    p = _minirt_with(monkeypatch, 200 << 20, *args, "--out", graded / "c1")
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
     assert lines[0].startswith("minirt: error: grading a class at ") and "--workers" in lines[0], lines[0]

@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from inproc import minirt
 
 from minirt.imageio import read_image, read_image_u8
 from minirt.probe import probe
@@ -42,33 +43,27 @@ def test_pruning_skips_work():
     assert full.effects.reflection and full.effects.reflection_depth == 3
 
 
+def _children(*cmds: list[str], timeout: int) -> None:
+    """Each command in a child process of its own, all at once (they are independent runs: the files
+    two processes write are compared), each required to succeed."""
+    procs = [subprocess.Popen(c, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for c in cmds]
+    for c, p in zip(cmds, procs, strict=True):
+        _, err = p.communicate(timeout=timeout)
+        assert p.returncode == 0, (c, err[-2000:])
+
+
 def test_files_are_bit_identical(tmp_path):
     def render(out, *extra):
-        cmd = [
-            sys.executable,
-            "-m",
-            "minirt",
-            "render",
-            "scenes/exercise.toml",
-            "--width",
-            "32",
-            "--height",
-            "24",
-            "--out",
-            str(out),
-            *extra,
-        ]
-        subprocess.run(cmd, check=True, capture_output=True, timeout=120)
+        return [sys.executable, "-m", "minirt", "render", "scenes/exercise.toml", "--width", "32", "--height", "24",
+                "--out", str(out), *extra]  # fmt: skip
 
-    render(tmp_path / "a")
-    render(tmp_path / "b")
+    _children(render(tmp_path / "a"), render(tmp_path / "b"), render(tmp_path / "c", "--timings"), timeout=120)
     for suffix in ("png", "exr", "json"):
         name = f"exercise.reference.{suffix}"
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
     meta = json.loads((tmp_path / "a" / "exercise.reference.json").read_text())
     assert "timings" not in meta and meta["scene_sha256"] and meta["effects"]["simulated"]
     # --timings records them (asked for explicitly: the sidecar then measures the run)
-    render(tmp_path / "c", "--timings")
     timed = json.loads((tmp_path / "c" / "exercise.reference.json").read_text())
     assert timed["timings"]["wall"] > 0 and timed["timings"]["total"] > 0
     assert {k: v for k, v in timed.items() if k != "timings"} == meta
@@ -135,8 +130,8 @@ def test_probe_matches_render():
 
 
 def test_probe_json_cli():
-    cmd = [sys.executable, "-m", "minirt", "probe", "scenes/exercise.toml", "128", "128", "--json"]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=True)
+    p = minirt("probe", "scenes/exercise.toml", "128", "128", "--json")  # in this process (tests/inproc.py)
+    assert p.returncode == 0, p.stderr
     d = json.loads(p.stdout)
     assert d["hit"]["id"] == 0 and d["hit"]["normal"][2] < 0
     assert d["shadow"]["lit"] is True and len(d["levels"]) >= 2
@@ -184,12 +179,10 @@ def test_every_backend_writes_identical_files_twice(tmp_path):
     """`render -b all` twice: every file (each backend's PNG, EXR, JSON and the contact sheet) byte-equal."""
 
     def render(out):
-        cmd = [sys.executable, "-m", "minirt", "render", "scenes/three_balls.toml", "-b", "all",
-               "--width", "24", "--height", "16", "--out", str(out)]  # fmt: skip
-        subprocess.run(cmd, check=True, capture_output=True, timeout=300)
+        return [sys.executable, "-m", "minirt", "render", "scenes/three_balls.toml", "-b", "all",
+                "--width", "24", "--height", "16", "--out", str(out)]  # fmt: skip
 
-    render(tmp_path / "a")
-    render(tmp_path / "b")
+    _children(render(tmp_path / "a"), render(tmp_path / "b"), timeout=300)
     names = sorted(p.name for p in (tmp_path / "a").iterdir())
     assert names == sorted(p.name for p in (tmp_path / "b").iterdir())
     assert "three_balls.contact.png" in names, names

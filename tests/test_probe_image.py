@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from inproc import minirt
 
 from minirt import bitmap
 from minirt import rules as R
@@ -26,9 +26,7 @@ SIZE = ["--width", str(W), "--height", str(H)]
 
 
 def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=ROOT, timeout=300
-    )
+    return minirt(*args, cwd=ROOT)  # in this process (tests/inproc.py): the command's status and streams
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ from types import SimpleNamespace
 
 import pytest
 from conftest import ROOT
+from inproc import minirt
 
 from minirt import sweep
 from minirt.oracles.embree import EmbreeOracle
@@ -308,14 +309,8 @@ def test_a_skipped_series_is_not_cached(exercise, tmp_path):
 
 
 def test_cli_workers_and_scheduler_together_is_one_line(tmp_path):
-    import subprocess
-    import sys
-
-    p = subprocess.run(
-        [sys.executable, "-m", "minirt", "sweep", "exercise", "--size", "8", "--workers", "2",
-         "--scheduler", "tcp://127.0.0.1:1", "--out", str(tmp_path / "o"), "-q"],
-        capture_output=True, text=True, cwd=ROOT, timeout=120,
-    )  # fmt: skip
+    both = ["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"]
+    p = minirt("sweep", "exercise", "--size", "8", *both, "--out", tmp_path / "o", "-q", cwd=ROOT)  # inproc.py
     assert p.returncode == 2 and p.stderr.strip().splitlines() == [
         "minirt: error: --workers and --scheduler: give one (the cluster has its own workers)"
     ], p.stderr

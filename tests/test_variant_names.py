@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
+
+from inproc import minirt
 
 from minirt import rules as R
 from minirt.names import MAX_TAG, contact_sheet_name, render_stem, variant_tag
@@ -48,11 +48,9 @@ def test_tags_are_safe_file_names_and_bounded():
 
 def test_a_variant_render_keeps_the_plain_one(tmp_path):
     def render(*extra):
-        p = subprocess.run(
-            [sys.executable, "-m", "minirt", "render", str(EXERCISE), "-o", str(tmp_path), "-b", "reference,embree",
-             "--width", "16", "--height", "12", "-q", *extra],
-            capture_output=True, text=True, timeout=300,
-        )  # fmt: skip
+        # the command's entry point in this process (tests/inproc.py)
+        size = ["--width", "16", "--height", "12"]
+        p = minirt("render", EXERCISE, "-o", tmp_path, "-b", "reference,embree", *size, "-q", *extra)
         assert p.returncode == 0, p.stderr
         return {f.name: f.read_bytes() for f in tmp_path.iterdir()}
 
