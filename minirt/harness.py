@@ -882,15 +882,13 @@ def check_backend(
     t0 = time.perf_counter()
     followed = backends.rules_for(name, rules) if backends.info(name).available else rules
     bc = BackendCheck(backend=name, verdict="skip", rules_followed=followed.as_dict())
-    if rendered is None and name in CONCURRENT_BACKENDS and backends.info(name).available:
-        # a child process that mostly waits: it renders while the reference it is compared with does
+    if rendered is None:
         with ThreadPoolExecutor(max_workers=1) as pool:
-            started = pool.submit(backends.render, name, scene, rules, options)
-            with contextlib.suppress(MinirtError):  # raised again below, where it always was
-                refs.get(followed, samples=1)
-            res = started.result()
-    elif rendered is None:
-        res = backends.render(name, scene, rules, options)
+            started = _start_ahead(pool, [name], scene, rules, options)
+            if started:  # it renders while the reference it is compared with does
+                with contextlib.suppress(MinirtError):  # raised again below, where it always was
+                    refs.get(followed, samples=1)
+            res = started[name].result() if started else backends.render(name, scene, rules, options)
     else:
         res = rendered.result() if hasattr(rendered, "result") else rendered
     bc.result = res
@@ -998,10 +996,9 @@ def check_scene(
     if rendered is None:
         # POV-Ray's render, a child process that mostly waits, starts now on a thread of its own and
         # overlaps the reference's and the other oracles' work here (as ``run`` does): the same results
-        ahead = [n for n in names if n in CONCURRENT_BACKENDS and backends.info(n).available]
-        if ahead:
-            with ThreadPoolExecutor(max_workers=1) as pool:
-                started = {n: pool.submit(backends.render, n, scene, rules) for n in ahead}
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            started = _start_ahead(pool, names, scene, rules)
+            if started:
                 return check_scene(path, names, size, progress, variants, started, (scene, rules))
     sc = SceneCheck(scene=scene.name, file=str(path), verdict="skip", description=scene.description)
     refs = ReferenceCache(scene)
@@ -1044,9 +1041,8 @@ def run(
     # POV-Ray runs as a separate process: its renders of every scene start now, one after the other on
     # a thread of their own, and overlap the reference's, Mitsuba's and Embree's work in this process
     # (the cores are otherwise idle while Python waits for POV-Ray). The same results, in less time.
-    ahead = [n for n in names if n in CONCURRENT_BACKENDS and backends.info(n).available]
     with ThreadPoolExecutor(max_workers=1) as pool:
-        rendered = [{n: pool.submit(backends.render, n, *sr) for n in ahead} for sr in loaded]
+        rendered = [_start_ahead(pool, names, *sr) for sr in loaded]
         scenes = []
         for i, (p, r, sr) in enumerate(zip(paths, rendered, loaded, strict=True)):
             tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
@@ -1149,8 +1145,20 @@ def _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache: P
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
 
 
-# Backends whose renders run in a child process, started ahead by ``run``.
+# Backends whose renders run in a child process, started ahead by ``run``, ``check_scene`` and
+# ``check_backend`` (``_start_ahead``).
 CONCURRENT_BACKENDS = ("povray",)
+
+
+def _start_ahead(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, options=None) -> dict[str, Any]:
+    """Start on ``pool`` the renders of those of ``names`` that run as a child process and are installed
+    (CONCURRENT_BACKENDS): name -> Future. Such a render mostly waits for its process, so it overlaps the
+    work this process does meanwhile; the results are the same."""
+    return {
+        n: pool.submit(backends.render, n, scene, rules, options)
+        for n in names
+        if n in CONCURRENT_BACKENDS and backends.info(n).available
+    }
 
 
 # ---------------------------------------------------------------------------------------------
