@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import drjit as dr
 import numpy as np
 import pytest
 
@@ -33,6 +34,7 @@ def _trace(shapes: str, o, d, profile="exercise", precision="f64"):
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     _, levels = tr.trace(tr._load(o), tr._load(d))
     lvl = levels[0]
+    dr.eval(lvl.shape_id, lvl.t, lvl.n)  # one kernel (trace leaves them lazy)
     ids = np.asarray(lvl.shape_id)
     t = np.asarray(lvl.t, dtype=float)
     n = np.stack([np.asarray(lvl.n[i], dtype=float) for i in range(3)], axis=1)

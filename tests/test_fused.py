@@ -1,0 +1,89 @@
+"""The one-kernel trace (``Tracer._trace_fused``: every reflection level in a Dr.Jit loop) against the
+wavefront (one kernel per level, rays compacted between them): the same buffers, bit for bit, wherever the
+two can differ -- every rule profile, both precisions, runtime rules, the shape table and its BVH, the
+supersampled path, and a first level read lazily after the colour."""
+
+from __future__ import annotations
+
+from functools import partialmethod
+from pathlib import Path
+
+import drjit as dr
+import numpy as np
+import pytest
+
+from minirt.generate import balls_scene
+from minirt.rules import PROFILES, resolve
+from minirt.scene import load_scene, parse_scene
+from minirt.tracer import Tracer
+
+THREE_BALLS = Path(__file__).resolve().parent.parent / "scenes" / "three_balls.toml"
+
+
+def _buffers(tr: Tracer, wavefront: bool) -> dict[str, bytes]:
+    o, d = tr.primary_rays()
+    bufs: dict = {}
+    _, levels = tr.trace(o, d, out=bufs, wavefront=wavefront)
+    dr.sync_thread()
+    got = {k: np.asarray(v).tobytes() for k, v in bufs.items()}
+    got["shape_id"] = np.asarray(levels[0].shape_id).tobytes()
+    return got
+
+
+def _differs(tr: Tracer) -> list[str]:
+    fused, wave = _buffers(tr, False), _buffers(tr, True)
+    assert set(fused) == set(wave)
+    assert len(fused["color"]) == 4 * 8 * tr.scene.camera.width * tr.scene.camera.height
+    return sorted(k for k in fused if fused[k] != wave[k])
+
+
+@pytest.mark.parametrize("profile", list(PROFILES))
+def test_bundled_scenes_same_bits(scene_path, profile):
+    scene = load_scene(scene_path).with_overrides(width=40, height=40, samples=1)
+    rules = resolve(scene, profile)
+    for precision in ("f64", "f32") if profile == "exercise" else ("f64",):
+        assert _differs(Tracer(scene, rules, precision)) == [], precision
+
+
+@pytest.mark.parametrize("profile", list(PROFILES))
+def test_runtime_rules_same_bits(profile):
+    scene = load_scene(THREE_BALLS).with_overrides(width=40, height=40)
+    assert _differs(Tracer(scene, PROFILES[profile], runtime=True)) == []
+
+
+@pytest.mark.parametrize(("n", "accel"), [(1, "unrolled"), (40, "bvh"), (300, "bvh"), (300, "loop")])
+def test_random_scenes_same_bits(n, accel):
+    """Balls that reflect each other up to max_depth 3, through the table and the tree (nested loops)."""
+    scene = parse_scene(balls_scene(n, seed=7 + n, width=48, height=48))
+    for profile in ("exercise", "conventional"):
+        tr = Tracer(scene, PROFILES[profile], accel=accel)
+        assert tr.effects.reflection_depth == 3
+        assert _differs(tr) == [], profile
+
+
+def test_supersampled_same_bits(monkeypatch):
+    scene = load_scene(THREE_BALLS).with_overrides(width=24, height=24, samples=4)
+    rules = resolve(scene)
+    fused = Tracer(scene, rules).render(diagnostics=False)
+    monkeypatch.setattr(Tracer, "trace", partialmethod(Tracer.trace, wavefront=True))
+    wave = Tracer(scene, rules).render(diagnostics=False)
+    assert fused.color.tobytes() == wave.color.tobytes()
+    assert {k: v.tobytes() for k, v in fused.terms.items()} == {k: v.tobytes() for k, v in wave.terms.items()}
+    assert {k: v.tobytes() for k, v in fused.aux.items()} == {k: v.tobytes() for k, v in wave.aux.items()}
+
+
+def test_first_level_read_after_the_colour():
+    """Without ``out`` the fused trace is lazy: the first level's arrays evaluated later (a kernel of
+    their own) carry the wavefront's bits."""
+    scene = load_scene(THREE_BALLS).with_overrides(width=32, height=32)
+    tr = Tracer(scene, resolve(scene))
+    o, d = tr.primary_rays()
+    c, levels = tr.trace(o, d)
+    dr.eval(c)
+    late = [np.asarray(levels[0].t), np.asarray(levels[0].n[1]), np.asarray(levels[0].terms["reflection"][0])]
+    o, d = tr.primary_rays()
+    cw, wave = tr.trace(o, d, wavefront=True)
+    assert np.asarray(c[0]).tobytes() == np.asarray(cw[0]).tobytes()
+    ref = [np.asarray(wave[0].t), np.asarray(wave[0].n[1]), np.asarray(wave[0].terms["reflection"][0])]
+    assert [a.tobytes() for a in late] == [b.tobytes() for b in ref]
+    assert (np.asarray(wave[0].terms["reflection"][0]) != 0).any()  # the reflections are there to compare
