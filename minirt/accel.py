@@ -161,7 +161,9 @@ class ShapeTable:
         self.is_ball = T.Bool(np.array([isinstance(s, Ball) for s in shapes], dtype=bool))
         self.center = a3([s.center if isinstance(s, Ball) else (0.0, 0.0, 0.0) for s in shapes])
         self.plane_normal = a3([s.normal if isinstance(s, Plane) else (0.0, 0.0, 0.0) for s in shapes])
-        self.radius = F(np.array([s.radius if isinstance(s, Ball) else 1.0 for s in shapes], dtype=dt))
+        radius = np.array([s.radius if isinstance(s, Ball) else 1.0 for s in shapes], dtype=dt)
+        self.radius = F(radius)
+        self.inv_radius = F(dt(1.0) / radius)  # the kernel's 1.0 / r, element by element: the same bits
         self.err_factor = F(np.array([gamma(6, u) if isinstance(s, Ball) else gamma(4, u) for s in shapes], dtype=dt))
         self.err_length = F(np.array([s.radius if isinstance(s, Ball) else abs(s.distance) for s in shapes], dtype=dt))
         # Planes, in id order.

@@ -228,8 +228,12 @@ class Tracer:
         not meet its own surface there. |f|^2 - r^2 in one fused multiply-add would give c the sign of the last
         bit of |f|^2 instead -- a coin toss between self-hit and not at every such point (acne), and one
         that another tracer's arithmetic tosses differently (tests/test_diagnose.py's offset 0)."""
-        lf = dr.norm(f)
-        return dr.fma(r, r, -gg), (lf - r) * (lf + r)
+        return dr.fma(r, r, -gg), Tracer._ball_c(r, f)
+
+    @staticmethod
+    def _ball_c(r, f) -> Any:
+        lf = dr.sqrt(dr.squared_norm(f))  # dr.norm(f), spelt out: _ball_occludes reads |f|^2 alone
+        return (lf - r) * (lf + r)
 
     def _ball(self, ball: Ball) -> tuple[Any, Any]:
         return self._vec(ball.center), self.T.Float(ball.radius)
@@ -237,11 +241,20 @@ class Tracer:
     def intersect_ball(self, ball: Ball, o, d) -> Any:
         return self._ball_t(*self._ball(ball), o, d)
 
-    def _ball_t(self, center, radius, o, d) -> Any:
-        F = self.T.Float
+    def _ball_t(self, center, radius, o, d, gate: bool = False) -> Any:
+        """t of the ray (o, d) at the ball, inf on a miss. ``gate``: the roots in a Dr.Jit conditional on
+        the ray meeting the ball (disc >= 0), which a packet of rays that all pass it skips; a miss is
+        inf either way, so the same bits."""
         r, f, b, gg = self._ball_ray(center, radius, o, d)
-        disc, c = self._ball_disc_c(r, f, gg)  # r^2 - |f - (f·d) d|^2, |f|^2 - r^2: no cancellation
+        disc = dr.fma(r, r, -gg)  # r^2 - |f - (f·d) d|^2: no cancellation (_ball_disc_c)
         hit = disc >= 0
+        if not gate:
+            return self._ball_roots(r, f, b, disc, hit)
+        return dr.if_stmt((r, f, b, disc, hit), hit, self._ball_roots, lambda *_: self.T.Float(math.inf), label="ball")
+
+    def _ball_roots(self, r, f, b, disc, hit) -> Any:
+        F = self.T.Float
+        c = self._ball_c(r, f)  # |f|^2 - r^2, factored (_ball_disc_c)
         sq = dr.sqrt(dr.maximum(disc, 0))
         q = -(b + dr.copysign(sq, b))  # Vieta: never subtracts nearly equal numbers
         q_ok = q != 0  # q = 0 only for a ray starting on the surface, tangent: both roots 0
@@ -262,15 +275,28 @@ class Tracer:
     def intersect_plane(self, plane: Plane, o, d) -> Any:
         return self._plane_t(self._vec(plane.normal), self._vec(plane.point), o, d)
 
-    def _plane_t(self, n, q, o, d) -> Any:
-        F = self.T.Float
+    def _plane_t(self, n, q, o, d, gate: bool = False) -> Any:
+        """t of the ray (o, d) at the plane through q with normal n, inf on a miss. ``gate``: the division
+        in a Dr.Jit conditional on numerator and denominator having the same strict sign, which a packet
+        of rays that all leave the plane (shadow rays from above a floor) skips. Only then can the
+        quotient be > 0; NaN, zeros and opposite signs give inf either way, so the same bits."""
         denom = dr.dot(n, d)
-        t = dr.dot(n, q - o) / denom
-        ok = (denom != 0) & (t > 0) & (t < math.inf)  # parallel rays miss; never NaN
-        return dr.select(ok, t, F(math.inf))
+        num = dr.dot(n, q - o)
+        if not gate:
+            return self._plane_quotient(num, denom)
+        towards = ((num > 0) & (denom > 0)) | ((num < 0) & (denom < 0))
+        return dr.if_stmt((num, denom), towards, self._plane_quotient, lambda *_: self.T.Float(math.inf), label="plane")
 
-    def intersect(self, shape, o, d) -> Any:
-        return self.intersect_ball(shape, o, d) if isinstance(shape, Ball) else self.intersect_plane(shape, o, d)
+    def _plane_quotient(self, num, denom) -> Any:
+        t = num / denom
+        ok = (denom != 0) & (t > 0) & (t < math.inf)  # parallel rays miss; never NaN
+        return dr.select(ok, t, self.T.Float(math.inf))
+
+    def intersect(self, shape, o, d, gate: bool = False) -> Any:
+        """t of the ray (o, d) at the shape, inf on a miss; ``gate``: see ``_ball_t``, ``_plane_t``."""
+        if isinstance(shape, Ball):
+            return self._ball_t(*self._ball(shape), o, d, gate)
+        return self._plane_t(self._vec(shape.normal), self._vec(shape.point), o, d, gate)
 
     def closest(self, o, d) -> tuple[Any, Any]:
         """Appendix 1: the closest hit over all shapes; ties keep the lower shape id."""
@@ -287,7 +313,7 @@ class Tracer:
                 t_best, id_best = accel.balls_closest_loop(self, tab, o, d, t_best, id_best)
             return id_best, t_best
         for k, s in enumerate(self.scene.shapes):
-            tk = self.intersect(s, o, d)
+            tk = self.intersect(s, o, d, gate=True)
             closer = tk < t_best
             t_best = dr.select(closer, tk, t_best)
             id_best = dr.select(closer, k, id_best)
@@ -312,23 +338,31 @@ class Tracer:
             n = dr.select(shape_id == k, self._vec(s.normal), n)
         if balls:
             is_ball = self.T.Bool(False)
-            c, r = zero, self.T.Float(1.0)
+            c, r, inv_r = zero, self.T.Float(1.0), self.T.Float(1.0)
             for k, s in balls:
                 on = shape_id == k
                 is_ball |= on
                 c = dr.select(on, self._vec(s.center), c)
                 r = dr.select(on, self.T.Float(s.radius), r)
-            p, n = self._ball_normal(p, d, c, r, is_ball, n)
+                inv_r = dr.select(on, self.T.Float(self._reciprocal(s.radius)), inv_r)
+            p, n = self._ball_normal(p, d, c, r, inv_r, is_ball, n)
         return p, n
 
-    def _ball_normal(self, p, d, c, r, is_ball, n) -> tuple[Any, Any]:
+    def _reciprocal(self, x: float) -> float:
+        """1 / x rounded as the kernel's 1.0 / x in its precision (one IEEE division, correctly rounded
+        either side): a per-shape constant the kernel selects instead of dividing per ray."""
+        dt = self.T.np_dtype
+        return float(dt(1.0) / dt(x))
+
+    def _ball_normal(self, p, d, c, r, inv_r, is_ball, n) -> tuple[Any, Any]:
         """Where is_ball: the normal (p - C) / r of the ball (C, r) hit at p, and under error-bound p put
         back on it; elsewhere p and n as given."""
         reproject = self.rules.offset == "error-bound"
         # pbrt-style under error-bound: put the point back on the sphere, normal from it. Otherwise
         # (p - C) times the radius's reciprocal: one division instead of three (the normal moves by at
-        # most an ulp more; it is not of unit length to within rounding either way).
-        nb = dr.normalize(p - c) if reproject else (p - c) * (1.0 / r)
+        # most an ulp more; it is not of unit length to within rounding either way), and that one made
+        # on the host (inv_r, the same bits).
+        nb = dr.normalize(p - c) if reproject else (p - c) * inv_r
         # A ball smaller than an ulp of its centre: the hit point can round onto the centre,
         # and p - C = 0 has no direction. Then the normal faces the ray.
         degenerate = ~(dr.squared_norm(nb) > 0) | ~dr.isfinite(dr.squared_norm(nb))
@@ -348,7 +382,8 @@ class Tracer:
         n = dr.gather(T.Array3, tab.plane_normal, k, hit & ~is_ball)
         c = dr.gather(T.Array3, tab.center, k, is_ball)
         r = dr.select(is_ball, dr.gather(T.Float, tab.radius, k, is_ball), T.Float(1.0))
-        return self._ball_normal(p, d, c, r, is_ball, n)
+        inv_r = dr.select(is_ball, dr.gather(T.Float, tab.inv_radius, k, is_ball), T.Float(1.0))
+        return self._ball_normal(p, d, c, r, inv_r, is_ball, n)
 
     def error_bound(self, shape_id, p, o) -> Any:
         """Absolute error bound of a hit point p of the ray from o, per shape (measured to give 0 self-hits;
@@ -443,7 +478,7 @@ class Tracer:
         ts = []
         for shape in self.scene.shapes:
             need_t = record or self.rules.shadow_range != "any" or not isinstance(shape, Ball)
-            tk = self.intersect(shape, o, s) if need_t else None
+            tk = self.intersect(shape, o, s, gate=True) if need_t else None
             if record:
                 ts.append(tk)
             if self.rules.shadow_range != "any":
@@ -481,9 +516,9 @@ class Tracer:
         return blocked
 
     def occludes_ball(self, ball: Ball, o, d) -> Any:
-        return self._ball_occludes(*self._ball(ball), o, d)
+        return self._ball_occludes(*self._ball(ball), o, d, sqrt_bounds(ball.radius, self.T.np_dtype))
 
-    def _ball_occludes(self, center, radius, o, d) -> Any:
+    def _ball_occludes(self, center, radius, o, d, bounds: tuple[float, float] | None = None) -> Any:
         """intersect_ball(ball, o, d) < inf, from signs: the roots' product is c = |f|^2 - r^2 (d is
         unit) and their sum -2 b. Both roots > 0 iff c > 0 and b < 0; exactly one iff c < 0; c = 0
         gives roots 0 and -2 b. This decides as intersect_ball's t does: there q = -(b + sign(b) sqrt)
@@ -491,13 +526,25 @@ class Tracer:
         two differ only if c / q underflows to 0, i.e. a hit closer than 1e-308 relative, which the
         scene's 1e-100 limits and the ray offsets exclude."""
         r, f, b, gg = self._ball_ray(center, radius, o, d)
-        disc, c = self._ball_disc_c(r, f, gg)
+        if bounds is None:
+            disc, c = self._ball_disc_c(r, f, gg)
+            c_pos, c_neg, c_zero = c > 0, c < 0, c == 0
+        else:
+            # The sign of c = (|f| - r)(|f| + r) is that of |f| - r, |f| = sqrt(|f|^2) correctly rounded,
+            # which is monotone: |f| > r iff |f|^2 > hi, |f| < r iff |f|^2 < lo (``sqrt_bounds``). The
+            # same decisions without the square root. (The product cannot underflow to 0: |f| - r is 0 or
+            # at least an ulp of r, and r > 1e-100.)
+            disc = dr.fma(r, r, -gg)
+            ff = dr.squared_norm(f)
+            lo, hi = bounds
+            c_pos, c_neg = ff > hi, ff < lo
+            c_zero = (ff >= lo) & (ff <= hi)
         hit = disc >= 0
-        both = (c > 0) & (b < 0)
+        both = c_pos & (b < 0)
         nro = self._rule(self.rules.near_root_only)
         if nro is True:
             return hit & both
-        other = (c < 0) | ((c == 0) & (b < 0))
+        other = c_neg | (c_zero & (b < 0))
         if nro is not False:
             other &= ~nro
         return hit & (both | other)
@@ -525,13 +572,48 @@ class Tracer:
                     out = nearer(out, *self._ball(ball))
         return dr.select(hit, out, F(1e30))
 
-    def shade_level(self, o, d, parent, depth_left: int, record: bool, margins: bool = False) -> tuple[Level, Any]:
-        """Intersect one level's rays and shade them locally; return the level and the next rays' mask."""
-        fx = self.effects
-        zero = self._vec((0.0, 0.0, 0.0))
+    def shade_level(
+        self, o, d, parent, depth_left: int, record: bool, margins: bool = False, gate: bool = False
+    ) -> tuple[Level, Any]:
+        """Intersect one level's rays and shade them locally; return the level and the next rays' mask.
+
+        ``gate`` (not with ``record`` or ``margins``): the shading -- hit point, normal, shadow ray, terms,
+        next ray -- runs in a Dr.Jit conditional on the hit, which a packet of rays that all miss skips
+        (half the packets of three_balls' first level, the sky); the misses get the values the shading
+        gives them (zeros, p = o + 0 d), so the same bits either way."""
         shape_id, t = self.closest(o, d)
         hit = shape_id >= 0
         t = dr.select(hit, t, math.inf)
+        if not gate:
+            return self._shade(o, d, parent, shape_id, hit, t, depth_left, record, margins)
+        fx, zero = self.effects, self._vec((0.0, 0.0, 0.0))
+        names = [k for k in ("ambient", "diffuse", "specular") if getattr(fx, k)]
+        spawns = fx.reflection and depth_left > 0
+
+        def on_hit(o, d, shape_id, hit, t):
+            lvl, spawn = self._shade(o, d, None, shape_id, hit, t, depth_left, False, False)
+            ro, rd = lvl.record["next"] if spawns else (zero, zero)
+            return lvl.p, lvl.n, lvl.local, lvl.kr, [lvl.terms[k] for k in names], ro, rd, spawn if spawns else hit
+
+        def on_miss(o, d, shape_id, hit, t):
+            p = o + dr.select(hit, t, 0) * d  # hit_point_and_normal's p of a miss
+            return p, zero, zero, zero, [zero for _ in names], zero, zero, self.T.Bool(False)
+
+        p, n, local, kr, terms, ro, rd, spawn = dr.if_stmt(
+            (o, d, shape_id, hit, t), hit, on_hit, on_miss, label="shade"
+        )
+        lvl = Level(
+            parent, o, d, shape_id, t, p, n, local, kr, self._background(hit), dict(zip(names, terms, strict=True))
+        )
+        if not spawns:
+            return lvl, None
+        lvl.record["next"] = (ro, rd)
+        return lvl, spawn
+
+    def _shade(self, o, d, parent, shape_id, hit, t, depth_left: int, record: bool, margins: bool) -> tuple[Level, Any]:
+        """shade_level after the closest hit (shape_id, hit, t: inf on a miss)."""
+        fx = self.effects
+        zero = self._vec((0.0, 0.0, 0.0))
         p, n = self.hit_point_and_normal(shape_id, o, d, dr.select(hit, t, 0))
         ns = n
         two_sided = self._rule(self.rules.two_sided)
@@ -741,13 +823,14 @@ class Tracer:
         The first level's outputs (``out``, ``terms``: as for ``trace``) are written by this kernel. Without
         ``out`` nothing is evaluated: the colour and the first level's arrays are Dr.Jit expressions, and
         what the caller evaluates together runs as one kernel (``dr.eval(c, levels[0].t)``); each array
-        evaluated on its own would run a kernel of its own (the same bits, more time). Evaluating only
+        evaluated on its own would run a kernel of its own (the same bits, more time); a component that is
+        one constant for every ray (a lone plane's normal) may be an array of width 1. Evaluating only
         the colour skips the 160 bytes a ray of first-level arrays: 18.2 -> 14.7 ms on three_balls 1024^2."""
         fx = self.effects
         depth = fx.reflection_depth if fx.reflection else 0
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))
-            lvl, spawn = self.shade_level(o, d, None, depth, False)
+            lvl, spawn = self.shade_level(o, d, None, depth, False, gate=True)
             c = lvl.local
             if fx.reflection:
                 refl = self._vec((0.0, 0.0, 0.0))
@@ -782,7 +865,7 @@ class Tracer:
         def body(k, active, ro, rd, *levels):
             local, ids = list(levels[:depth]), list(levels[depth:])
             # depth_left 1: the next rays are made at every level (the last one's go unused)
-            lvl, spawn = self.shade_level(ro, rd, None, 1, False)
+            lvl, spawn = self.shade_level(ro, rd, None, 1, False, gate=True)
             for j in range(depth):
                 here = k == j
                 local[j] = dr.select(here, lvl.local, local[j])
@@ -1122,6 +1205,29 @@ class Tracer:
 # pixels costs ~350 MB above the finished image's NumPy buffers, and its kernels are long enough that
 # the per-tile overhead is small (tiles of 1 Mpixel cost < 5 % more time than one pass).
 TILE_PIXELS = 1 << 20
+
+
+def sqrt_bounds(r: float, dtype) -> tuple[float, float]:
+    """(lo, hi): the least x whose correctly rounded square root is >= r and the greatest whose root is
+    <= r, r rounded to ``dtype`` (x of that type): sqrt(x) < r iff x < lo, > r iff x > hi, = r iff lo <= x
+    <= hi. Found by stepping from r * r one representable number at a time (a few steps at most)."""
+    with np.errstate(over="ignore"):  # r * r and the steps may reach inf for radii beyond the limits
+        return _sqrt_bounds(dtype(r), dtype(np.inf))
+
+
+def _sqrt_bounds(r, inf) -> tuple[float, float]:
+    x = r * r
+    hi = x
+    while np.sqrt(hi) > r:
+        hi = np.nextafter(hi, -inf)
+    while np.sqrt(np.nextafter(hi, inf)) <= r:
+        hi = np.nextafter(hi, inf)
+    lo = x
+    while np.sqrt(lo) < r:
+        lo = np.nextafter(lo, inf)
+    while lo > 0 and np.sqrt(np.nextafter(lo, -inf)) >= r:
+        lo = np.nextafter(lo, -inf)
+    return float(lo), float(hi)
 
 
 def tile_rows(width: int, tile_pixels: int | None = None) -> int:

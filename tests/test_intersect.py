@@ -37,7 +37,8 @@ def _trace(shapes: str, o, d, profile="exercise", precision="f64"):
     dr.eval(lvl.shape_id, lvl.t, lvl.n)  # one kernel (trace leaves them lazy)
     ids = np.asarray(lvl.shape_id)
     t = np.asarray(lvl.t, dtype=float)
-    n = np.stack([np.asarray(lvl.n[i], dtype=float) for i in range(3)], axis=1)
+    # a component the same for every ray (one plane's normal) may be one constant: width 1
+    n = np.stack([np.broadcast_to(np.asarray(lvl.n[i], dtype=float), t.shape) for i in range(3)], axis=1)
     return ids, t, n
 
 
