@@ -593,18 +593,21 @@ class Tracer:
         def on_hit(o, d, shape_id, hit, t):
             lvl, spawn = self._shade(o, d, None, shape_id, hit, t, depth_left, False, False)
             ro, rd = lvl.record["next"] if spawns else (zero, zero)
-            return lvl.p, lvl.n, lvl.local, lvl.kr, [lvl.terms[k] for k in names], ro, rd, spawn if spawns else hit
+            out = lvl.p, lvl.n, lvl.local, lvl.kr, [lvl.terms[k] for k in names], ro, rd, spawn if spawns else hit
+            return *out, lvl.code
 
         def on_miss(o, d, shape_id, hit, t):
             p = o + dr.select(hit, t, 0) * d  # hit_point_and_normal's p of a miss
-            return p, zero, zero, zero, [zero for _ in names], zero, zero, self.T.Bool(False)
+            # a miss's decision code: id -1, unlit, s·n = 0 (its normal is 0)
+            return p, zero, zero, zero, [zero for _ in names], zero, zero, self.T.Bool(False), self.T.Int(-4)
 
-        p, n, local, kr, terms, ro, rd, spawn = dr.if_stmt(
+        p, n, local, kr, terms, ro, rd, spawn, code = dr.if_stmt(
             (o, d, shape_id, hit, t), hit, on_hit, on_miss, label="shade"
         )
         lvl = Level(
             parent, o, d, shape_id, t, p, n, local, kr, self._background(hit), dict(zip(names, terms, strict=True))
         )
+        lvl.code = code
         if not spawns:
             return lvl, None
         lvl.record["next"] = (ro, rd)
@@ -734,8 +737,8 @@ class Tracer:
         ``record``). ``terms``: the names of the terms written to ``out`` (default every term the
         effects compute); the others still add to the colour, but their 32 bytes a ray are never written.
         """
-        if not (record or tree or wavefront):
-            return self._trace_fused(o, d, out, terms)
+        if not (record or wavefront):
+            return self._trace_fused(o, d, out, terms, tree)
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))  # the first level's
             levels: list[Level] = []
@@ -784,7 +787,7 @@ class Tracer:
                     below = self.T.UInt(0)
                     if child_tree is not None:
                         below = dr.gather(self.T.UInt, child_tree, lvl.slot, active=lvl.spawn)
-                    lvl.record["tree"] = self.T.UInt(lvl.code) * 0x9E3779B1 ^ (below * 0x85EBCA6B + 0x27D4EB2F)
+                    lvl.record["tree"] = _tree_hash(self.T.UInt(lvl.code), below)
                     child_tree = lvl.record["tree"]  # evaluated with this level's colour, in one kernel
                 if self.effects.reflection:
                     refl = self._vec((0.0, 0.0, 0.0))
@@ -808,7 +811,9 @@ class Tracer:
                 child = c
             return child, levels
 
-    def _trace_fused(self, o, d, out: dict[str, Any] | None, terms: Collection[str] | None) -> tuple[Any, list[Level]]:
+    def _trace_fused(
+        self, o, d, out: dict[str, Any] | None, terms: Collection[str] | None, tree: bool = False
+    ) -> tuple[Any, list[Level]]:
         """``trace`` in one kernel: the first level in straight-line code, the deeper ones in a Dr.Jit loop
         (one iteration per reflection), then the colours combined back to front.
 
@@ -825,22 +830,35 @@ class Tracer:
         what the caller evaluates together runs as one kernel (``dr.eval(c, levels[0].t)``); each array
         evaluated on its own would run a kernel of its own (the same bits, more time); a component that is
         one constant for every ray (a lone plane's normal) may be an array of width 1. Evaluating only
-        the colour skips the 160 bytes a ray of first-level arrays: 18.2 -> 14.7 ms on three_balls 1024^2."""
+        the colour skips the 160 bytes a ray of first-level arrays: 18.2 -> 14.7 ms on three_balls 1024^2.
+
+        ``tree``: as for ``trace``, the first level's record holds "tree" (each deeper level's decision code
+        is carried through the loop like its id and hashed back to front as the wavefront does) and
+        "shadow_margin" (the first level is then shaded without the conditional, as the margins read
+        every ray)."""
         fx = self.effects
         depth = fx.reflection_depth if fx.reflection else 0
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))
-            lvl, spawn = self.shade_level(o, d, None, depth, False, gate=True)
+            if tree:
+                lvl, spawn = self.shade_level(o, d, None, depth, False, margins=True)
+            else:
+                lvl, spawn = self.shade_level(o, d, None, depth, False, gate=True)
             c = lvl.local
+            below = self.T.UInt(0)
             if fx.reflection:
                 refl = self._vec((0.0, 0.0, 0.0))
                 if spawn is not None:
-                    refl = self._reflected(spawn, *lvl.record.pop("next"), depth)
+                    refl, below = self._reflected(spawn, *lvl.record.pop("next"), depth, tree)
                 lvl.terms["reflection"] = lvl.kr * refl
                 c = c + lvl.terms["reflection"]
             if fx.background:
                 lvl.terms["background"] = lvl.bg
                 c = c + lvl.bg
+            extra = []
+            if tree:
+                lvl.record["tree"] = _tree_hash(self.T.UInt(lvl.code), below)
+                extra = [lvl.record[k] for k in ("tree", "shadow_margin") if k in lvl.record]
             if out is None:  # lazy: the caller evaluates what it reads with the colour, in one kernel
                 return c, [lvl]
             names = ("ambient", "diffuse", "specular", "reflection", "background")
@@ -849,42 +867,50 @@ class Tracer:
             }
             self._scatter_out(out, vectors, rays, lvl.shape_id >= 0, masked=("position", "normal"))
             out["t"] = dr.llvm.Float64(lvl.t)
-            dr.eval(out["t"], lvl.shape_id)  # runs the scatters too
+            dr.eval(out["t"], lvl.shape_id, *extra)  # runs the scatters too
             return c, [lvl]
 
-    def _reflected(self, active, ro, rd, depth: int) -> Any:
+    def _reflected(self, active, ro, rd, depth: int, tree: bool = False) -> tuple[Any, Any]:
         """The colour ``trace`` gives the reflected rays (ro, rd) where ``active``, 0 elsewhere: levels 1 ..
-        depth in a Dr.Jit loop (see ``_trace_fused``)."""
+        depth in a Dr.Jit loop (see ``_trace_fused``); and, with ``tree``, the hash of their ray trees (0
+        where not active; without ``tree`` a constant 0)."""
         T = self.T
         n = dr.width(active)
         zero3 = self._vec((0.0, 0.0, 0.0))
         local = [T.Array3(dr.zeros(T.Float, n), dr.zeros(T.Float, n), dr.zeros(T.Float, n)) for _ in range(depth)]
         ids = [dr.full(T.Int, -2, n) for _ in range(depth)]
+        codes = [dr.zeros(T.Int, n) for _ in range(depth)] if tree else []
         k = dr.zeros(T.UInt, n)
 
         def body(k, active, ro, rd, *levels):
-            local, ids = list(levels[:depth]), list(levels[depth:])
+            local, ids, codes = list(levels[:depth]), list(levels[depth : 2 * depth]), list(levels[2 * depth :])
             # depth_left 1: the next rays are made at every level (the last one's go unused)
             lvl, spawn = self.shade_level(ro, rd, None, 1, False, gate=True)
             for j in range(depth):
                 here = k == j
                 local[j] = dr.select(here, lvl.local, local[j])
                 ids[j] = dr.select(here, lvl.shape_id, ids[j])
+                if tree:
+                    codes[j] = dr.select(here, lvl.code, codes[j])
             k = k + 1
-            return (k, spawn & (k < depth), *lvl.record["next"], *local, *ids)
+            return (k, spawn & (k < depth), *lvl.record["next"], *local, *ids, *codes)
 
         state = dr.while_loop(
-            (k, active, ro, rd, *local, *ids), lambda k, active, *_: active, body, label="reflection levels"
+            (k, active, ro, rd, *local, *ids, *codes), lambda k, active, *_: active, body, label="reflection levels"
         )
-        local, ids = state[4 : 4 + depth], state[4 + depth :]
+        local, ids, codes = state[4 : 4 + depth], state[4 + depth : 4 + 2 * depth], state[4 + 2 * depth :]
         c = None
+        below = T.UInt(0)
         for j in range(depth - 1, -1, -1):  # back to front, as the wavefront's combining pass
             shape_id = ids[j]
+            reached = shape_id != -2
             cj = local[j] + self._material_term(shape_id, "reflection") * (zero3 if c is None else c)
             if self.effects.background:
                 cj = cj + self._background(shape_id >= 0)
-            c = dr.select(shape_id != -2, cj, zero3)
-        return c
+            c = dr.select(reached, cj, zero3)
+            if tree:
+                below = dr.select(reached, _tree_hash(T.UInt(codes[j]), below), T.UInt(0))
+        return c, below
 
     # ---- whole images -----------------------------------------------------------------------
     def _to_numpy3(self, a) -> np.ndarray:
@@ -1205,6 +1231,11 @@ class Tracer:
 # pixels costs ~350 MB above the finished image's NumPy buffers, and its kernels are long enough that
 # the per-tile overhead is small (tiles of 1 Mpixel cost < 5 % more time than one pass).
 TILE_PIXELS = 1 << 20
+
+
+def _tree_hash(code, below) -> Any:
+    """A ray's decisions (its level's code) and those of the tree below it (0: none), hashed (UInt32)."""
+    return code * 0x9E3779B1 ^ (below * 0x85EBCA6B + 0x27D4EB2F)
 
 
 def sqrt_bounds(r: float, dtype) -> tuple[float, float]:

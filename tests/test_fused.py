@@ -1,7 +1,8 @@
 """The one-kernel trace (``Tracer._trace_fused``: every reflection level in a Dr.Jit loop) against the
 wavefront (one kernel per level, rays compacted between them): the same buffers, bit for bit, wherever the
 two can differ -- every rule profile, both precisions, runtime rules, the shape table and its BVH, the
-supersampled path, and a first level read lazily after the colour."""
+diagnostics (ray-tree hashes, shadow margins), the supersampled path, and a first level read lazily after
+the colour."""
 
 from __future__ import annotations
 
@@ -20,21 +21,28 @@ from minirt.tracer import Tracer
 THREE_BALLS = Path(__file__).resolve().parent.parent / "scenes" / "three_balls.toml"
 
 
-def _buffers(tr: Tracer, wavefront: bool) -> dict[str, bytes]:
+def _buffers(tr: Tracer, wavefront: bool, tree: bool) -> dict[str, bytes]:
     o, d = tr.primary_rays()
     bufs: dict = {}
-    _, levels = tr.trace(o, d, out=bufs, wavefront=wavefront)
+    _, levels = tr.trace(o, d, out=bufs, wavefront=wavefront, tree=tree)
     dr.sync_thread()
     got = {k: np.asarray(v).tobytes() for k, v in bufs.items()}
     got["shape_id"] = np.asarray(levels[0].shape_id).tobytes()
+    if tree:  # the diagnostics: every decision of the ray tree, hashed, and the shadow rays' margins
+        got["tree"] = np.asarray(levels[0].record["tree"]).tobytes()
+        if "shadow_margin" in levels[0].record:  # scenes with shadows
+            got["shadow_margin"] = np.asarray(levels[0].record["shadow_margin"]).tobytes()
     return got
 
 
 def _differs(tr: Tracer) -> list[str]:
-    fused, wave = _buffers(tr, False), _buffers(tr, True)
-    assert set(fused) == set(wave)
-    assert len(fused["color"]) == 4 * 8 * tr.scene.camera.width * tr.scene.camera.height
-    return sorted(k for k in fused if fused[k] != wave[k])
+    bad = []
+    for tree in (False, True):
+        fused, wave = _buffers(tr, False, tree), _buffers(tr, True, tree)
+        assert set(fused) == set(wave)
+        assert len(fused["color"]) == 4 * 8 * tr.scene.camera.width * tr.scene.camera.height
+        bad += [f"{k} (tree {tree})" for k in sorted(fused) if fused[k] != wave[k]]
+    return bad
 
 
 @pytest.mark.parametrize("profile", list(PROFILES))
