@@ -194,6 +194,7 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
                 tr.render(terms=terms)
                 times.append(time.perf_counter() - t0)
             out[prec][kind] = _stats(times, px)
+    out["writes"] = _write_floor(px, cfg)
     # Thread scaling: the f64 trace kernel on one Dr.Jit worker thread against the default (every core).
     cores = dr.thread_count()
     tr = Tracer(sc, rules, precision="f64")
@@ -220,6 +221,36 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
     st = _stats(times, side * side * SAMPLES_SPP)
     out["samples"] = {"width": side, "height": side, "spp": SAMPLES_SPP, "render": st}
     return out
+
+
+def _write_floor(px: int, cfg: Config) -> dict[str, Any]:
+    """The memory side of the roofline for ``render()``: one kernel that computes nothing and writes the
+    buffers a full f64 render writes, in its layout -- colour, position, normal and five terms as (x, y, z,
+    0) float64 packets (``Tracer._scatter_out``), t as float64, the shape id as int32: 268 bytes a pixel.
+    A render can take no less than the longer of its trace and these writes."""
+    import drjit as dr
+
+    F64, A4, U32 = dr.llvm.Float64, dr.llvm.Array4f64, dr.llvm.UInt32
+    vectors = 8
+
+    def once() -> float:
+        bufs = [dr.empty(F64, 4 * px) for _ in range(vectors)]
+        dr.eval(bufs)
+        i = dr.arange(U32, px)
+        x = F64(i) * 1e-6
+        t0 = time.perf_counter()
+        for b in bufs:
+            dr.scatter(b, A4(x, x + 1, x + 2, 0.0), i)
+        t, ids = x + 3, dr.llvm.Int32(i)
+        dr.eval(t, ids)  # runs the scatters too: one kernel
+        dr.sync_thread()
+        return time.perf_counter() - t0
+
+    for _ in range(cfg.warmup):
+        once()
+    st = _stats([once() for _ in range(cfg.reps)], px)
+    nbytes = px * (vectors * 32 + 8 + 4)
+    return {"bytes": nbytes, "median_s": st["median_s"], "gb_s": nbytes / st["median_s"] / 1e9}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -638,6 +669,13 @@ def markdown(res: dict[str, Any]) -> str:
                      f"{_f(npy['speedup'][f'{kind}_{prec}'], 3)}x |")  # fmt: skip
     L.append(f"| NumPy f64 | whole model | {_f(npy['median_s'], 4)} | {_f(npy['min_s'], 4)} | "
              f"{_f(npy['mpix_s'], 3)} | 1x |")  # fmt: skip
+    if "writes" in ref:
+        w, tr64 = ref["writes"], ref["f64"]
+        floor = max(tr64["trace"]["median_s"], w["median_s"])
+        L += ["", f"Memory roofline of `render()`: its buffers alone ({w['bytes'] / 1e6:.0f} MB, a kernel that "
+              f"only writes them) take {_f(w['median_s'], 4)} s ({_f(w['gb_s'], 3)} GB/s); a render takes at least the "
+              f"longer of that and the trace: {_f(floor, 4)} s, {_f(floor / tr64['trace']['median_s'], 3)}x the trace "
+              f"(measured: {_f(tr64['render']['median_s'] / tr64['trace']['median_s'], 3)}x)."]  # fmt: skip
     smp = ref["samples"]
     L += ["", f"Supersampled: {smp['width']}x{smp['height']} at {smp['spp']} rays per pixel, whole f64 render: "
           f"median {_f(smp['render']['median_s'], 4)} s, {_f(smp['render']['mpix_s'], 3)} M rays/s."]  # fmt: skip

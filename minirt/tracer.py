@@ -5,10 +5,13 @@ Structure follows the problem set: ``Ball`` and ``Plane`` each ``intersect`` a r
 (here :meth:`Tracer.trace`) adds ambient, the shadow-tested diffuse and specular terms, the
 reflection and the background, in the pseudo-code's order.
 
-The recursion is traced as a wavefront: one fused kernel per reflection level over all rays of that
-level, then only the rays that hit something reflective are compacted (``dr.compress``) into the
-next level. Colours are combined back to front, ``c = local + kr * c_child``, which is exactly the
-recursive form's arithmetic. Dr.Jit's FastMath is switched off while tracing: the NaN/inf guards
+The recursion runs in one kernel: the first level in straight-line code, the reflections in a Dr.Jit
+loop, each packet of rays skipping what none of its rays needs (``Tracer._trace_fused``). Above
+``WAVEFRONT_MIN_BALLS`` balls, and for recorded levels, it is traced as a wavefront instead: one kernel
+per reflection level over all rays of that level, then only the rays that hit something reflective are
+compacted (``dr.compress``) into the next level. Either way colours are combined back to front,
+``c = local + kr * c_child``, which is exactly the recursive form's arithmetic, and the two give the
+same bits. Dr.Jit's FastMath is switched off while tracing: the NaN/inf guards
 below and the stable intersection forms rely on IEEE semantics.
 
 Numerics (see "Numerics" in the README and the notes in the code):
@@ -715,14 +718,16 @@ class Tracer:
         tree: bool = False,
         out: dict[str, Any] | None = None,
         terms: Collection[str] | None = None,
-        wavefront: bool = False,
+        path: str = "auto",
     ) -> tuple[Any, list[Level]]:
         """TraceRay for a batch: returns the colour of each ray and its levels (the first level's rays,
         hits and terms first).
 
-        Without ``record`` or ``tree`` every level runs in one kernel (``_trace_fused``); with them, or
-        ``wavefront``, each level is a kernel of its own (a wavefront), whose levels keep what the
-        diagnostics read. The same operations on the same values either way, so the same bits (tested).
+        ``path`` "fused": every level in one kernel (``_trace_fused``); "wavefront": each level a kernel
+        of its own, the rays that go on compacted between them; "auto": the wavefront with ``record``
+        (whose levels keep every ray's values) and from ``WAVEFRONT_MIN_BALLS`` balls (a tree's traversal
+        then costs most, and runs faster over compacted, coherent packets), else fused. The same
+        operations on the same values either way, so the same bits (tested).
 
         Memory traffic is what limits a wavefront, so each level writes only what is read later:
         every level its hit ids and local colour (the reflection colour and the background are
@@ -737,7 +742,14 @@ class Tracer:
         ``record``). ``terms``: the names of the terms written to ``out`` (default every term the
         effects compute); the others still add to the colour, but their 32 bytes a ray are never written.
         """
-        if not (record or wavefront):
+        if path not in ("auto", "fused", "wavefront"):
+            raise ValueError(f"unknown path {path!r} (auto, fused, wavefront)")
+        if path == "auto":
+            many = self.table is not None and self.table.n_balls >= WAVEFRONT_MIN_BALLS
+            path = "wavefront" if record or many else "fused"
+        if path == "fused":
+            if record:
+                raise ValueError("record needs the wavefront path")
             return self._trace_fused(o, d, out, terms, tree)
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))  # the first level's
@@ -1300,6 +1312,12 @@ DIAGNOSTICS = {
 # From this many shapes on, "auto" traces through the shape table and the BVH (measured: benchmarks/bench_scale.py).
 ACCEL_MIN_SHAPES = 16
 ACCELS = ("unrolled", "bvh", "loop")
+# From this many balls (through the shape table) Tracer.trace runs as a wavefront: the one-kernel trace's
+# packets carry rays that stopped reflecting through every later level's tree traversal, which costs more
+# than compacting them away once traversal dominates. Measured, 512^2, max_depth 3, warm trace, fused /
+# wavefront: 16 balls 24.8 / 30.9 ms, 128: 84 / 92, 256: 134 / 140, 512: 188 / 177, 1,024: 285 / 247,
+# 10,000: 804 / 597.
+WAVEFRONT_MIN_BALLS = 384
 
 F32_LIMIT = 1e18  # squares stay below float32's max (3.4e38); reciprocals above its min normal
 

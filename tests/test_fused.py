@@ -21,10 +21,10 @@ from minirt.tracer import Tracer
 THREE_BALLS = Path(__file__).resolve().parent.parent / "scenes" / "three_balls.toml"
 
 
-def _buffers(tr: Tracer, wavefront: bool, tree: bool) -> dict[str, bytes]:
+def _buffers(tr: Tracer, path: str, tree: bool) -> dict[str, bytes]:
     o, d = tr.primary_rays()
     bufs: dict = {}
-    _, levels = tr.trace(o, d, out=bufs, wavefront=wavefront, tree=tree)
+    _, levels = tr.trace(o, d, out=bufs, path=path, tree=tree)
     dr.sync_thread()
     got = {k: np.asarray(v).tobytes() for k, v in bufs.items()}
     got["shape_id"] = np.asarray(levels[0].shape_id).tobytes()
@@ -38,7 +38,7 @@ def _buffers(tr: Tracer, wavefront: bool, tree: bool) -> dict[str, bytes]:
 def _differs(tr: Tracer) -> list[str]:
     bad = []
     for tree in (False, True):
-        fused, wave = _buffers(tr, False, tree), _buffers(tr, True, tree)
+        fused, wave = _buffers(tr, "fused", tree), _buffers(tr, "wavefront", tree)
         assert set(fused) == set(wave)
         assert len(fused["color"]) == 4 * 8 * tr.scene.camera.width * tr.scene.camera.height
         bad += [f"{k} (tree {tree})" for k in sorted(fused) if fused[k] != wave[k]]
@@ -73,7 +73,7 @@ def test_supersampled_same_bits(monkeypatch):
     scene = load_scene(THREE_BALLS).with_overrides(width=24, height=24, samples=4)
     rules = resolve(scene)
     fused = Tracer(scene, rules).render(diagnostics=False)
-    monkeypatch.setattr(Tracer, "trace", partialmethod(Tracer.trace, wavefront=True))
+    monkeypatch.setattr(Tracer, "trace", partialmethod(Tracer.trace, path="wavefront"))
     wave = Tracer(scene, rules).render(diagnostics=False)
     assert fused.color.tobytes() == wave.color.tobytes()
     assert {k: v.tobytes() for k, v in fused.terms.items()} == {k: v.tobytes() for k, v in wave.terms.items()}
@@ -90,8 +90,23 @@ def test_first_level_read_after_the_colour():
     dr.eval(c)
     late = [np.asarray(levels[0].t), np.asarray(levels[0].n[1]), np.asarray(levels[0].terms["reflection"][0])]
     o, d = tr.primary_rays()
-    cw, wave = tr.trace(o, d, wavefront=True)
+    cw, wave = tr.trace(o, d, path="wavefront")
     assert np.asarray(c[0]).tobytes() == np.asarray(cw[0]).tobytes()
     ref = [np.asarray(wave[0].t), np.asarray(wave[0].n[1]), np.asarray(wave[0].terms["reflection"][0])]
     assert [a.tobytes() for a in late] == [b.tobytes() for b in ref]
     assert (np.asarray(wave[0].terms["reflection"][0]) != 0).any()  # the reflections are there to compare
+
+
+def test_auto_picks_the_wavefront_for_many_balls():
+    """From WAVEFRONT_MIN_BALLS balls a trace is a wavefront (a level per kernel: its levels are returned),
+    below it one kernel (the first level only); record always needs the wavefront."""
+    from minirt.tracer import WAVEFRONT_MIN_BALLS
+
+    levels = {}
+    for n in (WAVEFRONT_MIN_BALLS - 1, WAVEFRONT_MIN_BALLS):
+        tr = Tracer(parse_scene(balls_scene(n, seed=3, width=16, height=16)), PROFILES["exercise"])
+        o, d = tr.primary_rays()
+        levels[n] = len(tr.trace(o, d)[1])
+    assert levels == {WAVEFRONT_MIN_BALLS - 1: 1, WAVEFRONT_MIN_BALLS: 4}
+    with pytest.raises(ValueError, match="record"):
+        tr.trace(*tr.primary_rays(), record=True, path="fused")
