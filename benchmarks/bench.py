@@ -230,8 +230,10 @@ def _write_floor(px: int, cfg: Config) -> dict[str, Any]:
     A render can take no less than the longer of its trace and these writes."""
     import drjit as dr
 
+    from minirt.result import TERMS
+
     F64, A4, U32 = dr.llvm.Float64, dr.llvm.Array4f64, dr.llvm.UInt32
-    vectors = 8
+    vectors = 3 + len(TERMS)  # colour, position, normal and the terms
 
     def once() -> float:
         bufs = [dr.empty(F64, 4 * px) for _ in range(vectors)]

@@ -217,24 +217,24 @@ class Tracer:
         return r, f, b, dr.dot(g, g)
 
     @staticmethod
-    def _ball_disc_c(r, f, gg) -> tuple[Any, Any]:
-        """r^2 - |g|^2 (the discriminant over 4) and c = |f|^2 - r^2 = (|f| - r)(|f| + r).
-
-        The discriminant is one fused multiply-add: r^2 exact inside it, minus a once-rounded squared
-        length. What removes the textbook form's cancellation there is g = f - (f·d) d (the ray's length
-        is gone before anything is squared), not the factored (r - |g|)(r + |g|), which errs by the same
-        ~2u |g|^2 and costs a square root per ball and ray.
-
-        c keeps its factored form on purpose: a secondary ray that starts on the ball (an offset of 0, or
-        one below the hit point's rounding) has |f| within a few ulps of r, and the rounded square root
-        often snaps to r itself, c = 0 exactly: the near root is exactly 0 (not t > 0) and the ray does
-        not meet its own surface there. |f|^2 - r^2 in one fused multiply-add would give c the sign of the last
-        bit of |f|^2 instead -- a coin toss between self-hit and not at every such point (acne), and one
-        that another tracer's arithmetic tosses differently (tests/test_diagnose.py's offset 0)."""
-        return dr.fma(r, r, -gg), Tracer._ball_c(r, f)
+    def _ball_disc(r, gg) -> Any:
+        """r^2 - |g|^2, the discriminant over 4 (gg = |g|^2, ``_ball_ray``): one fused multiply-add, r^2
+        exact inside it, minus a once-rounded squared length. What removes the textbook form's
+        cancellation is g = f - (f·d) d (the ray's length is gone before anything is squared), not the
+        factored (r - |g|)(r + |g|), which errs by the same ~2u |g|^2 and costs a square root per ball
+        and ray."""
+        return dr.fma(r, r, -gg)
 
     @staticmethod
     def _ball_c(r, f) -> Any:
+        """c = |f|^2 - r^2 = (|f| - r)(|f| + r), the roots' product.
+
+        The factored form on purpose: a secondary ray that starts on the ball (an offset of 0, or one
+        below the hit point's rounding) has |f| within a few ulps of r, and the rounded square root
+        often snaps to r itself, c = 0 exactly: the near root is exactly 0 (not t > 0) and the ray does
+        not meet its own surface there. |f|^2 - r^2 in one fused multiply-add would give c the sign of the
+        last bit of |f|^2 instead -- a coin toss between self-hit and not at every such point (acne), and
+        one that another tracer's arithmetic tosses differently (tests/test_diagnose.py's offset 0)."""
         lf = dr.sqrt(dr.squared_norm(f))  # dr.norm(f), spelt out: _ball_occludes reads |f|^2 alone
         return (lf - r) * (lf + r)
 
@@ -249,7 +249,7 @@ class Tracer:
         the ray meeting the ball (disc >= 0), which a packet of rays that all pass it skips; a miss is
         inf either way, so the same bits."""
         r, f, b, gg = self._ball_ray(center, radius, o, d)
-        disc = dr.fma(r, r, -gg)  # r^2 - |f - (f·d) d|^2: no cancellation (_ball_disc_c)
+        disc = self._ball_disc(r, gg)
         hit = disc >= 0
         if not gate:
             return self._ball_roots(r, f, b, disc, hit)
@@ -257,7 +257,7 @@ class Tracer:
 
     def _ball_roots(self, r, f, b, disc, hit) -> Any:
         F = self.T.Float
-        c = self._ball_c(r, f)  # |f|^2 - r^2, factored (_ball_disc_c)
+        c = self._ball_c(r, f)
         sq = dr.sqrt(dr.maximum(disc, 0))
         q = -(b + dr.copysign(sq, b))  # Vieta: never subtracts nearly equal numbers
         q_ok = q != 0  # q = 0 only for a ray starting on the surface, tangent: both roots 0
@@ -530,19 +530,18 @@ class Tracer:
         scene's 1e-100 limits and the ray offsets exclude."""
         r, f, b, gg = self._ball_ray(center, radius, o, d)
         if bounds is None:
-            disc, c = self._ball_disc_c(r, f, gg)
+            c = self._ball_c(r, f)
             c_pos, c_neg, c_zero = c > 0, c < 0, c == 0
         else:
             # The sign of c = (|f| - r)(|f| + r) is that of |f| - r, |f| = sqrt(|f|^2) correctly rounded,
             # which is monotone: |f| > r iff |f|^2 > hi, |f| < r iff |f|^2 < lo (``sqrt_bounds``). The
             # same decisions without the square root. (The product cannot underflow to 0: |f| - r is 0 or
             # at least an ulp of r, and r > 1e-100.)
-            disc = dr.fma(r, r, -gg)
             ff = dr.squared_norm(f)
             lo, hi = bounds
             c_pos, c_neg = ff > hi, ff < lo
             c_zero = (ff >= lo) & (ff <= hi)
-        hit = disc >= 0
+        hit = self._ball_disc(r, gg) >= 0
         both = c_pos & (b < 0)
         nro = self._rule(self.rules.near_root_only)
         if nro is True:
@@ -596,8 +595,8 @@ class Tracer:
         def on_hit(o, d, shape_id, hit, t):
             lvl, spawn = self._shade(o, d, None, shape_id, hit, t, depth_left, False, False)
             ro, rd = lvl.record["next"] if spawns else (zero, zero)
-            out = lvl.p, lvl.n, lvl.local, lvl.kr, [lvl.terms[k] for k in names], ro, rd, spawn if spawns else hit
-            return *out, lvl.code
+            terms = [lvl.terms[k] for k in names]
+            return lvl.p, lvl.n, lvl.local, lvl.kr, terms, ro, rd, spawn if spawns else hit, lvl.code
 
         def on_miss(o, d, shape_id, hit, t):
             p = o + dr.select(hit, t, 0) * d  # hit_point_and_normal's p of a miss
@@ -873,9 +872,8 @@ class Tracer:
                 extra = [lvl.record[k] for k in ("tree", "shadow_margin") if k in lvl.record]
             if out is None:  # lazy: the caller evaluates what it reads with the colour, in one kernel
                 return c, [lvl]
-            names = ("ambient", "diffuse", "specular", "reflection", "background")
             vectors = {"color": c, "position": lvl.p, "normal": lvl.n} | {
-                "term." + k: lvl.terms[k] for k in names if k in lvl.terms and (terms is None or k in terms)
+                "term." + k: lvl.terms[k] for k in TERMS if k in lvl.terms and (terms is None or k in terms)
             }
             self._scatter_out(out, vectors, rays, lvl.shape_id >= 0, masked=("position", "normal"))
             out["t"] = dr.llvm.Float64(lvl.t)
@@ -1066,9 +1064,9 @@ class Tracer:
         the same bits as one pass (tested). For images too big to hold at all, write the tiles as they
         come (``minirt.imageio.write_tiles``).
 
-        ``terms``: the terms the result holds (default all of ``TERMS``). Each costs the kernels 24 bytes
-        a pixel of writes (a float64 3-vector); a caller that reads only some asks for those: the colour
-        and the terms asked for are the same bits either way (tested)."""
+        ``terms``: the terms the result holds (default all of ``TERMS``). Each costs the kernels 32 bytes
+        a pixel of writes (a float64 3-vector as a 4-packet, ``_scatter_out``); a caller that reads only
+        some asks for those: the colour and the terms asked for are the same bits either way (tested)."""
         sc = self.scene
         w, h = sc.camera.width, sc.camera.height
         rows = tile_rows(w, tile_pixels)
