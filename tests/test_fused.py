@@ -13,6 +13,7 @@ import drjit as dr
 import numpy as np
 import pytest
 
+from minirt import tracer
 from minirt.generate import balls_scene
 from minirt.rules import PROFILES, resolve
 from minirt.scene import load_scene, parse_scene
@@ -36,12 +37,18 @@ def _buffers(tr: Tracer, path: str, tree: bool) -> dict[str, bytes]:
 
 
 def _differs(tr: Tracer) -> list[str]:
+    """What differs from the wavefront's buffers in either form of the one kernel: the first level in the
+    loop (below ``LOOP_FIRST_LEVEL_BELOW`` rays) or before it in straight-line code."""
     bad = []
     for tree in (False, True):
-        fused, wave = _buffers(tr, "fused", tree), _buffers(tr, "wavefront", tree)
-        assert set(fused) == set(wave)
-        assert len(fused["color"]) == 4 * 8 * tr.scene.camera.width * tr.scene.camera.height
-        bad += [f"{k} (tree {tree})" for k in sorted(fused) if fused[k] != wave[k]]
+        wave = _buffers(tr, "wavefront", tree)
+        for form, below in (("looped", 1 << 62), ("straight", 0)):
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
+                fused = _buffers(tr, "fused", tree)
+            assert set(fused) == set(wave)
+            assert len(fused["color"]) == 4 * 8 * tr.scene.camera.width * tr.scene.camera.height
+            bad += [f"{k} ({form}, tree {tree})" for k in sorted(fused) if fused[k] != wave[k]]
     return bad
 
 
@@ -69,7 +76,12 @@ def test_random_scenes_same_bits(n, accel):
         assert _differs(tr) == [], profile
 
 
-def test_supersampled_same_bits(monkeypatch):
+FORMS = pytest.mark.parametrize("below", [1 << 62, 0], ids=["looped", "straight"])
+
+
+@FORMS
+def test_supersampled_same_bits(monkeypatch, below):
+    monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
     scene = load_scene(THREE_BALLS).with_overrides(width=24, height=24, samples=4)
     rules = resolve(scene)
     fused = Tracer(scene, rules).render(diagnostics=False)
@@ -80,9 +92,11 @@ def test_supersampled_same_bits(monkeypatch):
     assert {k: v.tobytes() for k, v in fused.aux.items()} == {k: v.tobytes() for k, v in wave.aux.items()}
 
 
-def test_first_level_read_after_the_colour():
+@FORMS
+def test_first_level_read_after_the_colour(monkeypatch, below):
     """Without ``out`` the fused trace is lazy: the first level's arrays evaluated later (a kernel of
     their own) carry the wavefront's bits."""
+    monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
     scene = load_scene(THREE_BALLS).with_overrides(width=32, height=32)
     tr = Tracer(scene, resolve(scene))
     o, d = tr.primary_rays()
@@ -110,3 +124,20 @@ def test_auto_picks_the_wavefront_for_many_balls():
     assert levels == {WAVEFRONT_MIN_BALLS - 1: 1, WAVEFRONT_MIN_BALLS: 4}
     with pytest.raises(ValueError, match="record"):
         tr.trace(*tr.primary_rays(), record=True, path="fused")
+
+
+def test_the_looped_form_holds_the_shading_once(monkeypatch):
+    """Below LOOP_FIRST_LEVEL_BELOW rays the first level is the loop's first iteration, so the kernel holds
+    the intersection and shading code once, not twice: measured in Dr.Jit operations (what LLVM compiles),
+    a render's kernel has well under the straight-line form's (three_balls: ~910 against ~1,380)."""
+    assert 256 < tracer.LOOP_FIRST_LEVEL_BELOW <= 1024 * 1024  # tests' images loop; 1024^2 runs straight
+    scene = load_scene(THREE_BALLS).with_overrides(width=16, height=16)
+    ops = {}
+    for form, below in (("looped", 1 << 62), ("straight", 0)):
+        monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()
+            Tracer(scene, resolve(scene)).render()
+            kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+        ops[form] = max(k["operation_count"] for k in kernels)
+    assert ops["looped"] < 0.75 * ops["straight"], ops
