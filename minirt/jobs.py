@@ -197,6 +197,10 @@ def _client(workers: int, scheduler: str | None) -> Iterator[Any]:
             processes=True,
             host="127.0.0.1",
             dashboard_address=None,
+            # Without a dashboard the scheduler still serves its health routes over HTTP, by default on
+            # every interface at port 8787 (a second run warns "Port 8787 is already in use"): here a free
+            # port on the loopback interface, like the scheduler itself.
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
             silence_logs=logging.ERROR,
         ) as cluster,
         Client(cluster) as client,

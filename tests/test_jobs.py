@@ -5,7 +5,9 @@ of the run."""
 from __future__ import annotations
 
 import os
+import socket
 import time
+import warnings
 
 import pytest
 
@@ -73,6 +75,24 @@ def test_local_workers_in_order_errors_and_crashes():
     assert sorted(done) == [0, 1, 2, 4]
     got = jobs.run(dies_on_two, list(range(4)), workers=2, on_error=lambda item, msg: msg)
     assert got[0] == 0 and got[1] == 1 and got[3] == 3 and "died" in got[2]
+
+
+def test_a_busy_dashboard_port_is_not_touched():
+    """A local cluster serves its scheduler's HTTP routes on a free loopback port, not on 8787 of every
+    interface: with 8787 taken (here, or by whoever has it) it neither warns nor moves elsewhere."""
+    busy = socket.socket()
+    try:
+        busy.bind(("", 8787))
+        busy.listen()
+    except OSError:
+        pass  # someone else holds it: as busy as it gets
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            assert jobs.run(slow_square, [1, 2], workers=2) == [1, 4]
+    finally:
+        busy.close()
+    assert [str(w.message) for w in caught if "8787" in str(w.message)] == []
 
 
 @pytest.mark.slow
