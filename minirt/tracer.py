@@ -750,8 +750,7 @@ class Tracer:
         if path not in ("auto", "fused", "wavefront"):
             raise ValueError(f"unknown path {path!r} (auto, fused, wavefront)")
         if path == "auto":
-            many = self.table is not None and self.table.n_balls >= WAVEFRONT_MIN_BALLS
-            path = "wavefront" if record or many else "fused"
+            path = self._path(record)
         if path == "fused":
             if record:
                 raise ValueError("record needs the wavefront path")
@@ -827,6 +826,11 @@ class Tracer:
                     dr.eval(c, *extra)
                 child = c
             return child, levels
+
+    def _path(self, record: bool) -> str:
+        """The path ``trace(path="auto")`` takes."""
+        many = self.table is not None and self.table.n_balls >= WAVEFRONT_MIN_BALLS
+        return "wavefront" if record or many else "fused"
 
     def _trace_fused(
         self, o, d, out: dict[str, Any] | None, terms: Collection[str] | None, tree: bool = False
@@ -1326,26 +1330,28 @@ class Tracer:
         y1 = sc.camera.height if y1 is None else y1
         h = y1 - y0
         pixels = None if (y0, y1) == (0, sc.camera.height) else np.arange(y0 * w, y1 * w, dtype=np.uint32)
-        A64 = dr.llvm.Array3f64
+        count = w * h
+        # Samples per kernel: as many as SAMPLE_BATCH_BYTES of sub-pixel offsets hold (16 bytes a ray), on
+        # the one-kernel trace (the wavefront's levels are kernels of their own: a sample each).
+        per = max(1, SAMPLE_BATCH_BYTES // (16 * count)) if self._path(False) == "fused" else 1
         sums: dict[str, Any] = {}
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
-            for s in range(n):
-                u, v = camera.sample_offsets(n, s, w * h, start=y0 * w)
-                c, levels = self.trace(*self._sample_rays(u, v, pixels))
-                add = {"color": A64(c)} | {"term." + k: A64(v) for k, v in levels[0].terms.items() if k in terms}
-                add["color2"] = add["color"] * add["color"]
-                if "term.diffuse" in add:
-                    add["diffuse2"] = add["term.diffuse"] * add["term.diffuse"]
-                if falloff and "term.diffuse" in add:
-                    lvl = levels[0]
-                    to_light = A64(lvl.p) - A64(*self.scene.light.position)
-                    r2 = dr.squared_norm(to_light)
-                    add["diffuse_r2"] = dr.select((lvl.shape_id >= 0) & (r2 > 0), add["term.diffuse"] / r2, 0.0)
-                    add["diffuse_r2_2"] = add["diffuse_r2"] * add["diffuse_r2"]
-                sums = add if s == 0 else {k: sums[k] + add[k] for k in add}
-                dr.eval(sums)  # one small kernel per sample; the graph never grows
+            s = 0
+            while s < n:
+                b = min(per, n - s)
+                if per == 1:
+                    u, v = camera.sample_offsets(n, s, count, start=y0 * w)
+                    add = self._sample_terms(*self._sample_rays(u, v, pixels), terms, falloff)
+                    sums = add if s == 0 else {k: sums[k] + add[k] for k in add}
+                else:
+                    uv = np.empty((b, count, 2))
+                    for j in range(b):
+                        camera.sample_offsets_into(uv[j], n, s + j, start=y0 * w)
+                    sums = self._sample_batch(uv, pixels, terms, falloff, sums)
+                dr.eval(sums)  # one kernel per batch of samples; the graph never grows
+                s += b
                 if progress:
-                    progress(s + 1, n)
+                    progress(s, n)
         got = {k: v.reshape(h * w, 3) for k, v in self._interleave(w, h, sums).items()}
         mean = got["color"] / n
         terms = {k[5:]: (v / n).reshape(h, w, 3) for k, v in got.items() if k.startswith("term.")}
@@ -1359,9 +1365,55 @@ class Tracer:
             aux["variance_diffuse_r2"] = (np.maximum(got["diffuse_r2_2"] - n * fm * fm, 0.0) / (n - 1)).reshape(h, w, 3)
         return mean.reshape(h, w, 3), terms, aux
 
-    def _sample_rays(self, u: np.ndarray, v: np.ndarray, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
+    def _sample_terms(self, o, d, terms: Collection[str], falloff: bool) -> dict[str, Any]:
+        """What one sample adds to ``_render_samples``' sums (Dr.Jit float64 3-vectors, lazy)."""
+        A64 = dr.llvm.Array3f64
+        c, levels = self.trace(o, d)
+        add = {"color": A64(c)} | {"term." + k: A64(v) for k, v in levels[0].terms.items() if k in terms}
+        add["color2"] = add["color"] * add["color"]
+        if "term.diffuse" in add:
+            add["diffuse2"] = add["term.diffuse"] * add["term.diffuse"]
+        if falloff and "term.diffuse" in add:
+            lvl = levels[0]
+            to_light = A64(lvl.p) - A64(*self.scene.light.position)
+            r2 = dr.squared_norm(to_light)
+            add["diffuse_r2"] = dr.select((lvl.shape_id >= 0) & (r2 > 0), add["term.diffuse"] / r2, 0.0)
+            add["diffuse_r2_2"] = add["diffuse_r2"] * add["diffuse_r2"]
+        return add
+
+    def _sample_batch(self, uv: np.ndarray, pixels, terms: Collection[str], falloff: bool, sums: dict[str, Any]):
+        """``sums`` plus the samples whose sub-pixel offsets are ``uv`` ((samples, rays, 2) float64, from
+        ``camera.sample_offsets_into``), summed in a Dr.Jit loop in one kernel: the sums stay in registers
+        from one sample to the next instead of a kernel per sample reading and writing them (240 bytes a
+        ray), and Python builds the trace's graph once. Sums start from +0.0 (``sums`` empty): 0 + x is x
+        but for the sign of a zero, which ``_interleave`` makes canonical anyway, so the same bits as a
+        kernel per sample."""
+        F64, U32, A64 = dr.llvm.Float64, dr.llvm.UInt32, dr.llvm.Array3f64
+        count = uv.shape[1]
+        flat = F64(uv.reshape(-1))
+        i = dr.arange(U32, count)
+        if not sums:  # the names one sample adds: traced for their names only, never evaluated
+            names = list(self._sample_terms(*self._sample_rays(uv[0, :1, 0], uv[0, :1, 1]), terms, falloff))
+            sums = {k: A64(dr.zeros(F64, count), dr.zeros(F64, count), dr.zeros(F64, count)) for k in names}
+        names = list(sums)
+
+        def body(j, *acc):
+            at = 2 * (j * count + i)
+            o, d = self._sample_rays(dr.gather(F64, flat, at), dr.gather(F64, flat, at + 1), pixels)
+            add = self._sample_terms(o, d, terms, falloff)
+            return (j + 1, *(a + add[k] for a, k in zip(acc, names, strict=True)))
+
+        state = dr.while_loop(
+            (dr.zeros(U32, count), *sums.values()),
+            lambda j, *_: j < dr.opaque(U32, uv.shape[0]),
+            body,
+            label="samples",
+        )
+        return dict(zip(names, state[1:], strict=True))
+
+    def _sample_rays(self, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
         """camera.rays_through(scene, rules, u, v) in Dr.Jit: float64 like NumPy (so the same bits), then
-        rounded to the tracer's precision as ``_load`` would."""
+        rounded to the tracer's precision as ``_load`` would. u, v: NumPy or Dr.Jit float64 arrays."""
         F64 = dr.llvm.Float64
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             o, d = self._rays(F64, dr.llvm.Array3f64, F64(u), F64(v), pixels)
@@ -1386,6 +1438,11 @@ TILE_PIXELS = 1 << 20
 # camera's constant origin into its arithmetic), so from 2^18 rays -- where a launch costs milliseconds
 # and the kernel is compiled once for many -- the trace keeps it.
 LOOP_FIRST_LEVEL_BELOW = 1 << 18
+
+# Sub-pixel offsets per kernel of a supersampled render (``_sample_batch``), 16 bytes a ray: 1 Mi rays, 4
+# samples of 512^2 a kernel (512^2 at 16 samples, three_balls: 142 ms a sample a kernel; 117, 112, 127 ms
+# at 32, 16, 8 MiB a batch -- smaller batches let NumPy draw the next offsets while a kernel runs).
+SAMPLE_BATCH_BYTES = 1 << 24
 
 
 def _tree_hash(code, below) -> Any:

@@ -86,6 +86,7 @@ def test_supersampled_same_bits(monkeypatch, below):
     rules = resolve(scene)
     fused = Tracer(scene, rules).render(diagnostics=False)
     monkeypatch.setattr(Tracer, "trace", partialmethod(Tracer.trace, path="wavefront"))
+    monkeypatch.setattr(tracer, "SAMPLE_BATCH_BYTES", 0)  # a kernel per sample: the wavefront's levels are kernels
     wave = Tracer(scene, rules).render(diagnostics=False)
     assert fused.color.tobytes() == wave.color.tobytes()
     assert {k: v.tobytes() for k, v in fused.terms.items()} == {k: v.tobytes() for k, v in wave.terms.items()}

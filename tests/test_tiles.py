@@ -136,3 +136,22 @@ def test_render_to_files_streams_a_large_image(tmp_path, monkeypatch):
     assert res_a.color is not None and res_b.color is None and res_b.ok
     for key in ("png", "exr", "json"):
         assert a[key].read_bytes() == b[key].read_bytes(), key
+
+
+@pytest.mark.parametrize("precision", ["f64", "f32"])
+@pytest.mark.parametrize("tile", [None, 31 * 5])
+def test_samples_batched_in_one_kernel_same_bits(monkeypatch, precision, tile):
+    """Supersampling sums a batch of samples in one kernel (tracer.SAMPLE_BATCH_BYTES); the same bits as a
+    kernel per sample: 7 samples as batches of 3 (the last one 1), with the diagnostics' falloff sums,
+    whole and in tiles, and the first sample's offsets where a tile starts (camera.sample_offsets_into)."""
+    from minirt import tracer
+
+    scene = load_scene("scenes/soft.toml").with_overrides(width=31, height=17, samples=7)
+    rules = resolve(scene)
+    monkeypatch.setattr(tracer, "SAMPLE_BATCH_BYTES", 0)  # a kernel per sample
+    one = Tracer(scene, rules, precision).render(diagnostics=True, tile_pixels=tile)
+    monkeypatch.setattr(tracer, "SAMPLE_BATCH_BYTES", 16 * 31 * 17 * 3)  # 3 samples a kernel
+    batched = Tracer(scene, rules, precision).render(diagnostics=True, tile_pixels=tile)
+    assert {"variance", "variance_diffuse", "diffuse_r2"} <= set(batched.aux)
+    assert _same(one, batched) == []
+    assert (batched.aux["variance"] > 0).any()  # the samples differ: there is something to sum
