@@ -319,7 +319,7 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
             r = dr.gather(F, tab.b_radius, k, on)
             if blocks is None:
                 sid = dr.gather(Int, tab.b_id, k, on)
-                tk = tracer._ball_t(c, r, o, d)
+                tk = tracer._ball_t(c, r, o, d, gate=True)  # a packet all of whose rays pass the ball skips its roots
                 closer = on & ((tk < t_best) | ((tk == t_best) & (sid < id_best)))
                 t_best = dr.select(closer, tk, t_best)
                 id_best = dr.select(closer, sid, id_best)
