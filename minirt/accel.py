@@ -37,6 +37,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
+from minirt.jitmem import aligned
 from minirt.scene import Ball, Plane, Scene
 
 LEAF = 1  # balls per leaf at most. Every loop iteration pays for LEAF masked ball tests, leaf or not: 1 is
@@ -142,32 +143,36 @@ class ShapeTable:
 
     def __init__(self, scene: Scene, T: Any, with_tree: bool = True):
         self.T = T
-        F, I3 = T.Float, T.Array3
+        I3 = T.Array3
         shapes = scene.shapes
         dt = T.np_dtype
+
+        def F(a) -> Any:  # every array at a 64-byte boundary: see minirt.jitmem
+            return T.Float(aligned(a, dt))
+
         balls = [(k, s) for k, s in enumerate(shapes) if isinstance(s, Ball)]
         planes = [(k, s) for k, s in enumerate(shapes) if isinstance(s, Plane)]
         self.n_balls, self.n_planes = len(balls), len(planes)
 
         def a3(rows: list) -> Any:
             a = np.asarray(rows, dtype=np.float64).reshape(-1, 3).astype(dt)
-            return I3(*(F(np.ascontiguousarray(a[:, i])) for i in range(3)))
+            return I3(*(F(a[:, i]) for i in range(3)))
 
         u = T.u
         self.material = {
             name: a3([getattr(s.material, name) for s in shapes])
             for name in ("ambient", "diffuse", "specular", "reflection")
         }
-        self.is_ball = T.Bool(np.array([isinstance(s, Ball) for s in shapes], dtype=bool))
+        self.is_ball = T.Bool(aligned([isinstance(s, Ball) for s in shapes], bool))
         self.center = a3([s.center if isinstance(s, Ball) else (0.0, 0.0, 0.0) for s in shapes])
         self.plane_normal = a3([s.normal if isinstance(s, Plane) else (0.0, 0.0, 0.0) for s in shapes])
         radius = np.array([s.radius if isinstance(s, Ball) else 1.0 for s in shapes], dtype=dt)
         self.radius = F(radius)
         self.inv_radius = F(dt(1.0) / radius)  # the kernel's 1.0 / r, element by element: the same bits
-        self.err_factor = F(np.array([gamma(6, u) if isinstance(s, Ball) else gamma(4, u) for s in shapes], dtype=dt))
-        self.err_length = F(np.array([s.radius if isinstance(s, Ball) else abs(s.distance) for s in shapes], dtype=dt))
+        self.err_factor = F([gamma(6, u) if isinstance(s, Ball) else gamma(4, u) for s in shapes])
+        self.err_length = F([s.radius if isinstance(s, Ball) else abs(s.distance) for s in shapes])
         # Planes, in id order.
-        self.p_id = T.Int(np.array([k for k, _ in planes], dtype=np.int32))
+        self.p_id = T.Int(aligned([k for k, _ in planes], np.int32))
         self.p_normal = a3([s.normal for _, s in planes])
         self.p_point = a3([s.point for _, s in planes])
         # Balls, in BVH order.
@@ -180,9 +185,9 @@ class ShapeTable:
             center, radius, ids = center[order], radius[order], ids[order]
             self.tree = tree
             self._tree_arrays(tree)
-        self.b_id = T.Int(ids)
+        self.b_id = T.Int(aligned(ids, np.int32))
         self.b_center = a3(center)
-        self.b_radius = F(radius.astype(dt))
+        self.b_radius = F(radius)
         # The scene's scalars, read from arrays rather than compiled in. (One array per type: Dr.Jit's
         # width-1 opaque values are packed so that their alignment, which is part of the kernel's code,
         # varies from run to run, and a kernel would be compiled again for the same scene.)
@@ -195,9 +200,9 @@ class ShapeTable:
         ):
             self._scalars[name] = len(vals)
             vals += [float(c) for c in v]
-        self._f = F(np.array(vals, dtype=dt))
-        self._f64 = dr.llvm.Float64(np.array([-scene.camera.distance]))
-        self._u = T.UInt(np.array([self.n_planes, self.n_balls], dtype=np.uint32))
+        self._f = F(vals)
+        self._f64 = dr.llvm.Float64(aligned([-scene.camera.distance], np.float64))
+        self._u = T.UInt(aligned([self.n_planes, self.n_balls], np.uint32))
 
     def vec(self, name: str) -> Any:
         """A scene 3-vector (light, light_color, background) read at run time."""
@@ -213,18 +218,24 @@ class ShapeTable:
 
     def _tree_arrays(self, tree: Tree) -> None:
         T = self.T
-        F, U = T.Float, T.UInt
         dt = T.np_dtype
+
+        def F(a) -> Any:
+            return T.Float(aligned(a, dt))
+
+        def U(a) -> Any:
+            return T.UInt(aligned(a, np.uint32))
+
         lo, hi = _outward(tree.lo, dt, True), _outward(tree.hi, dt, False)
-        self.n_lo = T.Array3(*(F(np.ascontiguousarray(lo[:, i])) for i in range(3)))
-        self.n_hi = T.Array3(*(F(np.ascontiguousarray(hi[:, i])) for i in range(3)))
-        self.n_first = U(tree.first.astype(np.uint32))
-        self.n_count = U(tree.count.astype(np.uint32))
-        self.n_right = U(np.maximum(tree.right, 0).astype(np.uint32))
-        self.n_axis = U(tree.axis.astype(np.uint32))
+        self.n_lo = T.Array3(*(F(lo[:, i]) for i in range(3)))
+        self.n_hi = T.Array3(*(F(hi[:, i]) for i in range(3)))
+        self.n_first = U(tree.first)
+        self.n_count = U(tree.count)
+        self.n_right = U(np.maximum(tree.right, 0))
+        self.n_axis = U(tree.axis)
         pad = _Pad(T.u)
-        self.n_pad_b = F(pad.b(tree.rmax).astype(dt))
-        self.n_pad_c = F(pad.c(tree.rmax, tree.reach).astype(dt))
+        self.n_pad_b = F(pad.b(tree.rmax))
+        self.n_pad_c = F(pad.c(tree.rmax, tree.reach))
         self.pad_a = pad.a
 
 

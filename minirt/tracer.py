@@ -35,9 +35,10 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from minirt import accel, camera
+from minirt import accel, camera, jitmem
 from minirt.accel import ShapeTable, gamma
 from minirt.engine import require_llvm
+from minirt.jitmem import aligned
 from minirt.result import TERMS, RenderResult
 from minirt.rules import SPECULAR_EXPONENT_MAX, Effects, Rules, effects
 from minirt.scene import Ball, Plane, Scene
@@ -1153,9 +1154,9 @@ class Tracer:
         w, h = sc.camera.width, sc.camera.height
         U32 = dr.llvm.UInt32
         if pixels is not None:
-            idx = U32(np.ascontiguousarray(pixels, dtype=np.uint32))
+            idx = U32(aligned(pixels, np.uint32))
         elif self.runtime:
-            idx = U32(np.arange(w * h, dtype=np.uint32))  # an input, like a subset's: the same kernel
+            idx = U32(aligned(np.arange(w * h), np.uint32))  # an input, like a subset's: the same kernel
         else:
             idx = dr.arange(U32, w * h)
         n = dr.width(idx)
@@ -1344,7 +1345,7 @@ class Tracer:
                     add = self._sample_terms(*self._sample_rays(u, v, pixels), terms, falloff)
                     sums = add if s == 0 else {k: sums[k] + add[k] for k in add}
                 else:
-                    uv = np.empty((b, count, 2))
+                    uv = jitmem.empty((b, count, 2))
                     for j in range(b):
                         camera.sample_offsets_into(uv[j], n, s + j, start=y0 * w)
                     sums = self._sample_batch(uv, pixels, terms, falloff, sums)
@@ -1416,12 +1417,12 @@ class Tracer:
         rounded to the tracer's precision as ``_load`` would. u, v: NumPy or Dr.Jit float64 arrays."""
         F64 = dr.llvm.Float64
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            u, v = (aligned(x, np.float64) if isinstance(x, np.ndarray) else x for x in (u, v))
             o, d = self._rays(F64, dr.llvm.Array3f64, F64(u), F64(v), pixels)
             return self.T.Array3(o), self.T.Array3(d)
 
     def _load(self, a: np.ndarray) -> Any:
-        a = np.ascontiguousarray(a.astype(self.T.np_dtype))
-        return self.T.Array3(self.T.Float(a[:, 0]), self.T.Float(a[:, 1]), self.T.Float(a[:, 2]))
+        return self.T.Array3(*(self.T.Float(aligned(a[:, i], self.T.np_dtype)) for i in range(3)))
 
 
 # Pixels per tile: Dr.Jit's working set is ~330 B per pixel in float64 (the wavefront's levels, the rays,

@@ -90,6 +90,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from minirt import camera
+from minirt.jitmem import aligned
 from minirt.oracles.base import Oracle
 from minirt.result import RenderResult, geometry_from_flat, to8
 from minirt.rules import Rules
@@ -925,7 +926,7 @@ class _RayRender(_Base):
         scalar = not self.jit
 
         def f32(a):
-            return float(a[0]) if scalar else mi.Float(np.ascontiguousarray(a, dtype=np.float32))
+            return float(a[0]) if scalar else mi.Float(aligned(a, np.float32))
 
         ray = mi.Ray3f(
             o=mi.Point3f(*(f32(o[:, i]) for i in range(3))), d=mi.Vector3f(*(f32(d[:, i]) for i in range(3)))
@@ -1019,7 +1020,7 @@ class _RayRender(_Base):
         maxt = np.where(go, (seg - skip) * (1 - 1e-4), 0.0)  # stops short of the light, as spawn_ray_to does
 
         def f32(a):
-            return float(a[0]) if not self.jit else mi.Float(np.ascontiguousarray(a, dtype=np.float32))
+            return float(a[0]) if not self.jit else mi.Float(aligned(a, np.float32))
 
         ray = mi.Ray3f(
             o=mi.Point3f(*(f32(o2[:, i]) for i in range(3))), d=mi.Vector3f(*(f32(sd[:, i]) for i in range(3)))
