@@ -105,6 +105,7 @@ def render(name: str, scene: Scene, rules: Rules, options: dict[str, Any] | None
                 progress=progress,
                 diagnostics=bool(options.get("diagnostics", False)),
                 terms=options.get("terms"),
+                runtime=bool(options.get("runtime", False)),
             )
         else:
             from minirt import oracles

@@ -781,8 +781,11 @@ class ReferenceCache:
         key = (rules, samples)
         if key not in self.cache:
             sc = self.scene if samples is None else self.scene.with_overrides(samples=samples)
-            # diagnostics: the ray-tree labels and shadow margins the edge classes and shading checks use
-            r = backends.render(backends.REFERENCE, sc, rules, {"diagnostics": True, "terms": CHECKED_TERMS})
+            # diagnostics: the ray-tree labels and shadow margins the edge classes and shading checks use.
+            # runtime: the rules an oracle's variants differ in are values the kernel reads, so the scene's
+            # renders under its oracles' rules share one compiled kernel (the same bits: Tracer, tested).
+            opts = {"diagnostics": True, "terms": CHECKED_TERMS, "runtime": True}
+            r = backends.render(backends.REFERENCE, sc, rules, opts)
             if not r.ok:
                 raise MinirtError(f"{self.scene.source}: the reference tracer failed: {r.reason}")
             r.meta["shapes"] = len(self.scene.shapes)

@@ -1553,8 +1553,9 @@ def render(
     progress=None,
     diagnostics: bool = False,
     terms: Collection[str] | None = None,
+    runtime: bool = False,
 ) -> RenderResult:
     """Render a scene with the reference tracer (``diagnostics``: also aux ray_tree and shadow_margin;
-    ``terms``: the terms to keep, default all)."""
-    tr = Tracer(scene, rules, precision=precision, prune=prune)
+    ``terms``: the terms to keep, default all; ``runtime``: see ``Tracer``)."""
+    tr = Tracer(scene, rules, precision=precision, prune=prune, runtime=runtime)
     return tr.render(progress=progress, diagnostics=diagnostics, terms=terms)

@@ -473,8 +473,9 @@ RUNTIME_RULES = [
 @pytest.mark.parametrize("profile", ["exercise", "conventional"])
 def test_runtime_rules_same_bits(profile, precision):
     """Under ``runtime`` the camera rules and near_root_only, two_sided, clamp, a numeric offset and
-    offset_along are values the kernel reads: every buffer the diagnosis reads (colour, terms, the ray
-    tree's decisions) has the same bits as with the rule compiled in."""
+    offset_along are values the kernel reads: every buffer -- the diagnosis's (colour, terms, the ray
+    tree's decisions) and the check's (geometry, shadow margins) -- has the same bits as with the rule
+    compiled in."""
     from minirt.tracer import Tracer
 
     scene = load_scene("scenes/rules.toml").with_overrides(width=40, height=32, samples=1)
@@ -482,10 +483,13 @@ def test_runtime_rules_same_bits(profile, precision):
         rules = replace(PROFILES[profile], **change)
         a = Tracer(scene, rules, precision=precision).render(diagnostics=True)
         b = Tracer(scene, rules, precision=precision, runtime=True).render(diagnostics=True)
-        assert np.array_equal(a.color.view(np.uint64), b.color.view(np.uint64)), change
-        assert np.array_equal(a.aux["ray_tree"], b.aux["ray_tree"]), change
+        for f in ("color", "hit", "shape_id", "t", "position", "normal"):
+            assert getattr(a, f).tobytes() == getattr(b, f).tobytes(), (change, f)
+        assert set(a.aux) == set(b.aux) and set(a.terms) == set(b.terms)
+        for k in a.aux:
+            assert a.aux[k].tobytes() == b.aux[k].tobytes(), (change, k)
         for k in a.terms:
-            assert np.array_equal(a.terms[k].view(np.uint64), b.terms[k].view(np.uint64)), (change, k)
+            assert a.terms[k].tobytes() == b.terms[k].tobytes(), (change, k)
 
 
 @pytest.mark.parametrize("precision", ["f64", "f32"])

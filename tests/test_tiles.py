@@ -155,3 +155,14 @@ def test_samples_batched_in_one_kernel_same_bits(monkeypatch, precision, tile):
     assert {"variance", "variance_diffuse", "diffuse_r2"} <= set(batched.aux)
     assert _same(one, batched) == []
     assert (batched.aux["variance"] > 0).any()  # the samples differ: there is something to sum
+
+
+def test_samples_with_runtime_rules_same_bits():
+    """A check's reference of a supersampled scene reads its rules at run time (harness.ReferenceCache):
+    the same bits as the rules compiled in, every buffer, the samples' statistics too."""
+    scene = load_scene("scenes/soft.toml").with_overrides(width=23, height=19, samples=5)
+    rules = PROFILES["conventional"]
+    a = Tracer(scene, rules).render(diagnostics=True, terms=("diffuse", "specular"))
+    b = Tracer(scene, rules, runtime=True).render(diagnostics=True, terms=("diffuse", "specular"))
+    assert {"variance", "diffuse_r2"} <= set(b.aux)
+    assert _same(a, b) == []
