@@ -166,3 +166,38 @@ def test_samples_with_runtime_rules_same_bits():
     b = Tracer(scene, rules, runtime=True).render(diagnostics=True, terms=("diffuse", "specular"))
     assert {"variance", "diffuse_r2"} <= set(b.aux)
     assert _same(a, b) == []
+
+
+@pytest.mark.parametrize("width", [1, 3, 7, 1000, 16383, 16384])
+def test_row_and_column_of_any_pixel(width):
+    """The kernel finds a pixel's row as floor(index / width) in float64 (the width a run-time value: one
+    kernel for every image size): the NumPy camera's integer divmod, bit for bit, at both ends of every
+    row up to the largest image (16384^2 = 2^28 pixels) and at random pixels."""
+    height = 16384
+    scene = load_scene("scenes/exercise.toml").with_overrides(width=width, height=height)
+    n = width * height
+    rows = np.array([0, 1, 2, height // 2, height - 2, height - 1], dtype=np.int64)
+    ends = np.concatenate([rows * width + k for k in (-1, 0, 1, width - 1)])
+    rnd = np.random.default_rng(width).integers(0, n, 2000)
+    pixels = np.unique(np.clip(np.concatenate([ends, rnd, [n - 1]]), 0, n - 1)).astype(np.uint32)
+    rules = PROFILES["exercise"]
+    tr = Tracer(scene, rules)
+    o, d = tr.primary_rays(pixels)
+    o_np, d_np = camera.primary_rays(scene, rules, pixels)
+    assert tr._to_numpy3(d).tobytes() == d_np.tobytes()
+    assert tr._to_numpy3(o).tobytes() == np.broadcast_to(o_np, (len(pixels), 3)).tobytes()
+
+
+def test_another_size_compiles_nothing():
+    """The image's size is not compiled into the kernel: a scene rendered at a second size (below
+    LOOP_FIRST_LEVEL_BELOW rays, so the same form) runs the very kernel of the first size (the same code,
+    so the same hash: a cache hit, whichever cache)."""
+    scene = load_scene("scenes/three_balls.toml")
+    rules = resolve(scene)
+    hashes = []
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        for w, h in ((21, 17), (40, 31)):
+            dr.kernel_history()
+            Tracer(scene.with_overrides(width=w, height=h), rules).render(diagnostics=True)
+            hashes.append(sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT))
+    assert hashes[0] and hashes[0] == hashes[1]
