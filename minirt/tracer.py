@@ -1404,8 +1404,10 @@ class Tracer:
             sums = {k: A64(dr.zeros(F64, count), dr.zeros(F64, count), dr.zeros(F64, count)) for k in names}
         names = list(sums)
 
+        stride = dr.opaque(U32, count)  # a value, not a constant: one kernel for every image size
+
         def body(j, *acc):
-            at = 2 * (j * count + i)
+            at = 2 * (j * stride + i)
             o, d = self._sample_rays(dr.gather(F64, flat, at), dr.gather(F64, flat, at + 1), pixels)
             add = self._sample_terms(o, d, terms, falloff)
             return (j + 1, *(a + add[k] for a, k in zip(acc, names, strict=True)))

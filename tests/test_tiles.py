@@ -188,11 +188,12 @@ def test_row_and_column_of_any_pixel(width):
     assert tr._to_numpy3(o).tobytes() == np.broadcast_to(o_np, (len(pixels), 3)).tobytes()
 
 
-def test_another_size_compiles_nothing():
+@pytest.mark.parametrize("samples", [1, 3])
+def test_another_size_compiles_nothing(samples):
     """The image's size is not compiled into the kernel: a scene rendered at a second size (below
     LOOP_FIRST_LEVEL_BELOW rays, so the same form) runs the very kernel of the first size (the same code,
     so the same hash: a cache hit, whichever cache)."""
-    scene = load_scene("scenes/three_balls.toml")
+    scene = load_scene("scenes/three_balls.toml").with_overrides(samples=samples)
     rules = resolve(scene)
     hashes = []
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
