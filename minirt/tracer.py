@@ -959,12 +959,7 @@ class Tracer:
                     self._queue_out(bufs, vectors, rays, hit, ("position", "normal"))
 
                 dr.if_stmt((vectors, hit), at0, write, lambda vectors, hit: None, label="first level")
-            for j in range(depth + 1):
-                here = k == j
-                local[j] = dr.select(here, lvl.local, local[j])
-                ids[j] = dr.select(here, lvl.shape_id, ids[j])
-                if tree:
-                    codes[j] = dr.select(here, lvl.code, codes[j])
+            _keep_level(k, lvl, local, ids, codes)
             k = k + 1
             return (k, spawn & (k <= depth), *lvl.record["next"], *first, *local, *ids, *codes)
 
@@ -976,18 +971,7 @@ class Tracer:
         )
         first, local = state[4 : 4 + nf], state[4 + nf : 4 + nf + m]
         ids, codes = state[4 + nf + m : 4 + nf + 2 * m], state[4 + nf + 2 * m :]
-        zero3 = self._vec((0.0, 0.0, 0.0))
-        refl = None
-        below = T.UInt(0)
-        for j in range(depth, 0, -1):  # back to front, as _reflected
-            shape_id = ids[j]
-            reached = shape_id != -2
-            cj = local[j] + self._material_term(shape_id, "reflection") * (zero3 if refl is None else refl)
-            if fx.background:
-                cj = cj + self._background(shape_id >= 0)
-            refl = dr.select(reached, cj, zero3)
-            if tree:
-                below = dr.select(reached, _tree_hash(T.UInt(codes[j]), below), T.UInt(0))
+        refl, below = self._combine(local[1:], ids[1:], codes[1:])
         shape_id = ids[0]
         t, rest = first[0], first[2:] if margins else first[1:]
         p, n = rest[:2] if bufs is None else (None, None)
@@ -1012,7 +996,6 @@ class Tracer:
         where not active; without ``tree`` a constant 0)."""
         T = self.T
         n = dr.width(active)
-        zero3 = self._vec((0.0, 0.0, 0.0))
         local = [T.Array3(dr.zeros(T.Float, n), dr.zeros(T.Float, n), dr.zeros(T.Float, n)) for _ in range(depth)]
         ids = [dr.full(T.Int, -2, n) for _ in range(depth)]
         codes = [dr.zeros(T.Int, n) for _ in range(depth)] if tree else []
@@ -1022,29 +1005,30 @@ class Tracer:
             local, ids, codes = list(levels[:depth]), list(levels[depth : 2 * depth]), list(levels[2 * depth :])
             # depth_left 1: the next rays are made at every level (the last one's go unused)
             lvl, spawn = self.shade_level(ro, rd, None, 1, False, gate=True)
-            for j in range(depth):
-                here = k == j
-                local[j] = dr.select(here, lvl.local, local[j])
-                ids[j] = dr.select(here, lvl.shape_id, ids[j])
-                if tree:
-                    codes[j] = dr.select(here, lvl.code, codes[j])
+            _keep_level(k, lvl, local, ids, codes)
             k = k + 1
             return (k, spawn & (k < depth), *lvl.record["next"], *local, *ids, *codes)
 
         state = dr.while_loop(
             (k, active, ro, rd, *local, *ids, *codes), lambda k, active, *_: active, body, label="reflection levels"
         )
-        local, ids, codes = state[4 : 4 + depth], state[4 + depth : 4 + 2 * depth], state[4 + 2 * depth :]
+        return self._combine(state[4 : 4 + depth], state[4 + depth : 4 + 2 * depth], state[4 + 2 * depth :])
+
+    def _combine(self, local, ids, codes) -> tuple[Any, Any]:
+        """The colour of the first of these levels (each level's local colour and hit id, as a loop
+        carried them; id -2: not reached), combined back to front as the wavefront's combining pass
+        does, and the hash of their ray trees (``codes``: each level's decisions; none: a constant 0)."""
+        T, zero3 = self.T, self._vec((0.0, 0.0, 0.0))
         c = None
         below = T.UInt(0)
-        for j in range(depth - 1, -1, -1):  # back to front, as the wavefront's combining pass
+        for j in range(len(local) - 1, -1, -1):
             shape_id = ids[j]
             reached = shape_id != -2
             cj = local[j] + self._material_term(shape_id, "reflection") * (zero3 if c is None else c)
             if self.effects.background:
                 cj = cj + self._background(shape_id >= 0)
             c = dr.select(reached, cj, zero3)
-            if tree:
+            if codes:
                 below = dr.select(reached, _tree_hash(T.UInt(codes[j]), below), T.UInt(0))
         return c, below
 
@@ -1452,6 +1436,17 @@ LOOP_FIRST_LEVEL_BELOW = 1 << 18
 # samples of 512^2 a kernel (512^2 at 16 samples, three_balls: 142 ms a sample a kernel; 117, 112, 127 ms
 # at 32, 16, 8 MiB a batch -- smaller batches let NumPy draw the next offsets while a kernel runs).
 SAMPLE_BATCH_BYTES = 1 << 24
+
+
+def _keep_level(k, lvl: Level, local: list, ids: list, codes: list) -> None:
+    """In a loop over levels: slot k of the per-level lists (local colour, hit id, and with ``codes`` the
+    decision code) takes this iteration's level's values, the other slots keep theirs."""
+    for j in range(len(local)):
+        here = k == j
+        local[j] = dr.select(here, lvl.local, local[j])
+        ids[j] = dr.select(here, lvl.shape_id, ids[j])
+        if codes:
+            codes[j] = dr.select(here, lvl.code, codes[j])
 
 
 def _tree_hash(code, below) -> Any:
