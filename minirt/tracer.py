@@ -577,7 +577,7 @@ class Tracer:
         return dr.select(hit, out, F(1e30))
 
     def shade_level(
-        self, o, d, parent, depth_left: int, record: bool, margins: bool = False, gate: bool = False
+        self, o, d, parent, depth_left: int, record: bool, margins: Any = False, gate: bool = False
     ) -> tuple[Level, Any]:
         """Intersect one level's rays and shade them locally; return the level and the next rays' mask.
 
@@ -593,19 +593,19 @@ class Tracer:
         fx, zero = self.effects, self._vec((0.0, 0.0, 0.0))
         names = [k for k in ("ambient", "diffuse", "specular") if getattr(fx, k)]
         spawns = fx.reflection and depth_left > 0
-        margins = margins and fx.shadows and (fx.diffuse or fx.specular)  # as _shade records them
+        margins = margins if margins is not False and fx.shadows and (fx.diffuse or fx.specular) else False
 
         def on_hit(o, d, shape_id, hit, t):
             lvl, spawn = self._shade(o, d, None, shape_id, hit, t, depth_left, False, margins)
             ro, rd = lvl.record["next"] if spawns else (zero, zero)
             terms = [lvl.terms[k] for k in names]
-            margin = [lvl.record["shadow_margin"]] if margins else []
+            margin = [lvl.record["shadow_margin"]] if margins is not False else []
             return lvl.p, lvl.n, lvl.local, lvl.kr, terms, ro, rd, spawn if spawns else hit, lvl.code, margin
 
         def on_miss(o, d, shape_id, hit, t):
             p = o + dr.select(hit, t, 0) * d  # hit_point_and_normal's p of a miss
             # a miss's decision code: id -1, unlit, s·n = 0 (its normal is 0); its margin: shadow_margin's
-            margin = [self.T.Float(1e30)] if margins else []
+            margin = [self.T.Float(1e30)] if margins is not False else []
             return p, zero, zero, zero, [zero for _ in names], zero, zero, self.T.Bool(False), self.T.Int(-4), margin
 
         p, n, local, kr, terms, ro, rd, spawn, code, margin = dr.if_stmt(
@@ -615,15 +615,16 @@ class Tracer:
             parent, o, d, shape_id, t, p, n, local, kr, self._background(hit), dict(zip(names, terms, strict=True))
         )
         lvl.code = code
-        if margins:
+        if margins is not False:
             lvl.record["shadow_margin"] = margin[0]
         if not spawns:
             return lvl, None
         lvl.record["next"] = (ro, rd)
         return lvl, spawn
 
-    def _shade(self, o, d, parent, shape_id, hit, t, depth_left: int, record: bool, margins: bool) -> tuple[Level, Any]:
-        """shade_level after the closest hit (shape_id, hit, t: inf on a miss)."""
+    def _shade(self, o, d, parent, shape_id, hit, t, depth_left: int, record: bool, margins: Any) -> tuple[Level, Any]:
+        """shade_level after the closest hit (shape_id, hit, t: inf on a miss). ``margins``: True, False, or
+        a mask of the rays whose shadow margins are wanted (the others get 1e30, shadow_margin's none)."""
         fx = self.effects
         zero = self._vec((0.0, 0.0, 0.0))
         p, n = self.hit_point_and_normal(shape_id, o, d, dr.select(hit, t, 0))
@@ -656,8 +657,16 @@ class Tracer:
                 so = self.offset_origin(p, ns, err, s, outward)
                 blocked, shadow_ts = self.shadow_blocked(so, s, light_dist, record)
                 lit = hit & ~blocked
-                if margins:
+                if margins is True:
                     rec["shadow_margin"] = self.shadow_margin(so, s, light_dist, hit)
+                elif margins is not False:  # in a conditional: the loop's later levels skip the ball loop
+                    rec["shadow_margin"] = dr.if_stmt(
+                        (so, s, light_dist, hit, margins),
+                        margins,
+                        lambda so, s, light_dist, hit, _: self.shadow_margin(so, s, light_dist, hit),
+                        lambda *_: self.T.Float(1e30),
+                        label="margins",
+                    )
                 if record:
                     rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
             if fx.diffuse:
@@ -922,8 +931,8 @@ class Tracer:
         with ``bufs`` (``_out_buffers``), its hit point, normal and the ``wanted`` terms among ambient,
         diffuse and specular are written there by the first iteration and not carried (the level's p, n
         and those terms are then absent): carried, they cost an f64 render a fifth more time. ``tree``:
-        each level's decision code is carried too, and the first level's shadow margins (computed at
-        every level, kept of the first). Returns the first level and the colour, combined back to front
+        each level's decision code is carried too, and the first level's shadow margins (computed in the
+        first iteration only). Returns the first level and the colour, combined back to front
         as ``_reflected`` does (and with ``tree`` the ray-tree hash in its record)."""
         T, fx = self.T, self.effects
         shaded = [k for k in ("ambient", "diffuse", "specular") if getattr(fx, k)]
@@ -944,8 +953,8 @@ class Tracer:
         def body(k, active, ro, rd, *state):
             first, local = list(state[:nf]), list(state[nf : nf + m])
             ids, codes = list(state[nf + m : nf + 2 * m]), list(state[nf + 2 * m :])
-            lvl, spawn = self.shade_level(ro, rd, None, 1, False, margins=tree, gate=True)
             at0 = k == 0
+            lvl, spawn = self.shade_level(ro, rd, None, 1, False, margins=at0 if tree else False, gate=True)
             new = [lvl.t] + ([lvl.record["shadow_margin"]] if margins else [])
             new += ([lvl.p, lvl.n] if bufs is None else []) + [lvl.terms[name] for name in carried]
             first = [dr.select(at0, a, b) for a, b in zip(new, first, strict=True)]
