@@ -143,13 +143,9 @@ class ShapeTable:
 
     def __init__(self, scene: Scene, T: Any, with_tree: bool = True):
         self.T = T
-        I3 = T.Array3
+        I3, F = T.Array3, self._float
         shapes = scene.shapes
         dt = T.np_dtype
-
-        def F(a) -> Any:  # every array at a 64-byte boundary: see minirt.jitmem
-            return T.Float(aligned(a, dt))
-
         balls = [(k, s) for k, s in enumerate(shapes) if isinstance(s, Ball)]
         planes = [(k, s) for k, s in enumerate(shapes) if isinstance(s, Plane)]
         self.n_balls, self.n_planes = len(balls), len(planes)
@@ -216,12 +212,15 @@ class ShapeTable:
     def count(self, what: str) -> Any:
         return dr.gather(self.T.UInt, self._u, self.T.UInt(("planes", "balls").index(what)))
 
+    def _float(self, a: Any) -> Any:
+        """A Dr.Jit float array of the tracer's precision from host values, at a 64-byte boundary (every
+        array the table hands over is: see minirt.jitmem)."""
+        return self.T.Float(aligned(a, self.T.np_dtype))
+
     def _tree_arrays(self, tree: Tree) -> None:
         T = self.T
         dt = T.np_dtype
-
-        def F(a) -> Any:
-            return T.Float(aligned(a, dt))
+        F = self._float
 
         def U(a) -> Any:
             return T.UInt(aligned(a, np.uint32))

@@ -20,9 +20,7 @@ ALIGN = 64  # bytes: a cache line, the widest vector load (AVX-512)
 def aligned(a: Any, dtype: Any) -> np.ndarray:
     """A C-contiguous copy of ``a`` as ``dtype`` starting at an ALIGN-byte boundary."""
     a = np.asarray(a, dtype=dtype)
-    buf = np.empty(a.nbytes + ALIGN, dtype=np.uint8)
-    start = -buf.ctypes.data % ALIGN
-    out = buf[start : start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out = empty(a.shape, a.dtype)
     np.copyto(out, a)
     return out
 
@@ -30,7 +28,7 @@ def aligned(a: Any, dtype: Any) -> np.ndarray:
 def empty(shape: Any, dtype: Any = np.float64) -> np.ndarray:
     """An uninitialised C-contiguous array starting at an ALIGN-byte boundary (to fill in place)."""
     dtype = np.dtype(dtype)
-    count = int(np.prod(shape))
-    buf = np.empty(count * dtype.itemsize + ALIGN, dtype=np.uint8)
+    nbytes = int(np.prod(shape)) * dtype.itemsize
+    buf = np.empty(nbytes + ALIGN, dtype=np.uint8)
     start = -buf.ctypes.data % ALIGN
-    return buf[start : start + count * dtype.itemsize].view(dtype).reshape(shape)
+    return buf[start : start + nbytes].view(dtype).reshape(shape)

@@ -920,17 +920,23 @@ class _RayRender(_Base):
     def _np3(self, v) -> np.ndarray:
         return np.stack([self._np(v[i]) for i in range(3)], axis=1)
 
+    def _f32(self, a: np.ndarray) -> Any:
+        """Host values as Mitsuba's float: the one value of a one-ray batch in scalar mode, else an array
+        at a 64-byte boundary (minirt.jitmem: so the same kernels are not compiled again)."""
+        return float(a[0]) if not self.jit else self.mi.Float(aligned(a, np.float32))
+
+    def _ray(self, o: np.ndarray, d: np.ndarray) -> Any:
+        """Mitsuba rays from (N, 3) origins and directions."""
+        f32, mi = self._f32, self.mi
+        return mi.Ray3f(
+            o=mi.Point3f(*(f32(o[:, i]) for i in range(3))), d=mi.Vector3f(*(f32(d[:, i]) for i in range(3)))
+        )
+
     def _shade_batch(self, ms, o, d, lit: bool, reflective: list[int], level: int) -> dict[str, Any]:
         mi = self.mi
         n = len(o)
         scalar = not self.jit
-
-        def f32(a):
-            return float(a[0]) if scalar else mi.Float(aligned(a, np.float32))
-
-        ray = mi.Ray3f(
-            o=mi.Point3f(*(f32(o[:, i]) for i in range(3))), d=mi.Vector3f(*(f32(d[:, i]) for i in range(3)))
-        )
+        ray = self._ray(o, d)
         si = ms.ray_intersect(ray)
         valid = si.is_valid()
         hit, sid = self._hits(ms, si, n)
@@ -1006,7 +1012,6 @@ class _RayRender(_Base):
         abs_error 2.7e-3, 24 shadows lost behind another plane); so the segment restarts past the slab. An
         occluder within that stretch is within the oracle's own position error of the point (the harness
         does not judge those: shadow_margin)."""
-        mi = self.mi
         p, sd, seg = self._np3(si.p), self._np3(ds.d), self._np(ds.dist)
         skip = np.zeros(n)
         for k, err in self.plane_abs.items():
@@ -1019,13 +1024,8 @@ class _RayRender(_Base):
         o2 = p + skip[:, None] * sd
         maxt = np.where(go, (seg - skip) * (1 - 1e-4), 0.0)  # stops short of the light, as spawn_ray_to does
 
-        def f32(a):
-            return float(a[0]) if not self.jit else mi.Float(aligned(a, np.float32))
-
-        ray = mi.Ray3f(
-            o=mi.Point3f(*(f32(o2[:, i]) for i in range(3))), d=mi.Vector3f(*(f32(sd[:, i]) for i in range(3)))
-        )
-        ray.maxt = f32(maxt)
+        ray = self._ray(o2, sd)
+        ray.maxt = self._f32(maxt)
         hit3, sid3 = self._hits(ms, ms.ray_intersect(ray), n, hit)
         return go & hit3 & (sid3 != sid)
 
