@@ -593,7 +593,7 @@ class Tracer:
         fx, zero = self.effects, self._vec((0.0, 0.0, 0.0))
         names = [k for k in ("ambient", "diffuse", "specular") if getattr(fx, k)]
         spawns = fx.reflection and depth_left > 0
-        margins = margins if margins is not False and fx.shadows and (fx.diffuse or fx.specular) else False
+        margins = margins if self._has_margins() else False
 
         def on_hit(o, d, shape_id, hit, t):
             lvl, spawn = self._shade(o, d, None, shape_id, hit, t, depth_left, False, margins)
@@ -604,9 +604,12 @@ class Tracer:
 
         def on_miss(o, d, shape_id, hit, t):
             p = o + dr.select(hit, t, 0) * d  # hit_point_and_normal's p of a miss
-            # a miss's decision code: id -1, unlit, s·n = 0 (its normal is 0); its margin: shadow_margin's
-            margin = [self.T.Float(1e30)] if margins is not False else []
-            return p, zero, zero, zero, [zero for _ in names], zero, zero, self.T.Bool(False), self.T.Int(-4), margin
+            # a miss's decision code: id -1, unlit, s·n = 0 (its normal is 0); its margin: shadow_margin's.
+            # One per ray, as the shading's are: where no ray can hit (no shapes) this branch is all there
+            # is, and the ray-tree hash and the margins are read per pixel.
+            n = dr.width(hit)
+            code, margin = dr.full(self.T.Int, -4, n), [dr.full(self.T.Float, 1e30, n)] if margins is not False else []
+            return p, zero, zero, zero, [zero for _ in names], zero, zero, self.T.Bool(False), code, margin
 
         p, n, local, kr, terms, ro, rd, spawn, code, margin = dr.if_stmt(
             (o, d, shape_id, hit, t), hit, on_hit, on_miss, label="shade"
@@ -716,6 +719,11 @@ class Tracer:
             ro = self.offset_origin(p, ns, err, r, outward)
             lvl.record["next"] = (ro, r)
         return lvl, spawn
+
+    def _has_margins(self) -> bool:
+        """Whether shading records shadow margins when asked: only where shadow rays are cast (``_shade``)."""
+        fx = self.effects
+        return fx.shadows and (fx.diffuse or fx.specular)
 
     def _background(self, hit) -> Any:
         """The background term of a ray that hit (``hit``) or missed: rule background."""
@@ -867,54 +875,64 @@ class Tracer:
 
         ``tree``: as for ``trace``, the first level's record holds "tree" (each deeper level's decision code
         is carried through the loop like its id and hashed back to front as the wavefront does) and
-        "shadow_margin" (the first level is then shaded without the conditional, as the margins read
-        every ray)."""
+        "shadow_margin" (a miss's is shadow_margin's 1e30, which the shading's conditional gives it)."""
         fx = self.effects
         depth = fx.reflection_depth if fx.reflection else 0
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))
             if depth > 0 and rays < LOOP_FIRST_LEVEL_BELOW:
                 return self._trace_looped(o, d, rays, depth, out, terms, tree)
-            if tree:
-                lvl, spawn = self.shade_level(o, d, None, depth, False, margins=True)
-            else:
-                lvl, spawn = self.shade_level(o, d, None, depth, False, gate=True)
-            c = lvl.local
-            below = self.T.UInt(0)
+            lvl, spawn = self.shade_level(o, d, None, depth, False, margins=tree, gate=True)
+            refl, below = None, self.T.UInt(0)
             if fx.reflection:
                 refl = self._vec((0.0, 0.0, 0.0))
                 if spawn is not None:
                     refl, below = self._reflected(spawn, *lvl.record.pop("next"), depth, tree)
-                lvl.terms["reflection"] = lvl.kr * refl
-                c = c + lvl.terms["reflection"]
-            if fx.background:
-                lvl.terms["background"] = lvl.bg
-                c = c + lvl.bg
-            extra = []
+            c = self._first_colour(lvl, refl)
             if tree:
                 lvl.record["tree"] = _tree_hash(self.T.UInt(lvl.code), below)
-                extra = [lvl.record[k] for k in ("tree", "shadow_margin") if k in lvl.record]
             if out is None:  # lazy: the caller evaluates what it reads with the colour, in one kernel
                 return c, [lvl]
-            vectors = {"color": c, "position": lvl.p, "normal": lvl.n} | {
-                "term." + k: lvl.terms[k] for k in TERMS if k in lvl.terms and (terms is None or k in terms)
-            }
-            self._scatter_out(out, vectors, rays, lvl.shape_id >= 0, masked=("position", "normal"))
-            out["t"] = dr.llvm.Float64(lvl.t)
-            dr.eval(out["t"], lvl.shape_id, *extra)  # runs the scatters too
-            return c, [lvl]
+            wanted = self._term_names(terms)
+            bufs = self._out_buffers(["color", "position", "normal"] + ["term." + k for k in wanted], rays)
+            vectors = {"position": lvl.p, "normal": lvl.n} | {"term." + k: lvl.terms[k] for k in wanted}
+            self._queue_out(bufs, vectors, rays, lvl.shape_id >= 0, masked=("position", "normal"))
+            return self._write_first(out, bufs, lvl, c, rays)
 
     def _trace_looped(self, o, d, rays: int, depth: int, out, terms, tree: bool) -> tuple[Any, list[Level]]:
         """``_trace_fused`` with the first level as the loop's first iteration (``_levels_looped``)."""
-        fx = self.effects
         if out is None:
             lvl, c = self._levels_looped(o, d, rays, depth, tree)
             return c, [lvl]
-        wanted = [k for k in TERMS if getattr(fx, k) and (terms is None or k in terms)]
+        wanted = self._term_names(terms)
         bufs = self._out_buffers(["color", "position", "normal"] + ["term." + k for k in wanted], rays)
         lvl, c = self._levels_looped(o, d, rays, depth, tree, bufs, wanted)
-        late = {"color": c} | {"term." + k: lvl.terms[k] for k in ("reflection", "background") if k in wanted}
+        late = {"term." + k: lvl.terms[k] for k in ("reflection", "background") if k in wanted}
         self._queue_out(bufs, late, rays)
+        return self._write_first(out, bufs, lvl, c, rays)
+
+    def _term_names(self, terms: Collection[str] | None) -> list[str]:
+        """The terms a first level has (those the effects compute), among ``terms`` (None: all), in TERMS' order."""
+        return [k for k in TERMS if getattr(self.effects, k) and (terms is None or k in terms)]
+
+    def _first_colour(self, lvl: Level, refl) -> Any:
+        """The first level's colour: its local colour, plus kr times the reflected colour ``refl`` (None: no
+        reflection effect) and the background, each also kept as a term."""
+        c = lvl.local
+        if refl is not None:
+            lvl.terms["reflection"] = lvl.kr * refl
+            c = c + lvl.terms["reflection"]
+        if self.effects.background:
+            lvl.terms["background"] = lvl.bg
+            c = c + lvl.bg
+        return c
+
+    def _write_first(
+        self, out: dict[str, Any], bufs: dict[str, Any], lvl: Level, c, rays: int
+    ) -> tuple[Any, list[Level]]:
+        """The end of a fused trace with ``out``: the colour's writes queued after the first level's, the
+        buffers into ``out`` with t, and the one kernel run (with the diagnostics, when recorded)."""
+        self._queue_out(bufs, {"color": c}, rays)
         del bufs["zero"]
         out.update(bufs)
         out["t"] = dr.llvm.Float64(lvl.t)
@@ -943,7 +961,7 @@ class Tracer:
             return T.Array3(dr.zeros(T.Float, rays), dr.zeros(T.Float, rays), dr.zeros(T.Float, rays))
 
         o, d = T.Array3(o) + z3(), T.Array3(d) + z3()  # every loop variable as wide as the rays
-        margins = tree and fx.shadows and (fx.diffuse or fx.specular)  # as shade_level records them
+        margins = tree and self._has_margins()
         first = [zf] + ([zf] if margins else []) + ([z3(), z3()] if bufs is None else []) + [z3() for _ in carried]
         local = [z3() for _ in range(depth + 1)]
         ids = [dr.full(T.Int, -2, rays) for _ in range(depth + 1)]
@@ -992,12 +1010,7 @@ class Tracer:
             lvl.record["tree"] = _tree_hash(T.UInt(codes[0]), below)
             if margins:
                 lvl.record["shadow_margin"] = first[1]
-        lvl.terms["reflection"] = kr * refl
-        c = lvl.local + lvl.terms["reflection"]
-        if fx.background:
-            lvl.terms["background"] = lvl.bg
-            c = c + lvl.bg
-        return lvl, c
+        return lvl, self._first_colour(lvl, refl)
 
     def _reflected(self, active, ro, rd, depth: int, tree: bool = False) -> tuple[Any, Any]:
         """The colour ``trace`` gives the reflected rays (ro, rd) where ``active``, 0 elsewhere: levels 1 ..
@@ -1381,6 +1394,13 @@ class Tracer:
             add["diffuse_r2_2"] = add["diffuse_r2"] * add["diffuse_r2"]
         return add
 
+    def _sample_names(self, terms: Collection[str], falloff: bool) -> list[str]:
+        """The names of the sums ``_sample_terms`` adds to, known before any sample is traced."""
+        names = ["color"] + ["term." + k for k in self._term_names(terms)] + ["color2"]
+        if "term.diffuse" in names:
+            names += ["diffuse2"] + (["diffuse_r2", "diffuse_r2_2"] if falloff else [])
+        return names
+
     def _sample_batch(self, uv: np.ndarray, pixels, terms: Collection[str], falloff: bool, sums: dict[str, Any]):
         """``sums`` plus the samples whose sub-pixel offsets are ``uv`` ((samples, rays, 2) float64, from
         ``camera.sample_offsets_into``), summed in a Dr.Jit loop in one kernel: the sums stay in registers
@@ -1392,9 +1412,11 @@ class Tracer:
         count = uv.shape[1]
         flat = F64(uv.reshape(-1))
         i = dr.arange(U32, count)
-        if not sums:  # the names one sample adds: traced for their names only, never evaluated
-            names = list(self._sample_terms(*self._sample_rays(uv[0, :1, 0], uv[0, :1, 1]), terms, falloff))
-            sums = {k: A64(dr.zeros(F64, count), dr.zeros(F64, count), dr.zeros(F64, count)) for k in names}
+        if not sums:
+            sums = {
+                k: A64(dr.zeros(F64, count), dr.zeros(F64, count), dr.zeros(F64, count))
+                for k in self._sample_names(terms, falloff)
+            }
         names = list(sums)
 
         stride = dr.opaque(U32, count)  # a value, not a constant: one kernel for every image size
@@ -1403,6 +1425,7 @@ class Tracer:
             at = 2 * (j * stride + i)
             o, d = self._sample_rays(dr.gather(F64, flat, at), dr.gather(F64, flat, at + 1), pixels)
             add = self._sample_terms(o, d, terms, falloff)
+            assert set(add) == set(names), (sorted(add), names)  # _sample_names says what _sample_terms adds
             return (j + 1, *(a + add[k] for a, k in zip(acc, names, strict=True)))
 
         state = dr.while_loop(
