@@ -1166,16 +1166,22 @@ class Tracer:
         else:
             idx = dr.arange(U32, w * h)
         n = dr.width(idx)
-        # The width and height are values the kernel reads, not constants compiled in, so a scene rendered
-        # at another size (a sweep's sizes, a test's) reuses the compiled kernel. The row is floor(idx / w)
-        # in float64 -- exact: idx < 2^28 and w <= 2^14, so the quotient is within 2^-25 of idx / w, whose
-        # distance below the next integer is at least 1 / w >= 2^-14 -- since a vector integer division by
-        # a run-time value is a scalar division per lane (three_balls 1024^2: +0.9 ms a trace; float64
-        # +0.2 ms; by the literal, none). dr.opaque also keeps Dr.Jit from turning the float division by a
-        # literal below into a multiplication by its reciprocal (one more rounding), FastMath off or not.
-        wo = dr.opaque(U32, w)
-        yi = U32(dr.floor(dr.llvm.Float64(idx) / dr.llvm.Float64(wo)))
-        xi = idx - yi * wo
+        # Below LOOP_FIRST_LEVEL_BELOW rays, where a kernel's compile outweighs its runs, the width is a
+        # value the kernel reads (the height always is), so a scene rendered at another size (a sweep's
+        # sizes, a test's) reuses the compiled kernel; the row is then floor(idx / w) in float64 -- exact:
+        # idx < 2^28 and w <= 2^14, so the quotient is within 2^-25 of idx / w, whose distance below the
+        # next integer is at least 1 / w >= 2^-14 -- since a vector integer division by a run-time value is
+        # a scalar division per lane. From there the width is compiled in: a run-time width cost the
+        # float32 trace of three_balls at 1024^2 0.4 ms of 5.5 (interleaved A/B), float64 nothing.
+        # dr.opaque also keeps Dr.Jit from turning the float division by a literal below into a
+        # multiplication by its reciprocal (one more rounding), FastMath off or not.
+        if n < LOOP_FIRST_LEVEL_BELOW:
+            wi = dr.opaque(U32, w)
+            yi = U32(dr.floor(dr.llvm.Float64(idx) / dr.llvm.Float64(wi)))
+        else:
+            wi = w
+            yi = idx // w
+        xi = idx - yi * wi
         sx, sy = self.rules.pixel_shift
         fx, fy = F(xi) + u, F(yi) + v
         if self.runtime:

@@ -168,11 +168,16 @@ def test_samples_with_runtime_rules_same_bits():
     assert _same(a, b) == []
 
 
+@pytest.mark.parametrize("below", [1 << 62, 0], ids=["run-time width", "compiled width"])
 @pytest.mark.parametrize("width", [1, 3, 7, 1000, 16383, 16384])
-def test_row_and_column_of_any_pixel(width):
-    """The kernel finds a pixel's row as floor(index / width) in float64 (the width a run-time value: one
-    kernel for every image size): the NumPy camera's integer divmod, bit for bit, at both ends of every
-    row up to the largest image (16384^2 = 2^28 pixels) and at random pixels."""
+def test_row_and_column_of_any_pixel(monkeypatch, width, below):
+    """Below LOOP_FIRST_LEVEL_BELOW rays the kernel finds a pixel's row as floor(index / width) in float64
+    (the width a run-time value: one kernel for every image size), from there by the compiled width:
+    either way the NumPy camera's integer divmod, bit for bit, at both ends of every row up to the largest
+    image (16384^2 = 2^28 pixels) and at random pixels."""
+    from minirt import tracer
+
+    monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
     height = 16384
     scene = load_scene("scenes/exercise.toml").with_overrides(width=width, height=height)
     n = width * height
