@@ -40,6 +40,19 @@ app = typer.Typer(
 # Tables in logs and pipes get room to breathe; a terminal keeps its own width.
 err = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
 out = Console(highlight=False, emoji=False, soft_wrap=True)
+
+
+class _PipeClosed(Exception):
+    """The reader of standard output (or error) went away: ``minirt check ... | head -1``."""
+
+
+def _pipe_closed() -> None:
+    """Console.on_broken_pipe: Rich's own exits 1, which reads as a FAIL verdict; ``main`` exits as a
+    process killed by SIGPIPE would, once the clean-ups on the way out have run."""
+    raise _PipeClosed
+
+
+out.on_broken_pipe = err.on_broken_pipe = _pipe_closed
 MAX_MESSAGE = 2000  # characters of one message line built from untrusted parts (a file name, a key)
 
 
@@ -983,7 +996,10 @@ def _emit_json(dest: str, data: dict[str, Any]) -> None:
     which then holds nothing else (messages go to standard error)."""
     from minirt.jsonout import emit_json
 
-    emit_json(dest, data)
+    try:
+        emit_json(dest, data)
+    except BrokenPipeError:  # Click would exit 1 (a FAIL verdict's status) on it: see _pipe_closed
+        raise _PipeClosed from None
 
 
 def _print_grade(g, page: Path | None) -> None:
@@ -1243,7 +1259,15 @@ def main() -> None:
         rv = app(standalone_mode=False)
         if _stopped_by:
             _stopped(_stopped_by[0])
+        sys.stdout.flush()  # a closed pipe shows here, not as a warning at the interpreter's exit
         sys.exit(rv if isinstance(rv, int) else 0)
+    except (_PipeClosed, BrokenPipeError):
+        # Nobody reads what is left to say: no message, and the status of a command killed by SIGPIPE
+        # (141), not 1 (FAIL) or 2 (bad input). Writes are atomic, so every file written is whole.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        for fd in (1, 2):
+            os.dup2(devnull, fd)  # the interpreter's last flush then has nowhere to fail
+        sys.exit(128 + signal.SIGPIPE)
     except MinirtError as e:
         for line in e.lines or [str(e)]:
             err.print(f"minirt: error: {terminal_text(line, MAX_MESSAGE)}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 from pathlib import Path
 
@@ -191,3 +192,30 @@ def test_the_reference_alone_has_nothing_to_compare_with(command, tmp_path):
         "embree, or all)"
     ], p.stderr
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [("probe", "exercise", "3", "3", "--json"), ("probe", "exercise", "3", "3"),
+     ("render", "exercise", "-b", "reference", "--width", "8", "--height", "8", "--out", "out")],
+)  # fmt: skip
+def test_a_reader_that_goes_away_is_not_a_verdict(tmp_path, args):
+    """``minirt ... | head -1``: standard output closed before minirt writes to it. The status is a
+    SIGPIPE's 141 -- not 1, which check and grade give a FAIL (Click's and Rich's own exit on a broken
+    pipe), not 2 -- with no traceback and no "Exception ignored" at the interpreter's exit; and what the
+    command wrote to files is whole."""
+    import sys
+
+    r, w = os.pipe()
+    os.close(r)  # nobody will read: the first write to standard output fails with EPIPE
+    try:
+        p = subprocess.run([sys.executable, "-m", "minirt", *args], cwd=tmp_path, stdout=w, stderr=subprocess.PIPE,
+                           text=True, timeout=120)  # fmt: skip
+    finally:
+        os.close(w)
+    assert p.returncode == 141, (p.returncode, p.stderr)
+    assert "Traceback" not in p.stderr and "Exception ignored" not in p.stderr and "Broken pipe" not in p.stderr
+    if args[0] == "render":
+        assert sorted(q.name for q in (tmp_path / "out").iterdir()) == [
+            "exercise.reference.exr", "exercise.reference.json", "exercise.reference.png"
+        ]  # fmt: skip
