@@ -64,8 +64,16 @@ class RenderResult:
 
 
 def to8(color: np.ndarray) -> np.ndarray:
-    c = np.clip(np.nan_to_num(color, nan=0.0), 0.0, 1.0)
-    return np.floor(c * 255.0 + 0.5).astype(np.uint8)
+    """clamp(c, 0, 1), then floor(c * 255 + 0.5) as 8 bits (NaN as 0): the same roundings in one buffer,
+    in place, rather than a new array for each step."""
+    c = np.nan_to_num(np.asarray(color), nan=0.0)  # a copy, of the colour's own float type
+    if not np.issubdtype(c.dtype, np.floating):
+        c = c.astype(np.float64)
+    np.clip(c, 0.0, 1.0, out=c)
+    np.multiply(c, 255.0, out=c)
+    np.add(c, 0.5, out=c)
+    np.floor(c, out=c)
+    return c.astype(np.uint8)
 
 
 def geometry_from_flat(

@@ -92,6 +92,16 @@ def test_exr_holds_every_buffer(tmp_path):
     paths = write_result(r, tmp_path, "x")  # the plain render's files, checked below
     assert np.array_equal(ch["id"], r.shape_id.astype(np.float32))
     assert np.allclose(ch["t"], np.where(r.hit, r.t, 0), rtol=1e-7)
+    # Every channel is its float64 buffer rounded once to float32, exactly (exr_channels converts each
+    # buffer straight into its channel).
+    planes = {"hit": r.hit, "id": r.shape_id, "t": np.where(r.hit, r.t, 0.0)}
+    for prefix, a, comps in [("", r.color, "RGB"), ("P.", r.position, "XYZ"), ("N.", r.normal, "XYZ")] + [
+        (f"{t}.", r.terms[t], "RGB") for t in TERMS
+    ]:
+        planes |= {prefix + c: a[..., i] for i, c in enumerate(comps)}
+    assert set(planes) == set(names)
+    for name, plane in planes.items():
+        assert np.array_equal(ch[name], np.asarray(plane, np.float64).astype(np.float32)), name
     total = sum(np.stack([ch[f"{t}.{c}"] for c in "RGB"], -1) for t in TERMS)
     assert np.allclose(total, r.color, atol=1e-6), "the terms add up to the colour"
     png = read_image_u8(paths["png"])
