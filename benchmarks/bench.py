@@ -12,7 +12,8 @@ Sections (JSON keys; the Markdown on stdout follows the same order):
   1024x1024, float64 and float32. ``trace`` is the kernel alone (primary rays + ``Tracer.trace`` +
   ``dr.eval`` + ``dr.sync_thread``); ``render`` is the whole ``Tracer.render()`` including the buffers
   back to NumPy (``render_checked``: keeping only the two terms a check reads, harness.CHECKED_TERMS).
-  Steady state: warm-up runs first (the JIT compiles), then the median of >= 5 runs.
+  Steady state: warm-up runs first (the JIT compiles), then the median of >= 5 runs; the f64 and f32
+  traces interleaved run by run, so drift does not bias their ratio.
 - ``numpy``: a compact vectorised NumPy implementation of the same model (exercise rules: primary
   rays, closest hit, shadow rays, ambient + diffuse + (r·s)^8 specular, 3 reflection levels), timed
   in the same run; its image is checked against the reference (max abs difference reported), and the
@@ -177,12 +178,21 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
     out: dict[str, Any] = {"scene": sc.name, "width": cfg.ref_size, "height": cfg.ref_size,
                            "max_depth": sc.max_depth, "profile": sc.profile, "warmup": cfg.warmup,
                            "reps": cfg.reps}  # fmt: skip
-    for prec in ("f64", "f32"):
-        tr = Tracer(sc, rules, precision=prec)
-        for _ in range(cfg.warmup):
+    # The two precisions' traces interleaved, run by run: their ratio is a target, and this shared VM's
+    # speed drifts over seconds (its memory bandwidth twofold between runs), which timing one precision
+    # after the other would fold into the ratio. The renders are timed after them, not interleaved: a
+    # render's buffers (268 MB) churn Dr.Jit's allocation cache and the CPU's, which slowed the float32
+    # trace timed between renders by a fifth.
+    tracers = {prec: Tracer(sc, rules, precision=prec) for prec in ("f64", "f32")}
+    for _ in range(cfg.warmup):
+        for tr in tracers.values():
             _trace_seconds(tr)
-        trace = _stats([_trace_seconds(tr) for _ in range(cfg.reps)], px)
-        out[prec] = {"trace": trace, "effects": tr.effects.simulated()}
+    runs: dict[str, list[float]] = {prec: [] for prec in tracers}
+    for _ in range(cfg.reps):
+        for prec, tr in tracers.items():
+            runs[prec].append(_trace_seconds(tr))
+    for prec, tr in tracers.items():
+        out[prec] = {"trace": _stats(runs[prec], px), "effects": tr.effects.simulated()}
         # render: every buffer, as `minirt render` writes them; render_checked: the two terms a check
         # keeps of its reference renders (harness.CHECKED_TERMS), the other three never written.
         for kind, terms in (("render", None), ("render_checked", CHECKED_TERMS)):
