@@ -229,8 +229,8 @@ class VariantCache:
         o, d = tr.primary_rays(idx)  # full images and subsets alike: one kernel for both
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             color, levels = tr.trace(o, d, tree=True)
-        c = tr._to_numpy3(color)
         m = levels[0].record.get("shadow_margin")
+        c = tr._to_numpy3(color, also=() if m is None else (m,))  # one trace kernel for both
         sill = np.zeros(c.shape[0], dtype=bool) if m is None else np.asarray(m) < EPS_REL * _scale(scene)
         if idx is None:
             h, w = scene.camera.height, scene.camera.width

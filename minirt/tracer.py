@@ -1055,10 +1055,11 @@ class Tracer:
         return c, below
 
     # ---- whole images -----------------------------------------------------------------------
-    def _to_numpy3(self, a) -> np.ndarray:
-        """(N, 3) float64 from a Dr.Jit 3-vector of N rays, zeros canonical (see ``_interleave``)."""
+    def _to_numpy3(self, a, also=()) -> np.ndarray:
+        """(N, 3) float64 from a Dr.Jit 3-vector of N rays, zeros canonical (see ``_interleave``); ``also``
+        (arrays the caller reads next) evaluated in the same kernel as ``a``."""
         n = max(dr.width(a[k]) for k in range(3))
-        return self._interleave(n, 1, {"v": a})["v"].reshape(n, 3)
+        return self._interleave(n, 1, {"v": a}, also=also)["v"].reshape(n, 3)
 
     def _scatter_out(self, out: dict[str, Any], vectors: dict[str, Any], n: int, hit=None, masked=()) -> None:
         """Queue the writes of 3-vectors (width n, or 1: a constant) into new float64 buffers out[name]
@@ -1119,6 +1120,10 @@ class Tracer:
         F64, U32 = dr.llvm.Float64, dr.llvm.UInt32
         n = w * h
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            # What is read is evaluated first, together: a gather from an unevaluated expression evaluates
+            # that expression alone, and a lazy trace's colour read component by component ran the whole
+            # trace three times (and a fourth for ``also``'s shadow margins).
+            dr.eval(*vectors.values(), *also, *([shape_id] if masked else []))
             zero = dr.opaque(F64, 0.0)
             j = dr.arange(U32, 3 * n)
             i = j // 3

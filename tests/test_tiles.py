@@ -207,3 +207,24 @@ def test_another_size_compiles_nothing(samples):
             Tracer(scene.with_overrides(width=w, height=h), rules).render(diagnostics=True)
             hashes.append(sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT))
     assert hashes[0] and hashes[0] == hashes[1]
+
+
+def test_a_search_variant_is_one_trace_kernel():
+    """A rule search's render (diagnose.VariantCache._trace: a lazy trace, its colour and shadow margins
+    read back) runs the trace once: one kernel for the colour and the margins, one that interleaves.
+    Read component by component, the colour's three gathers each evaluated the lazy trace on its own,
+    and the margins a fourth time: five kernels, and two and a half times the time."""
+    from minirt.diagnose import VariantCache
+
+    scene = load_scene("scenes/rules.toml").with_overrides(width=24, height=16)
+    rules = resolve(scene).traced()
+    cache = VariantCache()
+    cache._trace(scene, rules, None)  # compiled, so that only the runs are counted below
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        v = cache._trace(scene, rules, None)
+        kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    assert len(kernels) == 2, [(k["size"], k.get("operation_count")) for k in kernels]
+    assert sorted(k["size"] for k in kernels) == [24 * 16, 3 * 24 * 16]  # the trace, then the interleave
+    whole = Tracer(scene, rules).render()
+    assert np.array_equal(v.color, whole.color)  # the same colour as a plain render's
