@@ -246,7 +246,7 @@ RENDER_HELP = "\n\n".join([
     "is named by what differs, e.g. exercise.reference+clamp=true.png, so it never overwrites the render of the "
     "scene's own model.",
     "Any size up to 16384x16384: the reference traces in tiles of 2^20 pixels and, rendering alone, writes each "
-    "tile's rows as they come (a 4096x4096 render needs about 1.7 GB). Scenes of many balls go through a bounding "
+    "tile's rows as they come (a 4096x4096 render needs about 1.1 GB). Scenes of many balls go through a bounding "
     "volume hierarchy (100,000 balls: seconds).",
 ])  # fmt: skip
 
