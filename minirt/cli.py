@@ -37,6 +37,19 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
+
+
+def _closed_streams_to_devnull() -> None:
+    """A standard stream whose descriptor was closed before minirt started (``minirt ... >&-``, a
+    daemon's): Python leaves sys.stdout or sys.stderr None, and minirt died of an AttributeError --
+    at import for stderr, at its first message for stdout -- with exit 1, a FAIL's status, even for a
+    broken scene. What cannot be said goes to /dev/null; the exit status still tells (0, 1, 2)."""
+    for name in ("stdout", "stderr"):
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(os.devnull, "w"))  # noqa: SIM115 -- the process's stream until exit
+
+
+_closed_streams_to_devnull()  # before the consoles below ask stderr whether it is a terminal
 # Tables in logs and pipes get room to breathe; a terminal keeps its own width.
 err = Console(stderr=True, highlight=False, emoji=False, soft_wrap=True, width=None if sys.stderr.isatty() else 160)
 out = Console(highlight=False, emoji=False, soft_wrap=True)

@@ -219,3 +219,28 @@ def test_a_reader_that_goes_away_is_not_a_verdict(tmp_path, args):
         assert sorted(q.name for q in (tmp_path / "out").iterdir()) == [
             "exercise.reference.exr", "exercise.reference.json", "exercise.reference.png"
         ]  # fmt: skip
+
+
+@pytest.mark.parametrize("closed", [">&-", "2>&-", ">&- 2>&-"])
+@pytest.mark.parametrize("good", [True, False])
+def test_a_closed_stream_does_not_change_the_status(tmp_path, closed, good):
+    """Standard output or error closed before minirt starts (``minirt ... >&-``, a daemon's): Python
+    makes the stream None, and minirt used to die of an AttributeError (at import for stderr) with exit
+    1, a FAIL's status, even for a broken scene. Now what cannot be said is dropped and the status is the
+    command's own: 0 and the files for a good render, 2 and no folder for a broken scene."""
+    import shlex
+    import sys
+
+    scene = tmp_path / "s.toml"
+    scene.write_text(GOOD if good else GOOD.replace("distance = 2.0", 'distance = "x"'))
+    cmd = f"exec {shlex.quote(sys.executable)} -m minirt render {shlex.quote(str(scene))} --out out {closed}"
+    p = subprocess.run(["sh", "-c", cmd], cwd=tmp_path, timeout=120)
+    assert p.returncode == (0 if good else 2)
+    if good:
+        assert sorted(q.name for q in (tmp_path / "out").iterdir()) == [
+            "s.reference.exr",
+            "s.reference.json",
+            "s.reference.png",
+        ]
+    else:
+        assert not (tmp_path / "out").exists()
