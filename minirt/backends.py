@@ -105,7 +105,7 @@ def render(name: str, scene: Scene, rules: Rules, options: dict[str, Any] | None
                 progress=progress,
                 diagnostics=bool(options.get("diagnostics", False)),
                 terms=options.get("terms"),
-                runtime=bool(options.get("runtime", False)),
+                runtime=options.get("runtime"),  # None: the tracer's choice by image size
             )
         else:
             from minirt import oracles

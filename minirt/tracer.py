@@ -144,7 +144,7 @@ class Tracer:
         rules: Rules,
         precision: str = "f64",
         prune: bool = True,
-        runtime: bool = False,
+        runtime: bool | None = None,
         accel: str = "auto",
     ):
         """``runtime``: the rules a search varies most are values the kernel reads, not constants
@@ -154,7 +154,10 @@ class Tracer:
         -- and primary rays come from an array of pixel indices (``primary_rays(pixels)``). Renders
         that differ only in those, and renders of a few pixels, share one kernel: a search over
         candidates compiles each kernel once. The same bits either way (tested), at the cost of a few
-        selects per ray.
+        selects per ray. None (the default): read at run time for images below
+        ``LOOP_FIRST_LEVEL_BELOW`` pixels, where a kernel's compile outweighs its runs -- a scene rendered
+        under another rule (``--rule``, a profile, a test's sweep) then reuses the compiled kernels --
+        and compiled in from there, where the selects would cost every ray and a compile is amortised.
 
         ``accel``: how rays find their shapes. "unrolled" tests every shape in code generated for this
         scene (constants compiled in: fastest for a few shapes, one kernel per layout); "bvh" gathers
@@ -164,6 +167,8 @@ class Tracer:
         picks "bvh" from ``ACCEL_MIN_SHAPES`` shapes on. The same bits every way (tested)."""
         require_llvm()
         self.scene, self.rules, self.precision, self.prune = scene, rules, precision, prune
+        if runtime is None:
+            runtime = scene.camera.width * scene.camera.height < LOOP_FIRST_LEVEL_BELOW
         self.runtime = runtime
         self.T = _Types.of(precision)
         if accel == "auto":
@@ -1599,7 +1604,7 @@ def render(
     progress=None,
     diagnostics: bool = False,
     terms: Collection[str] | None = None,
-    runtime: bool = False,
+    runtime: bool | None = None,
 ) -> RenderResult:
     """Render a scene with the reference tracer (``diagnostics``: also aux ray_tree and shadow_margin;
     ``terms``: the terms to keep, default all; ``runtime``: see ``Tracer``)."""

@@ -57,7 +57,7 @@ def test_bundled_scenes_same_bits(scene_path, profile):
     scene = load_scene(scene_path).with_overrides(width=40, height=40, samples=1)
     rules = resolve(scene, profile)
     for precision in ("f64", "f32") if profile == "exercise" else ("f64",):
-        assert _differs(Tracer(scene, rules, precision)) == [], precision
+        assert _differs(Tracer(scene, rules, precision, runtime=False)) == [], precision  # compiled in
 
 
 @pytest.mark.parametrize("profile", list(PROFILES))
@@ -138,7 +138,7 @@ def test_the_looped_form_holds_the_shading_once(monkeypatch):
         monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
             dr.kernel_history()
-            Tracer(scene, resolve(scene)).render()
-            kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+            Tracer(scene, resolve(scene), runtime=False).render()  # the rules compiled in both times:
+            kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]  # the forms alone differ
         ops[form] = max(k["operation_count"] for k in kernels)
     assert ops["looped"] < 0.75 * ops["straight"], ops

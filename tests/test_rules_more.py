@@ -446,7 +446,7 @@ def test_runtime_exponent_same_bits(profile):
     scene = load_scene("scenes/rules.toml").with_overrides(width=32, height=32, samples=1)
     for e in (1, 5, 8, 12, 16, 777, 1024):
         rules = replace(PROFILES[profile], specular_exponent=e)
-        a = Tracer(scene, rules).render().color
+        a = Tracer(scene, rules, runtime=False).render().color
         b = Tracer(scene, rules, runtime=True).render().color
         assert np.array_equal(a.view(np.uint64), b.view(np.uint64)), e
 
@@ -481,7 +481,7 @@ def test_runtime_rules_same_bits(profile, precision):
     scene = load_scene("scenes/rules.toml").with_overrides(width=40, height=32, samples=1)
     for change in RUNTIME_RULES:
         rules = replace(PROFILES[profile], **change)
-        a = Tracer(scene, rules, precision=precision).render(diagnostics=True)
+        a = Tracer(scene, rules, precision=precision, runtime=False).render(diagnostics=True)
         b = Tracer(scene, rules, precision=precision, runtime=True).render(diagnostics=True)
         for f in ("color", "hit", "shape_id", "t", "position", "normal"):
             assert getattr(a, f).tobytes() == getattr(b, f).tobytes(), (change, f)

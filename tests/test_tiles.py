@@ -4,6 +4,8 @@ tracer.TILE_PIXELS.)"""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import drjit as dr
 import numpy as np
 import pytest
@@ -162,7 +164,7 @@ def test_samples_with_runtime_rules_same_bits():
     the same bits as the rules compiled in, every buffer, the samples' statistics too."""
     scene = load_scene("scenes/soft.toml").with_overrides(width=23, height=19, samples=5)
     rules = PROFILES["conventional"]
-    a = Tracer(scene, rules).render(diagnostics=True, terms=("diffuse", "specular"))
+    a = Tracer(scene, rules, runtime=False).render(diagnostics=True, terms=("diffuse", "specular"))
     b = Tracer(scene, rules, runtime=True).render(diagnostics=True, terms=("diffuse", "specular"))
     assert {"variance", "diffuse_r2"} <= set(b.aux)
     assert _same(a, b) == []
@@ -228,3 +230,22 @@ def test_a_search_variant_is_one_trace_kernel():
     assert sorted(k["size"] for k in kernels) == [24 * 16, 3 * 24 * 16]  # the trace, then the interleave
     whole = Tracer(scene, rules).render()
     assert np.array_equal(v.color, whole.color)  # the same colour as a plain render's
+
+
+def test_small_images_read_their_rules_at_run_time():
+    """By default (``runtime=None``) an image below LOOP_FIRST_LEVEL_BELOW pixels reads the rules a
+    search varies at run time, so a render under another such rule (``--rule clamp=true``, another
+    exponent, the camera's rules) runs the very kernels of the first; from there the rules are compiled
+    in, as the trace's hot path wants."""
+    scene = load_scene("scenes/three_balls.toml").with_overrides(width=24, height=16)
+    rules = resolve(scene)
+    assert Tracer(scene, rules).runtime is True
+    big = scene.with_overrides(width=512, height=512)  # 2^18 pixels: not below the threshold
+    assert Tracer(big, rules).runtime is False and Tracer(big, rules, runtime=True).runtime is True
+    hashes = []
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        for change in ({}, {"clamp": True, "specular_exponent": 16, "pixel_sample": "center", "two_sided": True}):
+            dr.kernel_history()
+            Tracer(scene, replace(rules, **change)).render()
+            hashes.append(sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT))
+    assert hashes[0] and hashes[0] == hashes[1]
