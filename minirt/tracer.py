@@ -177,6 +177,8 @@ class Tracer:
             raise ValueError(f"unknown accel {accel!r} (auto, {', '.join(ACCELS)})")
         self.accel = accel
         self.table = ShapeTable(scene, self.T, with_tree=accel == "bvh") if accel != "unrolled" else None
+        self._consts: dict[Any, Any] = {}  # ``_k``'s opaque values
+        self._index = {id(s): k for k, s in enumerate(scene.shapes)}
         if precision == "f32":
             _check_float32_range(scene)
         if prune:
@@ -193,13 +195,40 @@ class Tracer:
     def _vec(self, v) -> Any:
         return self.T.Array3(*(float(c) for c in v))
 
+    def _k(self, key, value, F=None) -> Any:
+        """A value of the scene (a shape's, a material's, the light's, the camera's) as the unrolled path's
+        kernels see it, in float type F (default the precision's; a sequence: a 3-vector). Compiled in as
+        a literal -- or under ``runtime`` an opaque value the kernel reads, made once per Tracer under
+        ``key``: a scene that differs only in its values (a ball moved, a colour changed, a campaign's
+        defect) then reuses the compiled kernels, at the cost of the literals' folding (three_balls
+        1024^2: 8.5 -> 9.7 ms a trace), which is why large images compile them in. The same value in the
+        same operations either way, so the same bits (tested, as the table path, whose values are
+        gathered, is). A literal is never cached: one made inside a symbolic conditional may not be used
+        outside it."""
+        F = F or self.T.Float
+        vector = not isinstance(value, int | float)
+        if not self.runtime:
+            if vector:
+                return (self.T.Array3 if F is self.T.Float else dr.llvm.Array3f64)(*(float(c) for c in value))
+            return F(float(value))
+        v = self._consts.get(key)
+        if v is None:
+            if vector:
+                v = dr.opaque(self.T.Array3 if F is self.T.Float else dr.llvm.Array3f64, [float(c) for c in value])
+            else:
+                v = dr.opaque(F, float(value))
+            self._consts[key] = v
+        return v
+
     def _scene_vec(self, name: str) -> Any:
         """A scene constant (light, light_color, background): read from the shape table when there is
-        one, so that the kernel does not depend on the scene's values; the same value, the same bits."""
+        one, else as ``_k`` gives it; the same value, the same bits."""
         if self.table is not None:
             return self.table.vec(name)
         sc = self.scene
-        return self._vec({"light": sc.light.position, "light_color": sc.light.color, "background": sc.background}[name])
+        return self._k(
+            name, {"light": sc.light.position, "light_color": sc.light.color, "background": sc.background}[name]
+        )
 
     def _by_id(self, shape_id, values: list, zero) -> Any:
         """Per-lane lookup of a per-shape constant: a select chain (shapes are few)."""
@@ -211,7 +240,7 @@ class Tracer:
     def _material_term(self, shape_id, name: str) -> Any:
         if self.table is not None:
             return dr.gather(self.T.Array3, self.table.material[name], self.T.UInt(shape_id), shape_id >= 0)
-        vals = [self._vec(getattr(s.material, name)) for s in self.scene.shapes]
+        vals = [self._k((name, k), getattr(s.material, name)) for k, s in enumerate(self.scene.shapes)]
         return self._by_id(shape_id, vals, self._vec((0.0, 0.0, 0.0)))
 
     # ---- Ball, Plane: intersect -------------------------------------------------------------
@@ -246,7 +275,14 @@ class Tracer:
         return (lf - r) * (lf + r)
 
     def _ball(self, ball: Ball) -> tuple[Any, Any]:
-        return self._vec(ball.center), self.T.Float(ball.radius)
+        """A ball's centre and radius (``_k``)."""
+        k = self._index[id(ball)]
+        return self._k(("center", k), ball.center), self._k(("radius", k), ball.radius)
+
+    def _plane(self, plane: Plane) -> tuple[Any, Any]:
+        """A plane's normal and point (``_k``)."""
+        k = self._index[id(plane)]
+        return self._k(("normal", k), plane.normal), self._k(("point", k), plane.point)
 
     def intersect_ball(self, ball: Ball, o, d) -> Any:
         return self._ball_t(*self._ball(ball), o, d)
@@ -283,7 +319,7 @@ class Tracer:
         return dr.select(hit & (tn > 0), tn, dr.select(far, tf, inf))
 
     def intersect_plane(self, plane: Plane, o, d) -> Any:
-        return self._plane_t(self._vec(plane.normal), self._vec(plane.point), o, d)
+        return self._plane_t(*self._plane(plane), o, d)
 
     def _plane_t(self, n, q, o, d, gate: bool = False) -> Any:
         """t of the ray (o, d) at the plane through q with normal n, inf on a miss. ``gate``: the division
@@ -306,7 +342,7 @@ class Tracer:
         """t of the ray (o, d) at the shape, inf on a miss; ``gate``: see ``_ball_t``, ``_plane_t``."""
         if isinstance(shape, Ball):
             return self._ball_t(*self._ball(shape), o, d, gate)
-        return self._plane_t(self._vec(shape.normal), self._vec(shape.point), o, d, gate)
+        return self._plane_t(*self._plane(shape), o, d, gate)
 
     def closest(self, o, d) -> tuple[Any, Any]:
         """Appendix 1: the closest hit over all shapes; ties keep the lower shape id."""
@@ -345,16 +381,17 @@ class Tracer:
         planes = [(k, s) for k, s in enumerate(self.scene.shapes) if isinstance(s, Plane)]
         n = zero
         for k, s in planes:
-            n = dr.select(shape_id == k, self._vec(s.normal), n)
+            n = dr.select(shape_id == k, self._plane(s)[0], n)
         if balls:
             is_ball = self.T.Bool(False)
             c, r, inv_r = zero, self.T.Float(1.0), self.T.Float(1.0)
             for k, s in balls:
                 on = shape_id == k
                 is_ball |= on
-                c = dr.select(on, self._vec(s.center), c)
-                r = dr.select(on, self.T.Float(s.radius), r)
-                inv_r = dr.select(on, self.T.Float(self._reciprocal(s.radius)), inv_r)
+                ck, rk = self._ball(s)
+                c = dr.select(on, ck, c)
+                r = dr.select(on, rk, r)
+                inv_r = dr.select(on, self._k(("inv_radius", k), self._reciprocal(s.radius)), inv_r)
             p, n = self._ball_normal(p, d, c, r, inv_r, is_ball, n)
         return p, n
 
@@ -414,11 +451,11 @@ class Tracer:
             extra = dr.select(is_ball, self.T.Float(0.0), lo)
             return factor * ((dr.gather(self.T.Float, self.table.err_length, k, hit) + lp) + extra)
         vals = []
-        for s in self.scene.shapes:
+        for k, s in enumerate(self.scene.shapes):
             if isinstance(s, Ball):
-                vals.append(gamma(6, u) * ((s.radius + lp) + 0.0))  # + 0.0: the table path's sum, same bits
+                vals.append(gamma(6, u) * ((self._ball(s)[1] + lp) + 0.0))  # + 0.0: the table path's sum, same bits
             else:
-                vals.append(gamma(4, u) * ((abs(s.distance) + lp) + lo))
+                vals.append(gamma(4, u) * ((self._k(("abs_distance", k), abs(s.distance)) + lp) + lo))
         return self._by_id(shape_id, vals, self.T.Float(0))
 
     def offset_origin(self, p, n, err, direction, outward=None) -> Any:
@@ -526,7 +563,9 @@ class Tracer:
         return blocked
 
     def occludes_ball(self, ball: Ball, o, d) -> Any:
-        return self._ball_occludes(*self._ball(ball), o, d, sqrt_bounds(ball.radius, self.T.np_dtype))
+        k = self._index[id(ball)]
+        lo, hi = sqrt_bounds(ball.radius, self.T.np_dtype)
+        return self._ball_occludes(*self._ball(ball), o, d, (self._k(("sqrt_lo", k), lo), self._k(("sqrt_hi", k), hi)))
 
     def _ball_occludes(self, center, radius, o, d, bounds: tuple[float, float] | None = None) -> Any:
         """intersect_ball(ball, o, d) < inf, from signs: the roots' product is c = |f|^2 - r^2 (d is
@@ -1204,9 +1243,7 @@ class Tracer:
         px = fx / dr.opaque(F, w) - 0.5
         py = -fy / dr.opaque(F, h) + 0.5
         pz = dr.zeros(F, n)
-        cz = -sc.camera.distance
-        if self.table is not None:  # one kernel for every camera distance, not one per scene
-            cz = self.table.camera_z(F)
+        cz = self.table.camera_z(F) if self.table is not None else self._k(("camera_z", F), -sc.camera.distance, F)
         dx, dy, dz = px - 0.0, py - 0.0, pz - cz
         inv = 1.0 / dr.sqrt(dx * dx + dy * dy + dz * dz)  # one division, three products
         d = A3(dx * inv, dy * inv, dz * inv)
@@ -1404,7 +1441,7 @@ class Tracer:
             add["diffuse2"] = add["term.diffuse"] * add["term.diffuse"]
         if falloff and "term.diffuse" in add:
             lvl = levels[0]
-            to_light = A64(lvl.p) - A64(*self.scene.light.position)
+            to_light = A64(lvl.p) - self._k("light64", self.scene.light.position, dr.llvm.Float64)
             r2 = dr.squared_norm(to_light)
             add["diffuse_r2"] = dr.select((lvl.shape_id >= 0) & (r2 > 0), add["term.diffuse"] / r2, 0.0)
             add["diffuse_r2_2"] = add["diffuse_r2"] * add["diffuse_r2"]

@@ -249,3 +249,32 @@ def test_small_images_read_their_rules_at_run_time():
             Tracer(scene, replace(rules, **change)).render()
             hashes.append(sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT))
     assert hashes[0] and hashes[0] == hashes[1]
+
+
+def test_small_images_read_their_scene_values_at_run_time():
+    """Below LOOP_FIRST_LEVEL_BELOW pixels the scene's values are read at run time too (``Tracer._k``): a
+    scene that differs only in its values -- a ball moved and grown, a colour, the light, the camera's
+    distance -- runs the very kernels of the first, and renders as a Tracer with the values compiled in
+    does, bit for bit."""
+    scene = load_scene("scenes/three_balls.toml").with_overrides(width=24, height=16)
+    ball = next(k for k, s in enumerate(scene.shapes) if hasattr(s, "radius"))
+    b = scene.shapes[ball]
+    moved = replace(b, center=(b.center[0] + 0.1, b.center[1], b.center[2]), radius=b.radius * 1.1,
+                    material=replace(b.material, diffuse=(0.3, 0.6, 0.2)))  # fmt: skip
+    other = replace(
+        scene,
+        shapes=(*scene.shapes[:ball], moved, *scene.shapes[ball + 1 :]),
+        light=replace(scene.light, position=tuple(1.05 * x for x in scene.light.position)),
+        camera=replace(scene.camera, distance=scene.camera.distance * 1.2),
+    )
+    rules = resolve(scene)
+    hashes, results = [], []
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        for sc in (scene, other):
+            dr.kernel_history()
+            results.append(Tracer(sc, rules).render(diagnostics=True))
+            hashes.append(sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT))
+    assert hashes[0] and hashes[0] == hashes[1]
+    assert not np.array_equal(results[0].color, results[1].color)  # the values did change the picture
+    compiled = Tracer(other, rules, runtime=False).render(diagnostics=True)
+    assert _same(compiled, results[1]) == []
