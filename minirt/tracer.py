@@ -206,18 +206,15 @@ class Tracer:
         gathered, is). A literal is never cached: one made inside a symbolic conditional may not be used
         outside it."""
         F = F or self.T.Float
-        vector = not isinstance(value, int | float)
+        if isinstance(value, int | float):
+            kind, value = F, float(value)
+        else:
+            kind, value = (self.T.Array3 if F is self.T.Float else dr.llvm.Array3f64), [float(c) for c in value]
         if not self.runtime:
-            if vector:
-                return (self.T.Array3 if F is self.T.Float else dr.llvm.Array3f64)(*(float(c) for c in value))
-            return F(float(value))
+            return kind(*value) if isinstance(value, list) else kind(value)
         v = self._consts.get(key)
         if v is None:
-            if vector:
-                v = dr.opaque(self.T.Array3 if F is self.T.Float else dr.llvm.Array3f64, [float(c) for c in value])
-            else:
-                v = dr.opaque(F, float(value))
-            self._consts[key] = v
+            v = self._consts[key] = dr.opaque(kind, value)
         return v
 
     def _scene_vec(self, name: str) -> Any:
@@ -381,7 +378,7 @@ class Tracer:
         planes = [(k, s) for k, s in enumerate(self.scene.shapes) if isinstance(s, Plane)]
         n = zero
         for k, s in planes:
-            n = dr.select(shape_id == k, self._plane(s)[0], n)
+            n = dr.select(shape_id == k, self._k(("normal", k), s.normal), n)
         if balls:
             is_ball = self.T.Bool(False)
             c, r, inv_r = zero, self.T.Float(1.0), self.T.Float(1.0)
@@ -452,8 +449,8 @@ class Tracer:
             return factor * ((dr.gather(self.T.Float, self.table.err_length, k, hit) + lp) + extra)
         vals = []
         for k, s in enumerate(self.scene.shapes):
-            if isinstance(s, Ball):
-                vals.append(gamma(6, u) * ((self._ball(s)[1] + lp) + 0.0))  # + 0.0: the table path's sum, same bits
+            if isinstance(s, Ball):  # + 0.0: the table path's sum, same bits
+                vals.append(gamma(6, u) * ((self._k(("radius", k), s.radius) + lp) + 0.0))
             else:
                 vals.append(gamma(4, u) * ((self._k(("abs_distance", k), abs(s.distance)) + lp) + lo))
         return self._by_id(shape_id, vals, self.T.Float(0))
@@ -1156,7 +1153,7 @@ class Tracer:
     ) -> dict[str, np.ndarray]:
         """3-vectors (Dr.Jit, any float type) to (h, w, 3) float64 NumPy arrays in one kernel over 3 N
         lanes; the names in ``masked`` are 0 where ``shape_id`` < 0. ``also`` (arrays of width N) are
-        evaluated in the same kernel.
+        evaluated with the vectors, in the kernel that computes them.
 
         Zeros are made canonical, x + 0.0 (-0.0 + 0.0 = +0.0), so a skipped term (exactly +0.0) and a
         computed zero (0 * negative = -0.0) give the same bits; the zero is opaque, or Dr.Jit's constant
@@ -1184,7 +1181,7 @@ class Tracer:
                 if name in masked:
                     val = dr.select(hit, val, 0.0)
                 bufs[name] = val + zero
-            dr.eval(bufs, *also)
+            dr.eval(bufs)
             dr.sync_thread()
         return {k: np.asarray(b).reshape(h, w, 3) for k, b in bufs.items()}
 
