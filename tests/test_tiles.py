@@ -5,6 +5,7 @@ tracer.TILE_PIXELS.)"""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -195,6 +196,18 @@ def test_row_and_column_of_any_pixel(monkeypatch, width, below):
     assert tr._to_numpy3(o).tobytes() == np.broadcast_to(o_np, (len(pixels), 3)).tobytes()
 
 
+def _kernels(run) -> tuple[Any, list[dict]]:
+    """What ``run()`` returns, and the JIT kernels it launched (Dr.Jit's kernel history)."""
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        out = run()
+        return out, [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+
+
+def _hashes(kernels: list[dict]) -> list[str]:
+    return sorted(k["hash"] for k in kernels)
+
+
 @pytest.mark.parametrize("samples", [1, 3])
 def test_another_size_compiles_nothing(samples):
     """The image's size is not compiled into the kernel: a scene rendered at a second size (below
@@ -202,12 +215,8 @@ def test_another_size_compiles_nothing(samples):
     so the same hash: a cache hit, whichever cache)."""
     scene = load_scene("scenes/three_balls.toml").with_overrides(samples=samples)
     rules = resolve(scene)
-    hashes = []
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        for w, h in ((21, 17), (40, 31)):
-            dr.kernel_history()
-            Tracer(scene.with_overrides(width=w, height=h), rules).render(diagnostics=True)
-            hashes.append(sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT))
+    tracers = [Tracer(scene.with_overrides(width=w, height=h), rules) for w, h in ((21, 17), (40, 31))]
+    hashes = [_hashes(_kernels(lambda tr=tr: tr.render(diagnostics=True))[1]) for tr in tracers]
     assert hashes[0] and hashes[0] == hashes[1]
 
 
@@ -222,10 +231,7 @@ def test_a_search_variant_is_one_trace_kernel():
     rules = resolve(scene).traced()
     cache = VariantCache()
     cache._trace(scene, rules, None)  # compiled, so that only the runs are counted below
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        dr.kernel_history()
-        v = cache._trace(scene, rules, None)
-        kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    v, kernels = _kernels(lambda: cache._trace(scene, rules, None))
     assert len(kernels) == 2, [(k["size"], k.get("operation_count")) for k in kernels]
     assert sorted(k["size"] for k in kernels) == [24 * 16, 3 * 24 * 16]  # the trace, then the interleave
     whole = Tracer(scene, rules).render()
@@ -242,12 +248,8 @@ def test_small_images_read_their_rules_at_run_time():
     assert Tracer(scene, rules).runtime is True
     big = scene.with_overrides(width=512, height=512)  # 2^18 pixels: not below the threshold
     assert Tracer(big, rules).runtime is False and Tracer(big, rules, runtime=True).runtime is True
-    hashes = []
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        for change in ({}, {"clamp": True, "specular_exponent": 16, "pixel_sample": "center", "two_sided": True}):
-            dr.kernel_history()
-            Tracer(scene, replace(rules, **change)).render()
-            hashes.append(sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT))
+    other = replace(rules, clamp=True, specular_exponent=16, pixel_sample="center", two_sided=True)
+    hashes = [_hashes(_kernels(Tracer(scene, r).render)[1]) for r in (rules, other)]
     assert hashes[0] and hashes[0] == hashes[1]
 
 
@@ -268,12 +270,8 @@ def test_small_images_read_their_scene_values_at_run_time():
         camera=replace(scene.camera, distance=scene.camera.distance * 1.2),
     )
     rules = resolve(scene)
-    hashes, results = [], []
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        for sc in (scene, other):
-            dr.kernel_history()
-            results.append(Tracer(sc, rules).render(diagnostics=True))
-            hashes.append(sorted(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT))
+    runs = [_kernels(lambda sc=sc: Tracer(sc, rules).render(diagnostics=True)) for sc in (scene, other)]
+    results, hashes = [r for r, _ in runs], [_hashes(k) for _, k in runs]
     assert hashes[0] and hashes[0] == hashes[1]
     assert not np.array_equal(results[0].color, results[1].color)  # the values did change the picture
     compiled = Tracer(other, rules, runtime=False).render(diagnostics=True)
