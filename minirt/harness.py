@@ -29,7 +29,10 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
+import threading
 import time
+import types
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -453,10 +456,45 @@ def _edges(classes: dict[str, np.ndarray], band_px: np.ndarray) -> np.ndarray:
     return out
 
 
+_COLOUR_LOCK = threading.Lock()
+
+
+def _colour() -> Any:
+    """colour-science, its plotting package loaded lazily. ``colour/__init__`` imports ``colour.plotting``
+    first, which imports matplotlib.pyplot and the plotting styles: about half of the ~1 s the import
+    costs every process that checks shading (a one-scene `minirt check` took 3.6 s). minirt uses three
+    colorimetry functions and never colour's plots, so during the import ``colour.plotting`` is a stand-in
+    module, taken out of ``sys.modules`` afterwards; the first attribute read from it (or an ``import
+    colour.plotting``) loads the real package, so a user's code in the same process sees no difference."""
+    with _COLOUR_LOCK:
+        if "colour" in sys.modules:
+            return sys.modules["colour"]
+        if "colour.plotting" in sys.modules:  # already loaded: nothing to save
+            import colour
+
+            return colour
+        stub = types.ModuleType("colour.plotting")
+
+        def real(name: str) -> Any:
+            import importlib
+
+            return getattr(importlib.import_module("colour.plotting"), name)
+
+        stub.__getattr__ = real  # PEP 562: a module's __getattr__ answers the names it lacks
+        sys.modules["colour.plotting"] = stub
+        try:
+            import colour
+        finally:
+            if sys.modules.get("colour.plotting") is stub:
+                del sys.modules["colour.plotting"]
+        return colour
+
+
 def color_differences(a8: np.ndarray, b8: np.ndarray) -> dict[str, float]:
     """CIEDE2000 (colour-science) and FLIP (flip-evaluator) on 8-bit images read as sRGB display values."""
-    import colour
     import flip_evaluator
+
+    colour = _colour()
 
     fa, fb = a8.astype(np.float64) / 255.0, b8.astype(np.float64) / 255.0
     lab_a = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(fa))

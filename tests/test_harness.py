@@ -4,6 +4,8 @@ right verdict, and identical inputs, or inputs differing only inside the silhoue
 from __future__ import annotations
 
 import copy
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -305,3 +307,23 @@ def test_nan_inside_the_band_is_counted_not_judged(setup):
     assert geom.images["band"][SIZE // 2, SIZE // 2]
     assert geom.verdict == "pass", geom.reason
     assert geom.figures["nonfinite"] == {"normal": 1} and geom.figures["nonfinite_outside_band"] == 0
+
+
+def test_colour_is_imported_without_its_plots_and_they_still_load():
+    """color_differences imports colour-science without matplotlib.pyplot (half the import's time, paid by
+    every process that checks shading); colour.plotting then loads on first use, as if nothing happened."""
+    code = """
+import sys
+import numpy as np
+from minirt.harness import color_differences
+a = np.zeros((4, 4, 3), np.uint8)
+d = color_differences(a, a + 10)
+assert d["delta_e_mean"] > 0, d
+assert "matplotlib.pyplot" not in sys.modules and "colour.plotting" not in sys.modules
+import colour
+assert callable(colour.plotting.plot_single_colour_swatch)  # loads the real package
+import colour.plotting as cp
+assert cp is sys.modules["colour.plotting"] is colour.plotting and "matplotlib.pyplot" in sys.modules
+"""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
