@@ -184,6 +184,8 @@ class ShapeTable:
         self.b_id = T.Int(aligned(ids, np.int32))
         self.b_center = a3(center)
         self.b_radius = F(radius)
+        # and as (centre, radius) packets for the traversal's leaves
+        self.b_sphere = F(np.column_stack([center.astype(dt), radius.astype(dt)]).reshape(-1))
         # The scene's scalars, read from arrays rather than compiled in. (One array per type: Dr.Jit's
         # width-1 opaque values are packed so that their alignment, which is part of the kernel's code,
         # varies from run to run, and a kernel would be compiled again for the same scene.)
@@ -226,15 +228,16 @@ class ShapeTable:
             return T.UInt(aligned(a, np.uint32))
 
         lo, hi = _outward(tree.lo, dt, True), _outward(tree.hi, dt, False)
-        self.n_lo = T.Array3(*(F(lo[:, i]) for i in range(3)))
-        self.n_hi = T.Array3(*(F(hi[:, i]) for i in range(3)))
-        self.n_first = U(tree.first)
-        self.n_count = U(tree.count)
-        self.n_right = U(np.maximum(tree.right, 0))
-        self.n_axis = U(tree.axis)
         pad = _Pad(T.u)
-        self.n_pad_b = F(pad.b(tree.rmax))
-        self.n_pad_c = F(pad.c(tree.rmax, tree.reach))
+        # A node is two packets of four floats, (lo, pad b) and (hi, pad c), and one of four integers,
+        # (count, first, right, axis): a node visited is three 4-wide loads per ray, from one or two
+        # cache lines, where an array per field was twelve gathers from twelve places.
+        box = np.empty((tree.nodes, 8), dtype=dt)
+        box[:, 0:3], box[:, 3] = lo, np.asarray(pad.b(tree.rmax)).astype(dt)
+        box[:, 4:7], box[:, 7] = hi, np.asarray(pad.c(tree.rmax, tree.reach)).astype(dt)
+        self.n_box = F(box.reshape(-1))
+        meta = np.stack([tree.count, tree.first, np.maximum(tree.right, 0), tree.axis], axis=1)
+        self.n_meta = U(meta.astype(np.uint32).reshape(-1))
         self.pad_a = pad.a
 
 
@@ -269,6 +272,11 @@ class _Pad:
         return self.b(rmax) * np.sqrt(reach) + self.a * reach
 
 
+def _array4(T: Any) -> Any:
+    """The 4-vector of T's float type: what a packet gather loads (one 4-wide load per ray)."""
+    return dr.llvm.Array4f64 if T.np_dtype == np.float64 else dr.llvm.Array4f
+
+
 def _inverse(T: Any, d: Any) -> Any:
     """1 / d per component, a zero component replaced by a tiny one of its sign: its slab is then a
     huge finite interval (never 0 * inf = NaN). Harmless: boxes are widened beyond the exact balls."""
@@ -276,10 +284,15 @@ def _inverse(T: Any, d: Any) -> Any:
     return T.Array3(*(1 / dr.select(d[i] == 0, dr.copysign(T.Float(tiny), d[i]), d[i]) for i in range(3)))
 
 
-def _slab(T: Any, tab: ShapeTable, node: Any, o: Any, inv: Any, pad: Any, active: Any) -> tuple[Any, Any]:
-    """Entry and exit t of the ray with node's box widened by pad (pbrt's slab test, exit grown by 1 + 2 gamma(3))."""
-    lo = dr.gather(T.Array3, tab.n_lo, node, active) - pad
-    hi = dr.gather(T.Array3, tab.n_hi, node, active) + pad
+def _slab(T: Any, tab: ShapeTable, node: Any, o: Any, inv: Any, pa: Any, ps: Any, active: Any) -> tuple[Any, Any]:
+    """Entry and exit t of the ray with node's box widened by its pad, pa + ps b + c (``_Pad``; pa = a |o|,
+    ps = sqrt|o|): pbrt's slab test, exit grown by 1 + 2 gamma(3)."""
+    A4 = _array4(T)
+    b0 = dr.gather(A4, tab.n_box, 2 * node, active)  # lo, b
+    b1 = dr.gather(A4, tab.n_box, 2 * node + 1, active)  # hi, c
+    pad = pa + ps * b0[3] + b1[3]
+    lo = T.Array3(b0[0], b0[1], b0[2]) - pad
+    hi = T.Array3(b1[0], b1[1], b1[2]) + pad
     t0, t1 = (lo - o) * inv, (hi - o) * inv
     near, far = dr.minimum(t0, t1), dr.maximum(t0, t1)
     t_near = dr.maximum(dr.maximum(near[0], near[1]), near[2])
@@ -305,8 +318,7 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
     tstack = dr.alloc_local(F, STACK)
 
     def box(node, t_best, on):
-        pad = pa + ps * dr.gather(F, tab.n_pad_b, node, on) + dr.gather(F, tab.n_pad_c, node, on)
-        t_near, t_far = _slab(T, tab, node, o, inv, pad, on)
+        t_near, t_far = _slab(T, tab, node, o, inv, pa, ps, on)
         return on & (t_near <= t_far) & (t_far >= 0) & (t_near <= t_best * grow), t_near
 
     node = dr.zeros(U, n)
@@ -319,14 +331,14 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
 
     def body(node, tn, sp, active, t_best, id_best, blocked, stack, tstack):
         live = active & (tn <= t_best * grow)
-        count = dr.gather(U, tab.n_count, node, live)
+        meta = dr.gather(dr.llvm.Array4u, tab.n_meta, node, live)  # count, first, right, axis
+        count, first = meta[0], meta[1]
         leaf = live & (count > 0)
-        first = dr.gather(U, tab.n_first, node, leaf)
         for j in range(LEAF):
             on = leaf & (j < count)
             k = first + j
-            c = dr.gather(T.Array3, tab.b_center, k, on)
-            r = dr.gather(F, tab.b_radius, k, on)
+            ball = dr.gather(_array4(T), tab.b_sphere, k, on)
+            c, r = T.Array3(ball[0], ball[1], ball[2]), ball[3]
             if blocks is None:
                 sid = dr.gather(Int, tab.b_id, k, on)
                 tk = tracer._ball_t(c, r, o, d, gate=True)  # a packet all of whose rays pass the ball skips its roots
@@ -336,7 +348,7 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
             else:
                 blocked |= on & blocks(c, r)
         inner = live & (count == 0)
-        kids = (node + 1, dr.gather(U, tab.n_right, node, inner))
+        kids = (node + 1, meta[2])
         (e0, t0), (e1, t1) = box(kids[0], t_best, inner), box(kids[1], t_best, inner)
         both = e0 & e1
         go_left = e0 & (~e1 | (t0 <= t1))
