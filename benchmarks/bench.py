@@ -162,6 +162,24 @@ def _trace_seconds(tr: Any) -> float:
     return time.perf_counter() - t0
 
 
+def _planar_seconds(tr: Any) -> float:
+    """Wall time of a trace whose first level's buffers -- colour, hit point, normal, every term, t and the
+    ids -- are the kernel's own outputs: each component an array of its own (Dr.Jit writes those with
+    non-temporal stores), nothing copied or read back. The fastest a render writing those buffers can
+    be; ``render()`` stores them as (H, W, 3) float64 arrays instead (4-packets, ``Tracer._scatter_out``),
+    since each component of a kernel output is an allocation of its own and NumPy cannot view three
+    allocations as one array."""
+    import drjit as dr
+
+    t0 = time.perf_counter()
+    o, d = tr.primary_rays()
+    c, levels = tr.trace(o, d)
+    first = levels[0]
+    dr.eval(c, first.t, first.p, first.n, first.terms, first.shape_id)
+    dr.sync_thread()
+    return time.perf_counter() - t0
+
+
 # ---------------------------------------------------------------------------------------------
 # reference tracer
 
@@ -205,6 +223,10 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
                 times.append(time.perf_counter() - t0)
             out[prec][kind] = _stats(times, px)
     out["writes"] = _write_floor(px, cfg)
+    tr64 = tracers["f64"]
+    for _ in range(cfg.warmup):
+        _planar_seconds(tr64)
+    out["f64"]["planar_outputs"] = _stats([_planar_seconds(tr64) for _ in range(cfg.reps)], px)
     # Thread scaling: the f64 trace kernel on one Dr.Jit worker thread against the default (every core).
     cores = dr.thread_count()
     tr = Tracer(sc, rules, precision="f64")
@@ -688,6 +710,11 @@ def markdown(res: dict[str, Any]) -> str:
               f"only writes them) take {_f(w['median_s'], 4)} s ({_f(w['gb_s'], 3)} GB/s); a render takes at least the "
               f"longer of that and the trace: {_f(floor, 4)} s, {_f(floor / tr64['trace']['median_s'], 3)}x the trace "
               f"(measured: {_f(tr64['render']['median_s'] / tr64['trace']['median_s'], 3)}x)."]  # fmt: skip
+    if "planar_outputs" in ref["f64"]:
+        po = ref["f64"]["planar_outputs"]["median_s"]
+        ratio = po / ref["f64"]["trace"]["median_s"]
+        L += ["", f"The same buffers as the trace kernel's own outputs (planar, non-temporal stores, nothing "
+              f"read back: the fastest layout): {_f(po, 4)} s, {_f(ratio, 3)}x the trace."]  # fmt: skip
     smp = ref["samples"]
     L += ["", f"Supersampled: {smp['width']}x{smp['height']} at {smp['spp']} rays per pixel, whole f64 render: "
           f"median {_f(smp['render']['median_s'], 4)} s, {_f(smp['render']['mpix_s'], 3)} M rays/s."]  # fmt: skip

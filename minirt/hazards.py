@@ -27,6 +27,7 @@ prints them as warnings; ``offset_at`` explains one pixel for ``minirt probe``.
 from __future__ import annotations
 
 import math
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -76,6 +77,7 @@ def _judge(scene: Scene, rules: Rules, g: dict[str, np.ndarray], precision: str)
     rounding = u * np.abs(g["p"]).sum(axis=1)
     below = np.zeros(len(g["p"]), dtype=bool)
     jumped = np.zeros(len(g["p"]), dtype=bool)
+    balls = _ball_tree(scene)  # one tree for both kinds of secondary ray
     for kind in ("shadow", "reflection"):
         if kind not in g:
             continue
@@ -83,14 +85,35 @@ def _judge(scene: Scene, rules: Rules, g: dict[str, np.ndarray], precision: str)
         v = g[kind] if rules.offset_along == "ray" else g["n"]
         normal_part = off * np.abs(np.einsum("ij,ij->i", v, g["n"]))
         below |= spawn & (normal_part < rounding)
-        jumped |= spawn & _jumped(scene, g["p"], g["p"] + off * v, g["id"])
+        jumped |= spawn & _jumped(scene, g["p"], g["p"] + off * v, g["id"], balls)
     return {"below": below, "jumped": jumped, "rounding": rounding}
 
 
 CHUNK = 1 << 20  # points per pass of _jumped: bounds its (point, node) pairs whatever the image size
 
 
-def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray) -> np.ndarray:
+class _Balls(NamedTuple):
+    """The scene's balls for ``_jumped``: shape ids, centres, radii, and minirt.accel.build's tree and order
+    (both None when there are no balls)."""
+
+    ids: list[int]
+    center: np.ndarray
+    radius: np.ndarray
+    tree: Any
+    order: Any
+
+
+def _ball_tree(scene: Scene) -> _Balls:
+    from minirt import accel  # deferred: accel imports Dr.Jit, which only this part of hazards needs
+
+    ids = [k for k, s in enumerate(scene.shapes) if isinstance(s, Ball)]
+    center = np.array([scene.shapes[k].center for k in ids], dtype=np.float64).reshape(-1, 3)
+    radius = np.array([scene.shapes[k].radius for k in ids], dtype=np.float64)
+    tree, order = accel.build(center, radius) if ids else (None, None)
+    return _Balls(ids, center, radius, tree, order)
+
+
+def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray, balls: _Balls | None = None) -> np.ndarray:
     """Per point: whether the segment p -> q crosses the surface of a shape other than its own (sid), i.e.
     the shape's implicit function, as computed, changes sign between p and q.
 
@@ -101,20 +124,17 @@ def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray) -> np.n
     sign cannot change. The answer is the one testing every ball gives (tests/test_hazards.py), at a
     cost that grows with the balls near each point instead of all of them (1,024 balls at 512²: 17 s -> 0.2 s).
     """
-    from minirt import accel  # deferred: accel imports Dr.Jit, which only this part of hazards needs
-
     out = np.zeros(len(p), dtype=bool)
     with np.errstate(invalid="ignore"):
         for k, shape in enumerate(scene.shapes):
             if not isinstance(shape, Ball):
                 out |= (sid != k) & (np.sign(_surface(shape, p)) != np.sign(_surface(shape, q)))
-    balls = [k for k, s in enumerate(scene.shapes) if isinstance(s, Ball)]
-    if not balls or not len(p):
+    if balls is None:
+        balls = _ball_tree(scene)
+    if not balls.ids or not len(p):
         return out
-    center = np.array([scene.shapes[k].center for k in balls], dtype=np.float64)
-    radius = np.array([scene.shapes[k].radius for k in balls], dtype=np.float64)
-    tree, order = accel.build(center, radius)
-    shape_of = np.asarray(balls)[order]  # ball slot of the tree -> shape id
+    center, radius, tree, order = balls.center, balls.radius, balls.tree, balls.order
+    shape_of = np.asarray(balls.ids)[order]  # ball slot of the tree -> shape id
     for a in range(0, len(p), CHUNK):
         pc, qc, ic = p[a : a + CHUNK], q[a : a + CHUNK], sid[a : a + CHUNK]
         seg_lo, seg_hi = np.minimum(pc, qc), np.maximum(pc, qc)

@@ -130,6 +130,53 @@ def test_tree_is_a_tree():
     assert tree.depth <= 11  # a median split: ceil(log2(1000 / LEAF)) + 1 levels
 
 
+def _build_node_by_node(center, radius):
+    """accel.build's definition, one node at a time: a node's balls are split at the middle after a stable
+    sort along the axis where their centres spread most, nodes numbered depth first, left child next."""
+    lo_b, hi_b = center - radius[:, None], center + radius[:, None]
+    reach_b = np.linalg.norm(center, axis=1) + radius
+    order = np.arange(len(radius))
+    nodes, depth = [], 0
+    todo = [(0, len(radius), -1, 1)]
+    while todo:
+        start, end, patch, level = todo.pop()
+        depth = max(depth, level)
+        idx = order[start:end]
+        if patch >= 0:
+            nodes[patch][4] = len(nodes)
+        node = [lo_b[idx].min(axis=0), hi_b[idx].max(axis=0), start, 0, -1, 0, reach_b[idx].max(), radius[idx].max()]
+        k = len(nodes)
+        nodes.append(node)
+        if end - start <= accel.LEAF:
+            node[3] = end - start
+            continue
+        c = center[idx]
+        node[5] = axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+        mid = (end - start) // 2
+        order[start:end] = idx[np.argsort(c[:, axis], kind="stable")]
+        todo += [(start + mid, end, k, level + 1), (start, start + mid, -1, level + 1)]
+    return [np.array(col) for col in zip(*nodes, strict=True)], depth, order
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 16, 17, 100, 1000, 4097])
+@pytest.mark.parametrize("layout", ["random", "ties", "flat"])
+def test_the_level_by_level_build_is_the_node_by_node_tree(n, layout):
+    """accel.build builds a level at a time (every node of a level at once): the same tree, array by array,
+    as building its definition node by node -- ties in the coordinates included (the stable sort)."""
+    rng = np.random.default_rng(n)
+    center = rng.uniform(-5, 5, (n, 3))
+    if layout == "ties":
+        center = np.round(center)
+    elif layout == "flat":
+        center[:, 1] = 0.0
+    radius = rng.uniform(0.1, 1.0, n)
+    tree, order = accel.build(center, radius)
+    cols, depth, want = _build_node_by_node(center, radius)
+    got = [tree.lo, tree.hi, tree.first, tree.count, tree.right, tree.axis, tree.reach, tree.rmax]
+    assert all(np.array_equal(a, b) for a, b in zip(got, cols, strict=True))
+    assert tree.depth == depth and np.array_equal(order, want)
+
+
 def _kernel_code(scene) -> set[str]:
     """The code of every kernel a render runs, without the alignment annotations and the kernel's
     name (a hash of its text). Dr.Jit writes each input buffer's alignment into the code, and small

@@ -68,6 +68,7 @@ def test_reference_and_numpy(quick):
     for prec in ("f64", "f32"):
         for kind in ("trace", "render", "render_checked"):
             _stats_ok(res["reference"][prec][kind])
+    _stats_ok(res["reference"]["f64"]["planar_outputs"])  # the render's floor, beside the render
     smp = res["reference"]["samples"]
     _stats_ok(smp["render"])
     assert smp["spp"] == 16 and smp["width"] >= 4
