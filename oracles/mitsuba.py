@@ -986,11 +986,18 @@ class _RayRender(_Base):
             spawn = np.zeros(n, dtype=bool)
             next_o, next_d = np.zeros((n, 3)), np.zeros((n, 3))
             ctx = mi.BSDFContext()
+            # One conductor per reflection colour, sampled for every ray that hit a shape of that colour:
+            # shapes with the same colour have the same BSDF, and a lane's sample depends on its own ray
+            # alone, so the same numbers as a call per shape -- whose masked batch calls (kernels, read-backs)
+            # made a 1,024-ball check at 128x128 take 9 minutes in this loop.
+            by_colour: dict[tuple[float, ...], list[int]] = {}
             for k in reflective:
-                cond = self.conductor(k)
-                mask_np = sid == k
+                by_colour.setdefault(tuple(self.scene.shapes[k].material.reflection), []).append(k)
+            for kr, shapes in by_colour.items():
+                mask_np = np.isin(sid, shapes)
                 if not mask_np.any():
                     continue
+                cond = self.conductor(kr)
                 mask = mi.Bool(bool(mask_np[0])) if scalar else mi.Bool(mask_np)
                 bs, weight = cond.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5), mask)
                 nray = si.spawn_ray(si.to_world(bs.wo))
@@ -1046,17 +1053,17 @@ class _RayRender(_Base):
                 return i
         return -1
 
-    def conductor(self, k: int):
+    def conductor(self, kr: tuple[float, ...]):
+        """A perfect mirror (Mitsuba's ``conductor``, two-sided) of reflection colour kr."""
         cache = self.__dict__.setdefault("_conductors", {})
-        if k not in cache:
-            kr = self.scene.shapes[k].material.reflection
-            cache[k] = self.mi.load_dict(
+        if kr not in cache:
+            cache[kr] = self.mi.load_dict(
                 {
                     "type": "twosided",
                     "b": {"type": "conductor", "specular_reflectance": {"type": "rgb", "value": list(kr)}},
                 }
             )
-        return cache[k]
+        return cache[kr]
 
 
 class _SensorRender(_Base):
