@@ -35,6 +35,46 @@ from minirt.rules import Rules
 from minirt.scene import Ball, Scene
 
 
+class _Candidate:
+    """Per ray: a candidate hit's t, the |n·d| of its plane (inf for a ball), its cosine against the surface
+    and its shape's index."""
+
+    def __init__(self, n: int):
+        self.t, self.nd = np.full(n, np.inf), np.full(n, np.inf)
+        self.cos, self.owner = np.ones(n), np.zeros(n, dtype=np.int64)
+
+    def take(self, where: np.ndarray, src: _Candidate | tuple) -> None:
+        t, nd, cos, owner = (src.t, src.nd, src.cos, src.owner) if isinstance(src, _Candidate) else src
+        self.t, self.nd = np.where(where, t, self.t), np.where(where, nd, self.nd)
+        self.cos, self.owner = np.where(where, cos, self.cos), np.where(where, owner, self.owner)
+
+
+class _Nearest:
+    """Per ray, of the candidate hits pushed one after the other: the nearest (``first``), the next nearest
+    (``second``) and the nearest of another shape than the nearest's (``other``) -- what sorting every
+    candidate stably by t gives at positions 0, 1 and the first of another shape (tests/test_band_scale.py
+    sorts and compares, ties included: an earlier candidate wins a tie), in O(rays) memory where the sort
+    held rays x candidates (a 1,024-ball check at 128x128: 3 GB, and 34 s of its 59). Only finite t is
+    ever read of ``second`` and ``other``; where there is none they hold t = inf."""
+
+    def __init__(self, n: int):
+        self.first, self.second, self.other = _Candidate(n), _Candidate(n), _Candidate(n)
+
+    def push(self, t: np.ndarray, nd, cos, owner: int) -> None:
+        x = (t, nd, cos, owner)
+        a = self.first
+        before = t < a.t  # strictly: the earlier candidate stays first on a tie
+        another = a.owner != owner
+        # second: the old first when x goes before it, else x if it goes before the second
+        self.second.take(~before & (t < self.second.t), x)
+        self.second.take(before, a)
+        # other: when x goes first, the old first if its shape is another (else other stays: its shape
+        # still differs); when x does not, x if its shape is another than the first's and it is nearer
+        self.other.take(~before & another & (t < self.other.t), x)
+        self.other.take(before & another, a)
+        a.take(before, x)
+
+
 def margins(
     scene: Scene,
     origins: np.ndarray,
@@ -64,10 +104,7 @@ def margins(
     sil = np.full(n, np.inf)
     origin = np.full(n, np.inf)
     graze = np.full(n, np.inf)
-    ts = []
-    nds = []  # per candidate: |n·d| for a plane's hit, inf for a ball's roots
-    coss = []  # per candidate: |n·d| at it, the ray's cosine against the surface (a ball's root: sqrt(disc) / r)
-    owner = []  # per candidate: its shape's index
+    nearest = _Nearest(n)  # the candidate hits (each root of a ball, each plane's), two nearest kept
     sc = np.ones(len(scene.shapes)) if scale is None else np.asarray(scale, dtype=np.float64)
     so = sc if origin_scale is None else np.asarray(origin_scale, dtype=np.float64)
     si = sc if inside_scale is None else np.asarray(inside_scale, dtype=np.float64)
@@ -89,61 +126,41 @@ def margins(
                 c = (lf - s.radius) * (lf + s.radius)
                 r0, r1 = np.where(q != 0, c / q, 0.0), q
             for r in (np.minimum(r0, r1), np.maximum(r0, r1)):
-                ts.append(np.where((disc >= 0) & (r > 0), r, np.inf))
-                nds.append(np.full(n, np.inf))
-                coss.append(sq / s.radius)
-                owner.append(k)
+                # |n·d| of a ball's hit is inf (not a plane); its cosine against the surface sqrt(disc) / r
+                nearest.push(np.where((disc >= 0) & (r > 0), r, np.inf), np.inf, sq / s.radius, k)
         else:
             nn = np.asarray(s.normal)
             nd = d @ nn
             graze = np.minimum(graze, np.abs(nd) / sc[k])
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = ((np.asarray(s.point) - o) @ nn) / nd
-            ts.append(np.where(np.isfinite(t) & (t > 0), t, np.inf))
-            nds.append(np.abs(nd))
-            coss.append(np.abs(nd))
-            owner.append(k)
-    tie = np.full(n, np.inf)
-    id_tie = np.full(n, np.inf)
-    if len(ts) >= 2:
-        # A surface off by e along its normal moves its hit by e / cos along the ray (cos = |n·d| there), so
-        # the two nearest candidates' order is as uncertain as their gap is small against t2 / cos: the
-        # relative gap is taken times the smaller cos of the two (fuzz start_11_4: two crossing balls 0.0043
-        # apart in t at a grazing hit, Embree's tessellation swapped them).
-        stacked_t, stacked_c = np.stack(ts, axis=1), np.stack(coss, axis=1)
-        order = np.argsort(stacked_t, axis=1, kind="stable")
-        tt = np.take_along_axis(stacked_t, order, axis=1)
-        cc = np.take_along_axis(stacked_c, order, axis=1)
-        ow = np.asarray(owner)[order]
-        rows = np.arange(n)
-        # tie: the two nearest candidates, whichever shapes (which root is nearest decides t and the normal);
-        # id_tie: the nearest and the nearest of another shape -- a ball's two roots never change the shape
-        # id (fuzz far_5_0: a far ball's roots 6e-6 apart excused a swapped id as a "tie").
-        other = ow != ow[:, :1]
-        second = np.where(other.any(axis=1), np.argmax(other, axis=1), 0)
+            nearest.push(np.where(np.isfinite(t) & (t > 0), t, np.inf), np.abs(nd), np.abs(nd), k)
+    # The two nearest candidates, whichever shapes (which root is nearest decides t and the normal), give
+    # the tie; the nearest and the nearest of another shape give id_tie -- a ball's two roots never change
+    # the shape id (fuzz far_5_0: a far ball's roots 6e-6 apart excused a swapped id as a "tie"). A surface
+    # off by e along its normal moves its hit by e / cos along the ray (cos = |n·d| there), so the two
+    # candidates' order is as uncertain as their gap is small against t2 / cos: the relative gap is taken
+    # times the smaller cos of the two (fuzz start_11_4: two crossing balls 0.0043 apart in t at a grazing
+    # hit, Embree's tessellation swapped them).
+    a = nearest.first
 
-        def gap(j: np.ndarray, exists: np.ndarray) -> np.ndarray:
-            t1, t2 = tt[:, 0], np.where(exists, tt[rows, j], np.inf)
-            both = np.isfinite(t1) & np.isfinite(t2)
-            cos = np.minimum(np.minimum(cc[:, 0], cc[rows, j]), 1.0)
-            pair = np.maximum(st[ow[:, 0]], st[ow[rows, j]])
-            with np.errstate(invalid="ignore"):  # inf - inf where fewer than two shapes are hit
-                return np.where(both, (t2 - t1) / np.where(both, t2, 1.0) * cos / pair, np.inf)
+    def gap(b: _Candidate) -> np.ndarray:
+        both = np.isfinite(a.t) & np.isfinite(b.t)
+        cos = np.minimum(np.minimum(a.cos, b.cos), 1.0)
+        pair = np.maximum(st[a.owner], st[b.owner])
+        with np.errstate(invalid="ignore"):  # inf - inf where fewer than two shapes are hit
+            return np.where(both, (b.t - a.t) / np.where(both, b.t, 1.0) * cos / pair, np.inf)
 
-        tie = gap(np.ones(n, dtype=int), np.ones(n, dtype=bool))
-        id_tie = gap(second, other.any(axis=1))
+    tie, id_tie = (gap(nearest.second), gap(nearest.other)) if scene.shapes else (np.full(n, np.inf),) * 2
     margin = np.minimum.reduce([sil, graze, tie, origin])
     # Not a relative margin, so not in `margin`: the distance to the nearest candidate hit (either root
     # of any shape). Renderers that ignore hits closer than a fixed depth (POV-Ray: 1e-4) disagree there.
-    near = np.minimum.reduce(ts) if ts else np.full(n, np.inf)
+    near = a.t
+    found = np.isfinite(near)
     # |n·d| of the plane whose hit is nearest (inf when a ball's is): a plane's t = n·(Q - o)/(n·d) turns a
     # direction error e into a relative t error e/|n·d|, so oracles' t tolerances scale with 1/hit_nd.
-    hit_nd = np.full(n, np.inf)
-    hit_cos = np.ones(n)  # |n·d| at the nearest candidate, ball or plane (1 where nothing is hit)
-    if ts:
-        k = np.argmin(np.stack(ts, axis=1), axis=1)
-        hit_nd = np.where(np.isfinite(near), np.stack(nds, axis=1)[np.arange(n), k], np.inf)
-        hit_cos = np.where(np.isfinite(near), np.stack(coss, axis=1)[np.arange(n), k], 1.0)
+    hit_nd = np.where(found, a.nd, np.inf)
+    hit_cos = np.where(found, a.cos, 1.0)  # |n·d| at the nearest candidate, ball or plane (1 where nothing is hit)
     return {
         "silhouette": sil,
         "grazing": graze,

@@ -264,3 +264,34 @@ def test_mitsuba_judges_the_near_balls_beside_a_far_one():
     assert fig["tolerance"]["band_eps"] > 1.0  # the scene-wide band: every margin in view is below it
     assert 1 <= fig["band_pixels"] <= 4
     assert fig["mask_mismatch_outside_band"] == 0 and fig["id_mismatch"] == 0 and fig["depth_violations"] == 0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_nearest_candidates_are_what_a_stable_sort_gives(seed):
+    """band._Nearest keeps, per ray, the nearest candidate hit, the next one and the nearest of another
+    shape as candidates are pushed, where margins() used to stack every candidate and sort them stably by
+    t: the same picks, an earlier candidate winning a tie (t drawn from a few values, inf among them,
+    so ties are everywhere)."""
+    rng = np.random.default_rng(seed)
+    rays, shapes = 500, 7
+    cands = []  # (t, nd, cos, owner) in push order: a shape's candidates one after the other
+    for k in range(shapes):
+        for _ in range(rng.integers(1, 3)):  # a plane: one candidate, a ball: two
+            t = rng.choice([0.5, 1.0, 1.0, 2.0, np.inf], rays)
+            cands.append((t, rng.uniform(0, 1, rays), rng.uniform(0, 1, rays), k))
+    near = band._Nearest(rays)
+    for c in cands:
+        near.push(*c)
+    t = np.stack([c[0] for c in cands], axis=1)
+    order = np.argsort(t, axis=1, kind="stable")
+    owner = np.array([c[3] for c in cands])[order]
+    rows = np.arange(rays)
+    other = np.argmax(owner != owner[:, :1], axis=1)  # every ray has candidates of several shapes
+    for got, col in ((near.first, order[:, 0]), (near.second, order[:, 1]), (near.other, order[rows, other])):
+        want_t = t[rows, col]
+        finite = np.isfinite(want_t)
+        assert np.array_equal(got.t, want_t)
+        for field, k in (("nd", 1), ("cos", 2)):
+            want = np.stack([c[k] for c in cands], axis=1)[rows, col]
+            assert np.array_equal(getattr(got, field)[finite], want[finite])
+        assert np.array_equal(got.owner[finite], np.array([c[3] for c in cands])[col][finite])
