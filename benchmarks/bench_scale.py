@@ -14,6 +14,8 @@ max_depth 3, seeded), so every scene is a layout no kernel cache has seen. Secti
 - ``layouts``: the whole command ``python -m minirt render FILE --out TMP`` from an empty kernel cache
   for n = 1 ... 100,000 (what a user waits for). Targets: 1,024 balls within 3x the time of 1 ball;
   100,000 balls under 60 s.
+- ``check``: the whole ``minirt check`` of 1,024 random balls at 128² against every oracle (warm kernel
+  cache), with each backend's seconds: the oracles' exports, bands and rule diagnosis at many shapes.
 - ``slope``: the warm trace time (primary rays, every level, ``dr.eval``; no read-out) against n, and
   its log-log slope from 16 to 100,000 balls (goal <= 0.3), beside POV-Ray's own trace time (its
   statistics, start-up and parse excluded) on the same scenes up to 10,000 balls.
@@ -135,6 +137,26 @@ def bench_layouts(tmp: Path, sizes: list[int], size: int) -> list[dict[str, Any]
     return rows
 
 
+def bench_check(tmp: Path, n: int, size: int) -> dict[str, Any]:
+    """The whole ``python -m minirt check FILE --json OUT`` of n random balls against every oracle (warm kernel
+    cache: what a user waits for on a second run), with each backend's own seconds from the document. The
+    oracles' exports, bands and the rule diagnosis all see every shape: a per-shape step in any of them
+    shows here (a per-shape Mitsuba call once made 1,024 balls at 128x128 a 9-minute check)."""
+    path = _write(tmp, n, size, seed=7)
+    doc = tmp / f"check-{n}.json"
+    args = [sys.executable, "-m", "minirt", "check", str(path), "-q", "--json", str(doc)]
+    t0 = time.perf_counter()
+    p = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    if p.returncode not in (0, 1):  # 1: a FAIL verdict, still a timing
+        raise RuntimeError(f"{' '.join(args)} failed ({p.returncode}): {p.stderr.strip()[-400:]}")
+    backends = json.loads(doc.read_text())["scenes"][0]["backends"]
+    per = {k: {"verdict": v["verdict"], "seconds": v["seconds"]} for k, v in backends.items()}
+    row = {"balls": n, "size": size, "whole_command_s": wall, "backends": per}
+    print(f"check n={n} at {size}x{size}: {wall:.1f} s {row['backends']}", file=sys.stderr, flush=True)
+    return row
+
+
 def bench_slope(tmp: Path, sizes: list[int], pov_max: int, size: int, reps: int) -> dict[str, Any]:
     from minirt import backends
     from minirt.rules import resolve
@@ -216,6 +238,7 @@ def main(argv: list[str] | None = None) -> int:
             },
             "threshold": bench_threshold(tmp, [1, 4, 16] if a.quick else [1, 2, 4, 8, 16, 32, 64], size, reps),
             "layouts": bench_layouts(tmp, [1, 1024] if a.quick else [1, 16, 128, 1024, 10000, 100000], size),
+            "check": bench_check(tmp, 64 if a.quick else 1024, 32 if a.quick else 128),
             "slope": bench_slope(
                 tmp, [16, 256] if a.quick else [16, 128, 1024, 10000, 100000], 256 if a.quick else 10000, size, reps
             ),
