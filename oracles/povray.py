@@ -44,7 +44,10 @@ Conventions bridged (each measured with Debian's povray 3.7.0.10):
   float only (relative precision 2^-11; its own rounding flips 8-bit levels at .5 ties, hence both).
 - Buffers (one EXR animation, frame_number selects the pass, to pay POV-Ray's ~0.65 s start-up once):
   hit mask from the alpha channel (+UA, no background); shape id from a constant pigment per shape
-  (``finish { ambient 1 diffuse 0 }``); position and t from pigment functions, each quantity q mapped to
+  (``finish { ambient 1 diffuse 0 }``), k + 1 = 2048 hi + lo with each part / 2048 in a channel of its
+  own (a half float holds j / 2048 exactly for j < 2048; the hi frame only from 2,047 shapes: one id
+  channel read (k + 1) / 2048 clamped to 1, and a scene of 10,000 balls "failed" 12,736 of 16,384 ids);
+  position and t from pigment functions, each quantity q mapped to
   v = (q - lo)/(hi - lo) with a per-shape range and split into a coarse channel floor(1024 v)/1024 and a
   fine channel frac(1024 v) (decode v = coarse + fine/1024); normals analytically per shape from the
   decoded position ((P - C)/r, or the plane's normal, unflipped like the reference's).
@@ -104,14 +107,16 @@ BOUNDING_THRESHOLD = 3  # with this many finite objects or more POV-Ray builds i
 FAR_ROOT_MARGIN = 10 * MIN_ISECT_DEPTH  # encoding_ranges: a near root this close to the start may be dropped
 SPLIT = 1024  # coarse/fine split of an encoded value
 MAX_ANTIALIAS = 9  # POV-Ray accepts Antialias_Depth 1..9
-ID_SCALE = 2048  # shape id k is the constant (k + 1)/2048: exact in half float for k < 2047
+ID_SCALE = 2048  # shape id k is (k + 1) = 2048 hi + lo, each part stored as part / 2048: exact in half float
 # Error of one decoded value v in [0, 1) in units of 1/SPLIT: the fine channel lies in [0, 1), where a
 # half float's spacing is at most 2^-11, so rounding errs by at most 2^-12; POV-Ray's single-precision
 # colour arithmetic (colour map, average) adds a few float ulps, bounded generously by 2^-20.
 FINE_ERROR = 2.0**-12 + 2.0**-20
 HALF_REL = 2.0**-11  # half float: relative rounding error <= 2^-11 (round to nearest, 11-bit significand)
-GEOMETRY_FRAMES = (("x", "x", "y"), ("y", "z", "z"), ("t", "t", "id"))  # channel quantities per frame
-GEOMETRY_PARTS = (("coarse", "fine", "coarse"), ("fine", "coarse", "fine"), ("coarse", "fine", ""))
+# Channel quantities and parts per geometry frame. The fourth frame only for scenes of ID_SCALE - 1
+# shapes or more: below, the id's high part is 0 and the third frame's low part is the whole id.
+GEOMETRY_FRAMES = (("x", "x", "y"), ("y", "z", "z"), ("t", "t", "id"), ("id", "", ""))
+GEOMETRY_PARTS = (("coarse", "fine", "coarse"), ("fine", "coarse", "fine"), ("coarse", "fine", ""), ("hi", "", ""))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -121,7 +126,7 @@ GEOMETRY_PARTS = (("coarse", "fine", "coarse"), ("fine", "coarse", "fine"), ("co
 @dataclass(frozen=True)
 class Frame:
     """One frame of the animation: a colour render (channel 0-2 for grey per-channel renders, -1 for
-    all channels at once) or geometry group 0-2 (see GEOMETRY_FRAMES)."""
+    all channels at once) or geometry group 0-3 (see GEOMETRY_FRAMES)."""
 
     kind: str  # "color" | "geometry"
     index: int
@@ -131,7 +136,9 @@ class Frame:
         if self.kind == "color":
             return "color" if self.index < 0 else f"color.{'RGB'[self.index]}"
         return "geometry." + "+".join(
-            f"{q}.{p}" if p else q for q, p in zip(GEOMETRY_FRAMES[self.index], GEOMETRY_PARTS[self.index], strict=True)
+            f"{q}.{p}" if p else q
+            for q, p in zip(GEOMETRY_FRAMES[self.index], GEOMETRY_PARTS[self.index], strict=True)
+            if q
         )
 
 
@@ -167,8 +174,11 @@ def color_frames(scene: Scene, rules: Rules) -> list[Frame]:
     return [Frame("color", -1)]
 
 
-def geometry_frames() -> list[Frame]:
-    return [Frame("geometry", g) for g in range(len(GEOMETRY_FRAMES))]
+def geometry_frames(scene: Scene | None = None) -> list[Frame]:
+    """The geometry frames: three, and a fourth for the id's high part when the scene has ID_SCALE - 1
+    shapes or more (a half float holds an integer part / 2048 exactly only below 2048)."""
+    many = scene is not None and len(scene.shapes) >= ID_SCALE - 1
+    return [Frame("geometry", g) for g in range(len(GEOMETRY_FRAMES) if many else 3)]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -629,7 +639,10 @@ def _functions(
         scaled = f"(({e}) - ({_f(lo)})) * {_f(SPLIT / (hi - lo))}"
         out[(q, "coarse")] = f"floor({scaled}) / {SPLIT}"
         out[(q, "fine")] = f"{scaled} - floor({scaled})"
-    out[("id", "")] = _f((k + 1) / ID_SCALE)
+    hi, lo = divmod(k + 1, ID_SCALE)
+    out[("id", "")] = _f(lo / ID_SCALE)  # the low part; the whole id below ID_SCALE - 1 shapes
+    out[("id", "hi")] = _f(hi / ID_SCALE)
+    out[("", "")] = "0"  # an unused channel
     return out
 
 
@@ -962,7 +975,7 @@ class PovrayOracle(Oracle):
         t_start = time.perf_counter()
         fx = effects(scene, rules)
         cframes = color_frames(scene, rules)
-        gframes = geometry_frames() if geometry and scene.shapes else []
+        gframes = geometry_frames(scene) if geometry and scene.shapes else []
         frames = cframes + gframes
         timeout = float(opts.get("timeout") or default_timeout(scene, len(frames), samples))
         ranges = encoding_ranges(scene, rules) if gframes else None
@@ -1089,7 +1102,7 @@ class PovrayOracle(Oracle):
 def decode_geometry(
     scene: Scene, rules: Rules, imgs: list[np.ndarray], ranges: list[dict[str, tuple[float, float]]]
 ) -> dict[str, Any]:
-    """Buffers from the three geometry frames (RGBA half floats)."""
+    """Buffers from the geometry frames (RGBA half floats; three, or four with the id's high part)."""
     h, w = imgs[0].shape[:2]
     ch: dict[tuple[str, str], np.ndarray] = {}
     for g, img in enumerate(imgs):
@@ -1097,7 +1110,8 @@ def decode_geometry(
             ch[(q, part)] = img[..., c].astype(np.float64)
     alphas = [img[..., 3] > 0.5 for img in imgs]
     hit = alphas[0]
-    sid = np.rint(ch[("id", "")] * ID_SCALE).astype(np.int32) - 1
+    hi = np.rint(ch[("id", "hi")] * ID_SCALE) if ("id", "hi") in ch else 0.0
+    sid = (np.rint(ch[("id", "")] * ID_SCALE) + ID_SCALE * hi).astype(np.int32) - 1
     mismatch = int(sum(np.count_nonzero(a != hit) for a in alphas[1:]) + np.count_nonzero((sid >= 0) != hit))
     sid = np.where(hit, sid, -1)
     pos = np.zeros((h, w, 3))

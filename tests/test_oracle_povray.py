@@ -418,3 +418,35 @@ def test_samples_option_is_checked():
     assert ORACLE.render(sc, rules, {"samples": 0}).status == "error"
     huge = ORACLE.render(sc, rules, {"samples": povray.MAX_MESH_RAYS // (32 * 32) + 1})
     assert huge.status == "skip" and "mesh-camera rays" in huge.reason
+
+
+def _hidden_then_shown(hidden: int) -> Scene:
+    """``hidden`` tiny balls far behind the camera, then five visible ones (the last ids)."""
+    behind = "".join(
+        f'[[shapes]]\ntype = "ball"\ncenter = [{0.01 * k!r}, 0.0, -50.0]\nradius = 0.001\nmaterial = "m"\n'
+        for k in range(hidden)
+    )
+    shown = "".join(
+        f'[[shapes]]\ntype = "ball"\ncenter = [{x!r}, {y!r}, 4.0]\nradius = 0.6\nmaterial = "m"\n'
+        for x, y in ((-1.0, -0.6), (0.0, -0.6), (1.0, -0.6), (-0.5, 0.6), (0.5, 0.6))
+    )
+    head = "[camera]\ndistance = 2.0\nwidth = 24\nheight = 24\n[light]\nposition = [3.0, 4.0, -3.0]\n"
+    return parse_scene(head + "[materials.m]\ndiffuse = [0.6, 0.5, 0.4]\n" + behind + shown)
+
+
+def test_ids_of_more_shapes_than_one_half_float_channel_holds():
+    """Shape ids are k + 1 = 2048 hi + lo, each part / 2048 in a half-float channel of its own; the hi frame
+    is rendered only from ID_SCALE - 1 shapes on. A scene of 2,100 shapes whose visible balls are the last
+    ones (ids 2,095 ... 2,099; the others far behind the camera): one channel would read (k + 1) / 2048 > 1,
+    clamped by the colour map, and every visible id came back as 2,047."""
+    assert len(povray.geometry_frames(_hidden_then_shown(2040))) == 3  # 2,045 shapes: ids fit one channel
+    sc = _hidden_then_shown(2095)
+    assert len(povray.geometry_frames(sc)) == 4
+    rules = ORACLE.adapt(R.resolve(sc))
+    res = ORACLE.render(sc, rules)
+    assert res.ok, res.reason
+    ref = tracer.render(sc, rules)
+    both = res.hit & ref.hit
+    assert both.sum() > 100 and set(np.unique(ref.shape_id[both])) == set(range(2095, 2100))
+    assert (res.shape_id[both] == ref.shape_id[both]).mean() > 0.99  # the silhouettes may differ
+    assert res.meta["hit_consistency"] == 0
