@@ -8,7 +8,8 @@ each ray comes back as hit mask, shape id, t, position and normal. No colour: ge
 Conventions bridged:
 
 - Balls become icospheres (``trimesh.creation.icosphere``, ``options={"subdivisions": N}``, default
-  4, 20·4^N faces), scaled by r and moved to the centre. Their vertices lie on the sphere, so the
+  4, 20·4^N faces -- lower for scenes of thousands of balls: ``MAX_DEFAULT_FACES``), scaled by r and
+  moved to the centre. Their vertices lie on the sphere, so the
   polyhedron P is inscribed: the inner ball of radius r(1 - g) is inside P, which is inside the
   ball, where g, the *radial gap*, is 1 - min over faces of distance(centre, face plane) / r,
   computed exactly from the unit mesh (cached per level; about 0.2054 / 4^N). Consequences, used
@@ -75,6 +76,12 @@ from minirt.scene import Ball, Plane, Scene
 
 DEFAULT_SUBDIVISIONS = 4
 MAX_SUBDIVISIONS = 7  # 327,680 faces per ball; beyond that float32 (not the tessellation) dominates
+# Faces the default level may give a scene: the mesh, trimesh's caches and Embree's copy take ~350 bytes
+# a face (measured: 10,000 balls at level 4, 51 M faces, peaked at 18 GB), so 2^23 faces stay near 3 GB.
+# A scene of many balls gets the finest level under it (1,024 balls: still 4; 10,000: 2), a wider radial
+# gap and band -- recorded with the result -- rather than running out of memory. An explicit
+# ``subdivisions`` option is taken as given.
+MAX_DEFAULT_FACES = 2**23
 # Far distance in units of the scene's size: see the module docstring (float32 budget vs horizon).
 FAR_FACTOR = 32.0
 U32 = 2.0**-24  # float32 unit round-off
@@ -203,6 +210,15 @@ def shape_meshes(scene: Scene, subdivisions: int = DEFAULT_SUBDIVISIONS, far_fac
     return out
 
 
+def default_subdivisions(scene: Scene) -> int:
+    """DEFAULT_SUBDIVISIONS, or the finest level whose balls stay within MAX_DEFAULT_FACES faces."""
+    balls = sum(isinstance(s, Ball) for s in scene.shapes)
+    level = DEFAULT_SUBDIVISIONS
+    while level > 0 and balls * 20 * 4**level > MAX_DEFAULT_FACES:
+        level -= 1
+    return level
+
+
 def scene_to_mesh(scene: Scene, subdivisions: int = DEFAULT_SUBDIVISIONS, far_factor: float = FAR_FACTOR):
     """All shapes in one trimesh.Trimesh, faces in scene order; ``face_attributes["shape_id"]`` per face."""
     import trimesh
@@ -324,12 +340,13 @@ class EmbreeOracle(Oracle):
     def _options(options: dict[str, Any] | None) -> dict[str, Any]:
         given = dict(options or {})
         ignored = {k: given.pop(k) for k in SHARED_OPTIONS if k in given}
-        opts = {"subdivisions": DEFAULT_SUBDIVISIONS, "far_factor": FAR_FACTOR, **given}
+        opts = {"subdivisions": None, "far_factor": FAR_FACTOR, **given}  # None: default_subdivisions(scene)
         unknown = sorted(set(opts) - set(OPTIONS))
         if unknown:
             raise ValueError(f"unknown option(s) {', '.join(unknown)} (known: {', '.join(OPTIONS)})")
         n = opts["subdivisions"]
-        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_SUBDIVISIONS:
+        bad = isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_SUBDIVISIONS
+        if n is not None and bad:
             raise ValueError(f"subdivisions must be an integer in 0..{MAX_SUBDIVISIONS}, got {n!r}")
         ff = opts["far_factor"]
         if isinstance(ff, bool) or not isinstance(ff, int | float) or not (math.isfinite(ff) and ff >= 1):
@@ -363,6 +380,8 @@ class EmbreeOracle(Oracle):
         _, ray_pyembree = _import_embree()
         w, h = scene.camera.width, scene.camera.height
         level, far_factor = opts["subdivisions"], opts["far_factor"]
+        if level is None:
+            level = opts["subdivisions"] = default_subdivisions(scene)
         timings: dict[str, float] = {}
         t_start = time.perf_counter()
 
@@ -496,6 +515,8 @@ class EmbreeOracle(Oracle):
         import trimesh
 
         opts = self._options(options)
+        if opts["subdivisions"] is None:
+            opts["subdivisions"] = default_subdivisions(scene)
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         tscene = trimesh.Scene()

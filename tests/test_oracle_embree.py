@@ -258,3 +258,25 @@ def test_failures_are_results_not_exceptions(monkeypatch):
     monkeypatch.setattr(mod, "scene_to_mesh", boom)
     res = orc.render(scene, rules)
     assert res.status == "error" and res.reason == "RuntimeError: embree exploded"
+
+
+def test_the_default_level_keeps_many_balls_within_the_face_budget(monkeypatch):
+    """By default a scene gets level 4 unless its balls would exceed MAX_DEFAULT_FACES faces (10,000 balls
+    at level 4: 51 M faces, an 18 GB render); then the finest level under it, recorded with the result. An
+    explicit level is taken as given."""
+    from minirt.generate import balls_scene
+    from minirt.oracles import embree
+    from minirt.scene import parse_scene
+
+    assert embree.default_subdivisions(parse_scene(balls_scene(1024, width=8, height=8))) == 4
+    assert embree.default_subdivisions(parse_scene(balls_scene(10000, width=8, height=8))) == 2
+    sc = load_scene(Path(__file__).resolve().parent.parent / "scenes" / "three_balls.toml").with_overrides(
+        width=16, height=16
+    )
+    monkeypatch.setattr(embree, "MAX_DEFAULT_FACES", 3 * 20 * 4**2)  # three balls: level 2 at most
+    rules = EmbreeOracle().adapt(resolve(sc))
+    res = EmbreeOracle().render(sc, rules)
+    assert res.ok, res.reason
+    tess = res.meta["tessellation"]
+    assert tess["subdivisions"] == 2 and tess["radial_gap_rel"] == tessellation(2).radial_gap_rel
+    assert EmbreeOracle().render(sc, rules, {"subdivisions": 4}).meta["tessellation"]["subdivisions"] == 4
