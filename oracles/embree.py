@@ -337,16 +337,15 @@ class EmbreeOracle(Oracle):
         return f"trimesh {v['trimesh']}, embreex {v['embreex']}"
 
     @staticmethod
-    def _options(options: dict[str, Any] | None) -> dict[str, Any]:
+    def _options(options: dict[str, Any] | None, scene: Scene) -> dict[str, Any]:
         given = dict(options or {})
         ignored = {k: given.pop(k) for k in SHARED_OPTIONS if k in given}
-        opts = {"subdivisions": None, "far_factor": FAR_FACTOR, **given}  # None: default_subdivisions(scene)
+        opts = {"subdivisions": default_subdivisions(scene), "far_factor": FAR_FACTOR, **given}
         unknown = sorted(set(opts) - set(OPTIONS))
         if unknown:
             raise ValueError(f"unknown option(s) {', '.join(unknown)} (known: {', '.join(OPTIONS)})")
         n = opts["subdivisions"]
-        bad = isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_SUBDIVISIONS
-        if n is not None and bad:
+        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_SUBDIVISIONS:
             raise ValueError(f"subdivisions must be an integer in 0..{MAX_SUBDIVISIONS}, got {n!r}")
         ff = opts["far_factor"]
         if isinstance(ff, bool) or not isinstance(ff, int | float) or not (math.isfinite(ff) and ff >= 1):
@@ -359,7 +358,7 @@ class EmbreeOracle(Oracle):
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
         w, h = scene.camera.width, scene.camera.height
         try:
-            opts = self._options(options)
+            opts = self._options(options, scene)
         except ValueError as e:
             return RenderResult.failed(self.name, w, h, "error", str(e))
         ok, why = self.available()
@@ -380,8 +379,6 @@ class EmbreeOracle(Oracle):
         _, ray_pyembree = _import_embree()
         w, h = scene.camera.width, scene.camera.height
         level, far_factor = opts["subdivisions"], opts["far_factor"]
-        if level is None:
-            level = opts["subdivisions"] = default_subdivisions(scene)
         timings: dict[str, float] = {}
         t_start = time.perf_counter()
 
@@ -514,9 +511,7 @@ class EmbreeOracle(Oracle):
         """The tessellated scene as glTF binary (one node and mesh per shape, "shape0", ...) + JSON notes."""
         import trimesh
 
-        opts = self._options(options)
-        if opts["subdivisions"] is None:
-            opts["subdivisions"] = default_subdivisions(scene)
+        opts = self._options(options, scene)
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         tscene = trimesh.Scene()
