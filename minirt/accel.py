@@ -191,9 +191,7 @@ class ShapeTable:
             self.tree = tree
             self._tree_arrays(tree)
         self.b_id = T.Int(aligned(ids, np.int32))
-        self.b_center = a3(center)
-        self.b_radius = F(radius)
-        # and as (centre, radius) packets for the traversal's leaves
+        # (centre, radius) packets: one 4-wide load per ray (``_ball_at``)
         self.b_sphere = F(np.column_stack([center.astype(dt), radius.astype(dt)]).reshape(-1))
         # The scene's scalars, read from arrays rather than compiled in. (One array per type: Dr.Jit's
         # width-1 opaque values are packed so that their alignment, which is part of the kernel's code,
@@ -287,6 +285,12 @@ def _array4(T: Any) -> Any:
     return dr.llvm.Array4f64 if T.np_dtype == np.float64 else dr.llvm.Array4f
 
 
+def _ball_at(T: Any, tab: ShapeTable, k: Any, active: Any = True) -> tuple[Any, Any]:
+    """Centre and radius of the table's ball k (BVH order), from its packet."""
+    ball = dr.gather(_array4(T), tab.b_sphere, k, active)
+    return T.Array3(ball[0], ball[1], ball[2]), ball[3]
+
+
 def _inverse(T: Any, d: Any) -> Any:
     """1 / d per component, a zero component replaced by a tiny one of its sign: its slab is then a
     huge finite interval (never 0 * inf = NaN). Harmless: boxes are widened beyond the exact balls."""
@@ -347,8 +351,7 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
         for j in range(LEAF):
             on = leaf & (j < count)
             k = first + j
-            ball = dr.gather(_array4(T), tab.b_sphere, k, on)
-            c, r = T.Array3(ball[0], ball[1], ball[2]), ball[3]
+            c, r = _ball_at(T, tab, k, on)
             if blocks is None:
                 sid = dr.gather(Int, tab.b_id, k, on)
                 tk = tracer._ball_t(c, r, o, d, gate=True)  # a packet all of whose rays pass the ball skips its roots
@@ -438,8 +441,7 @@ def balls_each(tracer: Any, tab: ShapeTable, o: Any, fn, acc: Any, stop=None) ->
         return go if stop is None else go & ~stop(acc)
 
     def body(k, acc):
-        c = dr.gather(T.Array3, tab.b_center, k)
-        r = dr.gather(T.Float, tab.b_radius, k)
+        c, r = _ball_at(T, tab, k)
         return k + 1, fn(acc, c, r, dr.gather(T.Int, tab.b_id, k))
 
     _, acc = dr.while_loop((k, acc), cond, body, label="balls")
