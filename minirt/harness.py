@@ -467,12 +467,8 @@ def _colour() -> Any:
     module, taken out of ``sys.modules`` afterwards; the first attribute read from it (or an ``import
     colour.plotting``) loads the real package, so a user's code in the same process sees no difference."""
     with _COLOUR_LOCK:
-        if "colour" in sys.modules:
+        if "colour" in sys.modules:  # (importing colour.plotting imports colour first)
             return sys.modules["colour"]
-        if "colour.plotting" in sys.modules:  # already loaded: nothing to save
-            import colour
-
-            return colour
         stub = types.ModuleType("colour.plotting")
 
         def real(name: str) -> Any:
