@@ -32,15 +32,17 @@ demo: setup
 
 # Refresh the committed sample report (bundled scenes at 64x64, every backend).
 sample: setup
-	$(BIN)/python -c 'from minirt.report import refresh_sample; refresh_sample()'
+	$(BIN)/python -c 'from minirt.pages.report import refresh_sample; refresh_sample()'
 
 test: setup
 	$(BIN)/ruff check minirt oracles tests benchmarks tools
 	$(BIN)/ruff format --check minirt oracles tests benchmarks tools
+	sh tools/lint-imports.sh
 	$(BIN)/python -m pytest
 
 lint:
 	$(BIN)/ruff check minirt oracles tests benchmarks tools
+	sh tools/lint-imports.sh
 
 format:
 	$(BIN)/ruff format minirt oracles tests benchmarks tools
@@ -48,11 +50,11 @@ format:
 
 # Refresh the reference tracer's golden images on purpose (after an intended change to its output).
 goldens: setup
-	MINIRT_UPDATE_GOLDENS=1 $(BIN)/python -m pytest -q tests/test_goldens.py
+	MINIRT_UPDATE_GOLDENS=1 $(BIN)/python -m pytest -q tests/reference/test_goldens.py
 
-# Regenerate the shipped JSON Schemas (minirt/schemas/) from the document models (after changing a document).
+# Regenerate the shipped JSON Schemas (minirt/io/schemas/) from the document models (after changing a document).
 schemas: setup
-	$(BIN)/python -m minirt.documents
+	$(BIN)/python -m minirt.io.documents
 
 bench: setup
 	$(BIN)/python benchmarks/bench.py

@@ -33,7 +33,7 @@ Sections (JSON keys; the Markdown on stdout follows the same order):
   CLI render of the 256^2 exercise scene under 3 s, each PASS or MISS (``n/a`` in --quick mode, whose
   sizes are too small for the targets' conditions).
 
---quick: small sizes and 1-2 repetitions (used by tests/test_bench.py; finishes well under a minute).
+--quick: small sizes and 1-2 repetitions (used by tests/package/test_bench.py; finishes well under a minute).
 """
 
 from __future__ import annotations
@@ -59,9 +59,10 @@ if str(ROOT) not in sys.path:
     # After PYTHONPATH, so that PYTHONPATH=TREE times TREE's minirt (--reference-only's A/B runs).
     sys.path.insert(1 + len([p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]), str(ROOT))
 
-from minirt import backends, camera  # noqa: E402
-from minirt.rules import PROFILES, Rules, resolve  # noqa: E402
-from minirt.scene import Ball, Scene, load_scene  # noqa: E402
+from minirt.harness import backends  # noqa: E402
+from minirt.model import camera  # noqa: E402
+from minirt.model.rules import PROFILES, Rules, resolve  # noqa: E402
+from minirt.model.scene import Ball, Scene, load_scene  # noqa: E402
 
 REF_SCENE = ROOT / "scenes" / "three_balls.toml"
 COLD_SCENE = ROOT / "scenes" / "exercise.toml"
@@ -187,8 +188,8 @@ def _planar_seconds(tr: Any) -> float:
 def bench_reference(cfg: Config) -> dict[str, Any]:
     import drjit as dr
 
-    from minirt.harness import CHECKED_TERMS
-    from minirt.tracer import Tracer
+    from minirt.harness.compare import CHECKED_TERMS
+    from minirt.reference.tracer import Tracer
 
     sc = _scene(REF_SCENE, cfg.ref_size)
     rules = resolve(sc)
@@ -262,7 +263,7 @@ def _write_floor(px: int, cfg: Config) -> dict[str, Any]:
     A render can take no less than the longer of its trace and these writes."""
     import drjit as dr
 
-    from minirt.result import TERMS
+    from minirt.model.result import TERMS
 
     F64, A4, U32 = dr.llvm.Float64, dr.llvm.Array4f64, dr.llvm.UInt32
     vectors = 3 + len(TERMS)  # colour, position, normal and the terms
@@ -378,7 +379,7 @@ def numpy_render(scene: Scene, rules: Rules) -> np.ndarray:
 
 
 def bench_numpy(cfg: Config, ref: dict[str, Any]) -> dict[str, Any]:
-    from minirt.tracer import Tracer
+    from minirt.reference.tracer import Tracer
 
     sc = _scene(REF_SCENE, cfg.ref_size)
     rules = resolve(sc)
@@ -454,9 +455,9 @@ def hwm_kb():
     return None
 
 
-from minirt.rules import resolve
-from minirt.scene import load_scene
-from minirt.tracer import Tracer
+from minirt.model.rules import resolve
+from minirt.model.scene import load_scene
+from minirt.reference.tracer import Tracer
 
 base, base_hwm = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, hwm_kb()
 sc = load_scene(sys.argv[2]).with_overrides(width=int(sys.argv[3]), height=int(sys.argv[3]))
@@ -582,7 +583,7 @@ def bench_rivals(cfg: Config) -> dict[str, Any]:
     max_depth. These are the issue's yardsticks, not like-for-like renderers."""
     import drjit as dr
 
-    from minirt.tracer import Tracer
+    from minirt.reference.tracer import Tracer
 
     sc = _scene(REF_SCENE, cfg.ref_size)
     rules = resolve(sc)

@@ -19,7 +19,7 @@ Sections (JSON keys; Markdown on stdout in the same order):
   settings that reproduce the image) are reported beside the time.
 - ``targets``: 800x800 < 10 s cold, < 3 s with the class's cache warm; 200 x 6 at 256x256 < 10 min.
 
---quick (tests/test_bench.py): 96x96 single image, 3 students at 48x48; structure only, no targets.
+--quick (tests/package/test_bench.py): 96x96 single image, 3 students at 48x48; structure only, no targets.
 """
 
 from __future__ import annotations
@@ -41,11 +41,11 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from minirt import bitmap  # noqa: E402
-from minirt import rules as rules_mod  # noqa: E402
-from minirt.imageio import write_image  # noqa: E402
-from minirt.scene import load_scene  # noqa: E402
-from minirt.tracer import render  # noqa: E402
+from minirt.io.images import write_image  # noqa: E402
+from minirt.model import bitmap  # noqa: E402
+from minirt.model import rules as rules_mod  # noqa: E402
+from minirt.model.scene import load_scene  # noqa: E402
+from minirt.reference.tracer import render  # noqa: E402
 
 CLASS_SCENES = ("exercise", "three_balls", "colored_specular", "matte", "shadows", "rules")
 
@@ -98,8 +98,8 @@ def single(tmp: Path, size: int, repeats: int) -> dict[str, Any]:
 
 
 def class_cache(tmp: Path, size: int) -> dict[str, Any]:
-    from minirt.diagnose import Target, VariantCache, diagnose
-    from minirt.grading import load_target
+    from minirt.diagnose.search import Target, VariantCache, diagnose
+    from minirt.grading.grade import load_target
 
     scene = load_scene(ROOT / "scenes/rules.toml").with_overrides(width=size, height=size, samples=1)
     given = rules_mod.resolve(scene)
@@ -148,7 +148,7 @@ def whole_class(tmp: Path, students: int, size: int) -> dict[str, Any]:
     cmd = [sys.executable, "-m", "minirt", "grade", "--class", str(folder), "--out", str(out),
            "--size", f"{size}x{size}", "--quiet"]  # fmt: skip
     took, _ = run(cmd, {**os.environ})
-    from minirt.jobs import default_workers
+    from minirt.jobs.batch import default_workers
 
     grades = json.loads((out / "grades.json").read_text())
     exact = sum(1 for g in grades["grades"] if g["rules"] == injected[(g["student"], g["scene"])])

@@ -4,11 +4,11 @@ Usage::
 
     .venv/bin/python benchmarks/bench_scale.py [--quick] [--out FILE.json]
 
-Scenes are fresh random layouts (``minirt.generate.balls_scene``: n balls over a mirror floor, 512²,
+Scenes are fresh random layouts (``minirt.campaign.generate.balls_scene``: n balls over a mirror floor, 512²,
 max_depth 3, seeded), so every scene is a layout no kernel cache has seen. Sections:
 
 - ``threshold``: few balls, the unrolled path (every shape compiled into the kernel) against the BVH
-  (``minirt.accel``), each as a child process from an empty Dr.Jit kernel cache (``DRJIT_CACHE_DIR``):
+  (``minirt.reference.accel``), each as a child process from an empty Dr.Jit kernel cache (``DRJIT_CACHE_DIR``):
   import, parse, render, compile included; and the warm render time in process (median of 3 after a
   warm-up). The crossover is what ``tracer.ACCEL_MIN_SHAPES`` should be.
 - ``layouts``: the whole command ``python -m minirt render FILE --out TMP`` from an empty kernel cache
@@ -43,14 +43,14 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from minirt.generate import balls_scene  # noqa: E402
+from minirt.campaign.generate import balls_scene  # noqa: E402
 
 _CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
-from minirt.rules import resolve
-from minirt.scene import load_scene
-from minirt.tracer import Tracer
+from minirt.model.rules import resolve
+from minirt.model.scene import load_scene
+from minirt.reference.tracer import Tracer
 sc = load_scene(sys.argv[1])
 t1 = time.perf_counter()
 Tracer(sc, resolve(sc), accel=sys.argv[2]).render()
@@ -105,9 +105,9 @@ def _trace_kernel(tracer, reps: int) -> float:
 
 
 def bench_threshold(tmp: Path, sizes: list[int], size: int, reps: int) -> list[dict[str, Any]]:
-    from minirt.rules import resolve
-    from minirt.scene import load_scene
-    from minirt.tracer import Tracer
+    from minirt.model.rules import resolve
+    from minirt.model.scene import load_scene
+    from minirt.reference.tracer import Tracer
 
     rows = []
     for n in sizes:
@@ -158,10 +158,10 @@ def bench_check(tmp: Path, n: int, size: int) -> dict[str, Any]:
 
 
 def bench_slope(tmp: Path, sizes: list[int], pov_max: int, size: int, reps: int) -> dict[str, Any]:
-    from minirt import backends
-    from minirt.rules import resolve
-    from minirt.scene import load_scene
-    from minirt.tracer import Tracer
+    from minirt.harness import backends
+    from minirt.model.rules import resolve
+    from minirt.model.scene import load_scene
+    from minirt.reference.tracer import Tracer
 
     rows = []
     pov = backends.info("povray")

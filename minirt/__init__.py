@@ -20,13 +20,13 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from minirt.errors import MinirtError, SceneError
-    from minirt.grading import Grade
-    from minirt.harness import CheckResult
-    from minirt.result import RenderResult
-    from minirt.rules import Rules
-    from minirt.scene import Scene
+    from minirt.grading.grade import Grade
+    from minirt.harness.compare import CheckResult
+    from minirt.model.result import RenderResult
+    from minirt.model.rules import Rules
+    from minirt.model.scene import Scene
 
-__version__ = "0.1.0"
+from minirt.version import __version__
 
 __all__ = [
     "CheckResult",
@@ -44,11 +44,11 @@ __all__ = [
 
 # The types named in __all__, imported when first asked for (PEP 562).
 _LAZY = {
-    "CheckResult": "minirt.harness",
-    "Grade": "minirt.grading",
+    "CheckResult": "minirt.harness.compare",
+    "Grade": "minirt.grading.grade",
     "MinirtError": "minirt.errors",
-    "RenderResult": "minirt.result",
-    "Scene": "minirt.scene",
+    "RenderResult": "minirt.model.result",
+    "Scene": "minirt.model.scene",
     "SceneError": "minirt.errors",
 }
 
@@ -65,8 +65,8 @@ def load_scene(scene: str | PathLike[str]) -> Scene:
     """Read a scene: a TOML file, or a bundled scene's name (``minirt scenes`` lists them). A path that
     exists wins over a name. Raises SceneError for a missing file, an unknown name or an invalid scene,
     one line per problem naming file and key."""
-    from minirt.scene import load_scene as _load_file
-    from minirt.scenes import find_scene
+    from minirt.model.bundled import find_scene
+    from minirt.model.scene import load_scene as _load_file
 
     return _load_file(find_scene(scene))
 
@@ -81,8 +81,8 @@ def _scene_and_rules(
 ) -> tuple[Scene, Rules]:
     """The scene with the CLI's overrides applied, and the rules it renders under (as `minirt render`'s
     --width, --height, --samples, --profile and --rule)."""
-    from minirt import rules as rules_mod
-    from minirt.scene import Scene
+    from minirt.model import rules as rules_mod
+    from minirt.model.scene import Scene
 
     s = scene if isinstance(scene, Scene) else load_scene(scene)
     s = s.with_overrides(width=width, height=height, samples=samples, profile=profile)
@@ -117,17 +117,15 @@ def render(
     version, settings, rules, effects and timings. Raises MinirtError for bad input and for a
     backend that could not render (missing, or broken), with its reason.
     """
-    from minirt import backends
     from minirt.errors import MinirtError
+    from minirt.harness import backends
 
     names = backends.parse_backends(backend)
     if len(names) != 1:
         raise MinirtError(f"render: one backend at a time, got {backend!r}")
     name = names[0]
     s, r = _scene_and_rules(scene, width, height, samples, profile, rules)
-    opts: dict[str, Any] = {"precision": precision}
-    if samples and name == "mitsuba":
-        opts.update(mode="sensor", spp=samples)
+    opts: dict[str, Any] = backends.get(name).options(precision, samples)
     opts.update(options)
     result = backends.render(name, s, r, opts)
     if not result.ok:
@@ -159,11 +157,12 @@ def check(
     ``as_dict()`` (check.json's content) and ``exit_code()`` (the CLI's: 0 pass, warn or skip; 1 fail;
     2 error). Raises MinirtError for bad input (an unknown backend, a missing or invalid scene).
     """
-    from minirt import backends as backends_mod
-    from minirt import harness, jobs
     from minirt.errors import MinirtError
-    from minirt.scene import load_scene as _load_file
-    from minirt.scenes import BUNDLED, find_scene
+    from minirt.harness import backends as backends_mod
+    from minirt.harness import compare as harness
+    from minirt.jobs import batch as jobs
+    from minirt.model.bundled import BUNDLED, find_scene
+    from minirt.model.scene import load_scene as _load_file
 
     spec = backends if isinstance(backends, str) else ",".join(backends)
     names = backends_mod.parse_backends(spec)
@@ -206,9 +205,9 @@ def grade(
     (the ``minirt render`` command whose PNG is the image) and ``as_dict()`` (grade.json's content).
     Raises MinirtError for bad input (an unreadable image, a size that does not fit the scene).
     """
-    from minirt import grading
-    from minirt.scene import Scene
-    from minirt.scenes import find_scene
+    from minirt.grading import grade as grading
+    from minirt.model.bundled import find_scene
+    from minirt.model.scene import Scene
 
     if isinstance(scene, Scene):
         given, scene_file = scene, scene.source or scene.name

@@ -1,3 +1,3 @@
-from minirt.cli import main
+from minirt.cli.app import main
 
 main()

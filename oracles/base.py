@@ -1,56 +1,12 @@
-"""The interface every oracle implements.
-
-An oracle takes a parsed Scene and the model Rules and returns a RenderResult (minirt.result), the
-same type the reference tracer returns, with timings and the exact commands or parameters it used
-in ``meta``. It never raises for a renderer's failure: it returns a result with status "error"
-(the renderer broke) or "skip" (not installed, or the scene cannot be reproduced), and a one-line
-reason. Oracles import only the core (minirt.scene, rules, camera, result, imageio).
-
-Rules: an oracle declares, per model rule, the values it can reproduce (``supported``). The harness
-renders the reference under ``adapt(rules)`` -- the requested rules with every unsupported value
-replaced by one the oracle can do -- and compares like with like; the rules changed are the ones
-the attribution step reports.
-"""
+"""The interface every oracle implements: minirt.model.backend's Backend, which the reference tracer
+implements too. An oracle is an established renderer; its module says, at the top, the conventions it
+had to bridge and why each of its tolerances is what it is. Oracles import only the core (minirt.model,
+minirt.io, minirt.jobs, minirt.jit)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-from pathlib import Path
-from typing import Any, ClassVar
-
-from minirt.result import RenderResult
-from minirt.rules import Rules
-from minirt.scene import Scene
+from minirt.model.backend import Backend
 
 
-class Oracle:
-    name: ClassVar[str] = ""
-    shades: ClassVar[bool] = False  # does it produce a colour image?
-    # rule name -> values this oracle reproduces, preferred first. A rule not listed: any value.
-    supported: ClassVar[dict[str, tuple[Any, ...]]] = {}
-
-    def available(self) -> tuple[bool, str]:
-        """(usable, reason or version line)."""
-        raise NotImplementedError
-
-    def version(self) -> str:
-        raise NotImplementedError
-
-    def adapt(self, rules: Rules) -> Rules:
-        """The closest rules this oracle can follow."""
-        changes = {}
-        for name, values in self.supported.items():
-            if getattr(rules, name) not in values:
-                changes[name] = values[0]
-        return replace(rules, **changes)
-
-    def cannot_follow(self, rules: Rules) -> list[str]:
-        return rules.differs(self.adapt(rules))
-
-    def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
-        """Render under `rules` (already adapted by the caller); options are oracle-specific."""
-        raise NotImplementedError
-
-    def export(self, scene: Scene, rules: Rules, out_dir: Path, options: dict[str, Any] | None = None) -> list[Path]:
-        """Write the scene as a user would open it in this renderer; return the files written."""
-        raise NotImplementedError
+class Oracle(Backend):
+    """An established renderer behind the Backend interface."""

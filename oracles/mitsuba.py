@@ -3,7 +3,7 @@
 Package ``mitsuba`` 3.9.1, variant ``llvm_ad_rgb`` (``scalar_rgb`` when Dr.Jit's LLVM backend is
 unusable: a per-ray loop, correct but slow -- keep images small). Two routes:
 
-- ``mode = "rays"`` (default): the exact rays of :func:`minirt.camera.primary_rays` (float64,
+- ``mode = "rays"`` (default): the exact rays of :func:`minirt.model.camera.primary_rays` (float64,
   rounded to Mitsuba's float32) are traced with ``scene.ray_intersect``; shading is a loop of stock
   calls -- ``sample_emitter_direction`` with its visibility test (the shadow ray), ``bsdf.eval`` of
   the shape's BSDF, and ``conductor.sample`` to follow delta reflections only, up to ``max_depth``.
@@ -89,12 +89,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from minirt import camera
-from minirt.jitmem import aligned
+from minirt.jit.arrays import aligned
+from minirt.model import camera
+from minirt.model.backend import GeometryTolerance, Margins
+from minirt.model.result import RenderResult, geometry_from_flat, to8
+from minirt.model.rules import Rules
+from minirt.model.scene import Ball, Plane, Scene
 from minirt.oracles.base import Oracle
-from minirt.result import RenderResult, geometry_from_flat, to8
-from minirt.rules import Rules
-from minirt.scene import Ball, Plane, Scene
 
 BACKEND = "mitsuba"
 PACKAGE_VERSION = "3.9.1"
@@ -156,7 +157,7 @@ BAND_K = 16.0  # 4 roundings in D (|f|^2 term, b^2 term, subtraction, sqrt) with
 
 
 def band_scales(scene: Scene, origins: np.ndarray, eps: list[float] | None = None) -> dict[str, list[float]]:
-    """Each shape's own band (``minirt.band.margins``' per-shape scales): a ball 1e6 radii away is held
+    """Each shape's own band (``minirt.reference.band.margins``' per-shape scales): a ball 1e6 radii away is held
     far less exactly than a ball beside the camera, and one scene-wide eps (:func:`band_eps`) is the
     worst ball's, which puts every ray of such a scene in the band.
 
@@ -233,7 +234,7 @@ def _load_mitsuba() -> tuple[Any, str]:
             problems.append(f"{variant}: not built")
             continue
         if variant.startswith("llvm"):
-            from minirt.engine import llvm_status
+            from minirt.jit.engine import llvm_status
 
             ok, why = llvm_status()
             if not ok:
@@ -646,6 +647,16 @@ def _unsupported_terms(scene: Scene, mode: str) -> list[str]:
 class MitsubaOracle(Oracle):
     name: ClassVar[str] = "mitsuba"
     shades: ClassVar[bool] = True
+    display_name: ClassVar[str] = "Mitsuba"
+    shading_model: ClassVar[str | None] = "physical"
+    float32: ClassVar[bool] = True
+    # a check keeps its render and figures (1,400 bytes a pixel); a render keeps 220 and runs with 430
+    # (Dr.Jit's and Mitsuba's working buffers): measured with the others (minirt.jobs.memory)
+    check_kept: ClassVar[int] = 1400
+    render_kept: ClassVar[int] = 220
+    render_running: ClassVar[int] = 430
+    export_as: ClassVar[str | None] = "mitsuba"
+    export_what: ClassVar[str] = "XML scene"
     supported: ClassVar[dict[str, tuple[Any, ...]]] = {
         # A miss returns black and a hit gets no background: exactly "none"; "on-miss" stays preferred
         # (the closest of the exercise's two, equal when the background is 0).
@@ -662,7 +673,7 @@ class MitsubaOracle(Oracle):
         "offset": ("error-bound",),
         # Its offsets lie along the normal ("ray" needs a numeric offset anyway).
         "offset_along": ("normal",),
-        # ray_origin, pixel_sample and pixel_shift: any (custom rays are minirt.camera's, so they honour all
+        # ray_origin, pixel_sample and pixel_shift: any (custom rays are minirt.model.camera's, so they honour all
         # three; the sensor via near_clip and the principal point offsets).
         # specular_exponent: any (no specular lobe is simulated; see unsupported_terms).
     }
@@ -682,6 +693,66 @@ class MitsubaOracle(Oracle):
         return f"mitsuba {mi.__version__} ({variant})"
 
     # ---- export ------------------------------------------------------------------------------
+    def options(self, precision: str = "f64", samples: int | None = None, timeout: float | None = None) -> dict:
+        """--samples N: Mitsuba's own sensor with N samples per pixel (its stochastic image), not the rays."""
+        opts: dict[str, Any] = {"precision": precision}
+        if samples:
+            opts.update(mode="sensor", spp=samples)
+        return opts
+
+    def geometry_tolerance(self, result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
+        """This oracle's recorded precision as per-pixel tolerances, each with its derivation."""
+        h, w = ref.height, ref.width
+        p = result.meta.get("precision") or {}
+        m = measured.image(h, w)
+        t_ref = np.where(ref.hit, ref.t, 0.0)
+        ties = None
+        eps = p["band_k"] * p["band_eps"]
+        plane_abs = max([pl.get("abs_error", 0.0) for pl in result.meta.get("planes", {}).values()] or [0.0])
+        # A shadow or hit decision moved by the rectangle's absolute error: relative to the smallest radius.
+        band = m["margin"] < eps
+        # Rays starting on a plane (t ~ 0): Mitsuba 3 has no minimum distance (Ray3f carries maxt only), and
+        # whether its rectangle lies in front of the origin is decided in float32: the error of the origin's
+        # signed distance from the rectangle (its normal_error, older documents: its abs_error), plus the
+        # origin rounded to float32 and taken to the rectangle's local frame (a few roundings of terms <= |o|:
+        # 4 u32 |o|). Balls: the relative origin margin above (band_eps) covers it.
+        plane_normal = max(
+            [pl.get("normal_error", pl.get("abs_error", 0.0)) for pl in result.meta.get("planes", {}).values()] or [0.0]
+        )
+        start_err = plane_normal + 4 * U32 * m["origin_norm"]
+        starts = measured.start_band(h, w, t_min=0.0, plane_err=start_err.reshape(-1))
+        # each shape's own band (oracles.mitsuba.band_scales)
+        if measured.scaled is not None and p.get("band_scale"):
+            band, ties = measured.per_shape_band(p, h, w)
+        band = band | starts
+        # A plane's t = n·(Q - o)/(n·d): the rectangle's absolute error and the float32 rounding of the ray's
+        # direction (dir_err) move t by (plane_abs + t dir_err)/|n·d| -- large where the ray grazes the plane.
+        inv_nd = 1.0 / m["hit_nd"]
+        dir_err = p.get("dir_err", 0.0)
+        t_abs = p["t_rel"] * t_ref + plane_abs + (plane_abs + dir_err * t_ref) * inv_nd
+        # near a ball's silhouette the float32 discriminant is ill-conditioned: the oracle's per-pixel bound
+        t_abs = t_abs + result.aux.get("t_silhouette_bound", 0.0)
+        nd = np.full((h, w), p["normal_deg"])
+        why = {
+            "band": f"margin < each shape's own band (at most band_k*band_eps = {eps:.3g}; a ball's discriminant "
+            "error against r^2 - h^2, exact in the margin): {p.get('why', '')}; or a ray starting within "
+            f"normal_error + 4 u32 |o| = {plane_normal:.3g} + 4 u32 |o| of a plane (float32 decides t > 0 there)",
+            "t": f"t_rel*t + plane_abs + (plane_abs + dir_err*t)/|n·d| = {p['t_rel']:.3g}*t + {plane_abs:.3g} + "
+            f"({plane_abs:.3g} + {dir_err:.3g}*t)/|n·d| (float32 roots; rectangles interpolate their corners; "
+            "a plane's t is conditioned by 1/|n·d|, n·d of the hit plane, inf for balls) + per pixel "
+            "4 u32 |f|^2/(r sqrt(2m)) near a ball's silhouette (aux t_silhouette_bound)",
+            "normal": f"{p['normal_deg']} deg (float32 normals)",
+        }
+        summary = {
+            "band_eps": eps,
+            "t_rel": p["t_rel"],
+            "plane_abs": plane_abs,
+            "plane_normal_error": plane_normal,
+            "normal_deg": p["normal_deg"],
+            "start_band_pixels": int(starts.sum()),
+        }
+        return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary, ties=ties)
+
     def export(self, scene: Scene, rules: Rules, out_dir: Path, options: dict[str, Any] | None = None) -> list[Path]:
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -692,7 +763,7 @@ class MitsubaOracle(Oracle):
         return [path]
 
     # ---- render ------------------------------------------------------------------------------
-    def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
+    def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None, progress=None) -> RenderResult:
         opts = dict(options or {})
         w, h = scene.camera.width, scene.camera.height
         mode = opts.get("mode", "rays")
@@ -938,7 +1009,7 @@ class _RayRender(_Base):
 
     def _f32(self, a: np.ndarray) -> Any:
         """Host values as Mitsuba's float: the one value of a one-ray batch in scalar mode, else an array
-        at a 64-byte boundary (minirt.jitmem: so the same kernels are not compiled again)."""
+        at a 64-byte boundary (minirt.jit.arrays: so the same kernels are not compiled again)."""
         return float(a[0]) if not self.jit else self.mi.Float(aligned(a, np.float32))
 
     def _ray(self, o: np.ndarray, d: np.ndarray) -> Any:

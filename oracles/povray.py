@@ -66,7 +66,7 @@ Conventions bridged (each measured with Debian's povray 3.7.0.10):
   per pass); excludes ``antialias``.
 - Numeric limits: hits beyond 1e7 and nearer than 1e-4 to the ray's origin are dropped (the
   latter matters for the mesh camera's image-plane origins: meta precision ``min_distance`` and
-  ``start_err``, start_decision(), give the band of minirt.band.start_band); an exactly tangent
+  ``start_err``, start_decision(), give the band of minirt.reference.band.start_band); an exactly tangent
   ray misses a sphere; |n·d| < 1e-10 misses a plane; with 3 or more finite objects POV-Ray builds
   float bounding boxes; coincident surfaces: the first declared object wins.
 - Untrusted input: POV-Ray's language can open, read and write files. The exporter writes only numbers
@@ -91,13 +91,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from minirt import camera, processes
 from minirt.errors import MinirtError
-from minirt.imageio import read_image, read_image_u8
+from minirt.io.images import read_image, read_image_u8
+from minirt.jobs import processes
+from minirt.model import camera
+from minirt.model.backend import GeometryTolerance, Margins, farthest_hit
+from minirt.model.effects import Effects, effects
+from minirt.model.result import RenderResult
+from minirt.model.rules import Rules
+from minirt.model.scene import Ball, Material, Scene
 from minirt.oracles.base import Oracle
-from minirt.result import RenderResult
-from minirt.rules import Effects, Rules, effects
-from minirt.scene import Ball, Material, Scene
 
 NAME = "povray"
 INSTALL_HINT = "povray not found on PATH; install: sudo apt-get install povray"
@@ -345,7 +348,8 @@ def precision(
 
 
 def start_decision(scene: Scene, rules: Rules, mesh_camera: bool) -> dict[str, Any]:
-    """POV-Ray's minimum distance along the harness's rays and its position error there (minirt.band.start_band).
+    """POV-Ray's minimum distance along the harness's rays and its position error there
+    (minirt.reference.band.start_band).
 
     - Mesh camera: rays start on the harness's own origins, so hits within MIN_ISECT_DEPTH of them are
       dropped; the single-precision triangles place a point at distance t off by <= MESH_RAY_ERROR (1 + t)
@@ -375,7 +379,7 @@ def start_decision(scene: Scene, rules: Rules, mesh_camera: bool) -> dict[str, A
 
 
 def band_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
-    """K·eps per shape for minirt.band (its ``scale``): rays whose relative margin about that shape is below
+    """K·eps per shape for minirt.reference.band (its ``scale``): rays whose relative margin about that shape is below
     it may legitimately flip in POV-Ray, either way (hit to miss or miss to hit).
 
     - its double-precision sphere test uses the textbook discriminant b^2 - (|f|^2 - r^2), whose error
@@ -408,7 +412,7 @@ def band_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
 
 
 def band_inside_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
-    """K·eps per shape for the silhouette margin of rays that meet the ball (minirt.band ``inside_scale``):
+    """K·eps per shape for the silhouette margin of rays that meet the ball (minirt.reference.band ``inside_scale``):
     band_scales plus POV-Ray's bounding boxes, which are tested before the exact sphere and so can only
     make it miss a ball the ray meets, never hit one it misses.
 
@@ -432,7 +436,7 @@ def band_inside_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[flo
 
 
 def root_errors(scene: Scene, rules: Rules) -> list[float]:
-    """Per shape, the error of POV-Ray's own sphere root times the cosine at the hit (minirt.tolerances divides
+    """Per shape, the error of POV-Ray's own sphere root times the cosine at the hit (minirt.harness.tolerances divides
     by |n·d| per pixel): its double-precision textbook discriminant b^2 - (|f|^2 - r^2) errs by about
     3 2^-53 |f|^2 (|f| the distance from the ray's origin to the centre, at most the camera's distance plus
     origin_lift plus r), and sqrt(disc) = r cos, so t errs by 1.5 2^-53 |f|^2/(r cos) and the hit point by
@@ -470,7 +474,7 @@ def origin_lift(scene: Scene, rules: Rules) -> float:
 
 
 def band_origin_scales(scene: Scene, rules: Rules, samples: int = 1) -> list[float]:
-    """K·eps per shape for the origin margin (minirt.band ``origin_scale``): whether a ray starts inside
+    """K·eps per shape for the origin margin (minirt.reference.band ``origin_scale``): whether a ray starts inside
     ball k, |o - C| < r, which POV-Ray decides at the ray's origin -- |f|^2 < r^2 in double precision,
     an error of about 2^-53 |f|^2, a relative margin 2^-53 |f|^2/r^2; the mesh camera's origins err by
     MESH_RAY_ERROR R (R = mesh_reach), MESH_RAY_ERROR R / r. Neither the distance along the ray nor the
@@ -885,6 +889,16 @@ def _frame_files(cwd: Path, stem: str, ext: str) -> dict[int, Path]:
 class PovrayOracle(Oracle):
     name: ClassVar[str] = NAME
     shades: ClassVar[bool] = True
+    display_name: ClassVar[str] = "POV-Ray"
+    shading_model: ClassVar[str | None] = "exercise"
+    concurrent: ClassVar[bool] = True  # its render is a process of its own: it overlaps the others' in a check
+    # a check keeps its render and figures (1,400 bytes a pixel); a render keeps 60 and runs with 40 (its
+    # working buffers are in its own process): measured with the others (minirt.jobs.memory)
+    check_kept: ClassVar[int] = 1400
+    render_kept: ClassVar[int] = 60
+    render_running: ClassVar[int] = 40
+    export_as: ClassVar[str | None] = "povray"
+    export_what: ClassVar[str] = ".pov + command"
     supported: ClassVar[dict[str, tuple[Any, ...]]] = {
         # folded into ambient, or a background statement; "none": neither
         "background": ("on-hit", "on-miss", "none"),
@@ -920,7 +934,81 @@ class PovrayOracle(Oracle):
         return v
 
     # ---- render -------------------------------------------------------------------------
-    def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
+    def options(self, precision: str = "f64", samples: int | None = None, timeout: float | None = None) -> dict:
+        """--timeout SECONDS: POV-Ray's process is killed after that long (an ERROR verdict)."""
+        opts: dict[str, Any] = {"precision": precision}
+        if timeout is not None:
+            opts["timeout"] = timeout
+        return opts
+
+    def geometry_tolerance(self, result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
+        """This oracle's recorded precision as per-pixel tolerances, each with its derivation."""
+        h, w = ref.height, ref.width
+        p = result.meta.get("precision") or {}
+        m = measured.image(h, w)
+        t_ref = np.where(ref.hit, ref.t, 0.0)
+        ties = None
+        eps = p["band_threshold"]
+        # its minimum distance along the harness's rays and its position error there (oracles.povray.start_decision)
+        t_min, start_err = p.get("min_distance", 0.0), p.get("start_err", 0.0)
+        starts = measured.start_band(h, w, t_min=t_min, plane_err=start_err, ball_err=start_err)
+        if measured.scaled is not None and p.get(
+            "band_scale"
+        ):  # each shape's own threshold (oracles.povray.band_scales)
+            band, ties = measured.per_shape_band(p, h, w)
+            band = band | starts
+        else:
+            band = (m["margin"] < eps) | starts
+        # POV-Ray drops hits beyond MAX_DISTANCE 1e7 from its ray's origin (a pinhole ray's origin is the
+        # camera, up to max_distance_lift before the harness's): where the nearest candidate lies that far,
+        # POV-Ray misses what the reference hits -- a decision it cannot make, like its minimum distance
+        # (fuzz far_2026_6: rays starting just inside a ground of radius 4.5e7 meet its far side 1.04e7 away).
+        if "max_distance" in p:
+            band |= np.isfinite(m["near"]) & (m["near"] >= farthest_hit(p))
+        # plus the conditioning of the hit: a ray whose origin and direction err by dir_err (R + t) -- the mesh
+        # camera's single-precision rays, R its origins' reach -- meets a surface dir_err (R + t)/cos away, cos = |n·d|
+        # at the hit, ball or plane (fuzz start_2026_83: a ball met at an angle, dt 1.65e-6 > t_abs 1.54e-6)
+        # and POV-Ray's own sphere root, 12 2^-53 |f|^2/(r cos) along the ray (oracles.povray.root_errors; fuzz
+        # f32_2026_22: a ball 2.4e4 away, its hit 8.6e-7 off along the ray near its silhouette), which turns
+        # the normal (P - C)/r by as much over r
+        root = np.zeros((h, w))
+        root_n = np.zeros((h, w))
+        if p.get("root_err"):
+            # ids the scene does not have (a defective reference's, fuzz --defects ids-swapped on a one-ball
+            # scene) get no root term: those pixels are id mismatches, never compared in t or normal
+            n_shapes = len(p["root_err"])
+            ids = np.where(ref.hit & (ref.shape_id < n_shapes), ref.shape_id, -1)
+            k = np.maximum(ids, 0)
+            per_t = np.asarray(p["root_err"], dtype=np.float64)[k]
+            per_n = np.asarray(p.get("root_normal_err", np.zeros(len(p["root_err"]))), dtype=np.float64)[k]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                root = np.where(ids >= 0, per_t / m["hit_cos"], 0.0)
+                root_n = np.where(ids >= 0, per_n / m["hit_cos"], 0.0)
+        with np.errstate(divide="ignore"):
+            t_abs = p["t_abs"] + p.get("dir_err", 0.0) * (p.get("ray_reach", 1.0) + t_ref) / m["hit_cos"] + root
+        deg = math.degrees(math.asin(min(1.0, 2 * p["normal_abs"]))) + 1e-9
+        nd = np.degrees(np.arcsin(np.minimum(1.0, 2 * (p["normal_abs"] + root_n)))) + 1e-9
+        why = {
+            "band": f"margin < each shape's own threshold (at most {eps:.3g}): single-precision bounding boxes "
+            "and textbook sphere roots in POV-Ray, its mesh camera's single-precision rays; "
+            f"or a candidate hit with t cos within {start_err:.3g} of [0, {t_min:.3g}] (POV-Ray drops hits within "
+            "its minimum distance 1e-4 of a mesh-camera ray's origin; its rays are off by start_err there)",
+            "t": f"|dt| <= {p['t_abs']:.3g} + {p.get('dir_err', 0.0):.3g}*(R + t)/|n·d| (n at the hit, R = ray_reach) "
+            "+ 12 2^-53 |f|^2/(r |n·d|) (POV-Ray's textbook sphere root, |f| from its ray's origin to the centre): "
+            f"{p.get('derivation', '')}",
+            "normal": f"{deg:.3g} deg: normals from decoded positions, |dn| <= {p['normal_abs']:.3g}, plus per pixel "
+            "POV-Ray's root error over r: 12 2^-53 |f|^2/(r^2 |n·d|)",
+        }
+        summary = {
+            "band_eps": eps,
+            "t_abs": p["t_abs"],
+            "normal_deg": deg,
+            "min_distance": t_min,
+            "start_band_pixels": int(starts.sum()),
+        }
+        return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary, ties=ties)
+
+    def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None, progress=None) -> RenderResult:
         opts = dict(options or {})
         w, h = scene.camera.width, scene.camera.height
         meta: dict[str, Any] = {"scene": scene.name, "rules": rules.as_dict(), "options": opts}

@@ -8,7 +8,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENES = sorted((ROOT / "scenes").glob("*.toml"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/plain.py
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the helpers: from support.plain import ...
 
 
 @pytest.fixture(params=[p.stem for p in SCENES])
@@ -23,9 +23,10 @@ def scene_path(request) -> Path:
 SHARED_FIXTURE_MODULES = frozenset(
     f"tests/{m}.py"
     for m in (
-        "test_bench", "test_check_diagnosis", "test_diagnose", "test_fuzz", "test_grade_cli", "test_grade_page",
-        "test_harness", "test_json_documents", "test_memory", "test_oracle_mitsuba", "test_oracle_povray",
-        "test_probe_image", "test_report", "test_start_band", "test_sweep",
+        "package/test_bench", "harness/test_check_diagnosis", "diagnose/test_diagnose", "campaign/test_fuzz",
+        "cli/test_grade_cli", "grading/test_grade_page", "harness/test_harness", "io/test_json_documents",
+        "jobs/test_memory", "oracles/test_oracle_mitsuba", "oracles/test_oracle_povray",
+        "reference/test_probe_image", "pages/test_report", "reference/test_start_band", "sweep/test_sweep",
     )
 )  # fmt: skip
 
@@ -49,12 +50,12 @@ def pytest_xdist_auto_num_workers(config):
     """``-n auto``: a worker per core and as many again (at most four more). Much of the suite waits
     rather than computes -- POV-Ray's front end polls in 10-100 ms sleeps (a 16x16 render: 1.4 s of wall
     time, milliseconds of CPU), child processes and Dask clusters start -- so one worker per core leaves
-    the cores idle about half the time: tests/test_regression.py in one worker took 45 s of CPU in 93 s;
+    the cores idle about half the time: tests/harness/test_regression.py in one worker took 45 s of CPU in 93 s;
     on 2 cores, 4 workers ran it in 30.5 s, 2 workers in 44.9 s. PYTEST_XDIST_AUTO_NUM_WORKERS, when set,
     still decides (xdist's own hook reads it)."""
     if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
         return None
-    from minirt.jobs import cores
+    from minirt.jobs.batch import cores
 
     n = cores()
     return n + min(n, 4)

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from minirt import bitmap
-from minirt.imageio import write_image
-from minirt.rules import resolve
-from minirt.scene import load_scene
-from minirt.tracer import render
+from minirt.io.images import write_image
+from minirt.model import bitmap
+from minirt.model.rules import resolve
+from minirt.model.scene import load_scene
+from minirt.reference.tracer import render
 
 OUT = Path(__file__).resolve().parent.parent / "scenes" / "samples" / "rules.student.png"
 

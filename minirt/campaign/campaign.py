@@ -1,0 +1,475 @@
+"""The adversarial campaign behind ``minirt fuzz``: generated hard scenes × oracles, as Dask jobs, cached.
+
+A campaign is a matrix of independent jobs, one per (scene, oracle): the scene's text comes from a
+family of minirt.campaign.families (deterministic for family, seed and index), the job checks the oracle against the
+reference exactly as ``minirt check`` does, and -- with ``defects`` -- checks it again against the
+reference with each injected defect, reusing the oracle's render. Jobs run through minirt.jobs.batch (in
+this process, an embedded LocalCluster, or a running Dask cluster); the client alone reads and writes
+files, so remote workers need minirt and the renderers, not a shared file system.
+
+**Cache.** A job's result is stored as ``OUT/cache/KEY.json``, KEY the SHA-256 of everything the
+result depends on: the scene text, the oracle, the defects, the versions of minirt's own code (a
+digest of its sources), of Dr.Jit and of the oracle (its version line). A rerun does only the jobs
+whose key is new; the campaign's JSON is the same bytes either way (no timings in it).
+
+**Defects.** Each kind stands for a bug a student's tracer could have, applied to the reference (its
+scene, rules, traced effects or buffers) while the oracle's image stays the same. A defect *changes
+the image* of a scene for an oracle when the defective reference differs from the correct one in what
+that oracle's check judges (``changes``: geometry for all; colour beyond rounding for an oracle that
+shades); it is *caught* when the check of that oracle against it is FAIL. The campaign's catch rate is
+over the scenes where the defect changes the image for some oracle; caught means some oracle that it
+changes failed. ``rate_judged`` counts only the changes that oracle's check can see: on the pixels it
+judges (outside its bands, depth ties and edges), beyond its per-pixel t and normal tolerances there,
+in scenes it can judge (its check of the correct reference conclusive).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from minirt.jobs.cache import Codec, digest, json_codec
+from minirt.model.result import RenderResult
+from minirt.model.rules import Rules
+from minirt.model.scene import Ball, Material, Scene
+
+VERDICTS = ("pass", "warn", "fail", "error", "skip")
+CATCH_TARGET = 0.99  # the campaign's goal: defects caught in >= 99 % of the scenes they change
+CHANGE_REL = 1e-9  # t and normals differing by more than this (relative) change the image's geometry
+
+
+# ---------------------------------------------------------------------------------------------
+# Defects
+
+
+@dataclass(frozen=True)
+class Defect:
+    name: str
+    summary: str  # the tracer bug it stands for
+    scene: Callable[[Scene], Scene] | None = None
+    rules: Callable[[Rules], Rules] | None = None
+    effects: dict[str, Any] = field(default_factory=dict)  # traced effects switched off (Effects fields)
+    buffers: Callable[[RenderResult], None] | None = None  # changes the result's buffers in place
+
+
+def _materials(scene: Scene, fn: Callable[[Material], Material]) -> Scene:
+    shapes = tuple(replace(s, material=fn(s.material)) for s in scene.shapes)
+    return replace(scene, shapes=shapes, materials={k: fn(m) for k, m in scene.materials.items()})
+
+
+def _flip_normals(r: RenderResult) -> None:
+    if r.normal is not None:
+        r.normal = -r.normal
+
+
+def _scale_t(r: RenderResult) -> None:
+    if r.t is not None and r.hit is not None:
+        r.t = np.where(r.hit, r.t * 1.01, r.t)
+
+
+def _swap_ids(r: RenderResult) -> None:
+    if r.shape_id is not None:
+        s = r.shape_id
+        r.shape_id = np.where(s == 0, 1, np.where(s == 1, 0, s)).astype(s.dtype)
+
+
+DEFECTS: dict[str, Defect] = {
+    d.name: d
+    for d in (
+        Defect("last-shape-skipped", "the shape loop stops one short: the last shape is never hit",
+               scene=lambda s: replace(s, shapes=s.shapes[:-1])),
+        Defect("radius-off", "a wrong quadratic coefficient: every ball 2 % larger",
+               scene=lambda s: replace(s, shapes=tuple(
+                   replace(b, radius=b.radius * 1.02) if isinstance(b, Ball) else b for b in s.shapes))),
+        Defect("t-scaled", "distances along an unnormalised direction: t 1 % too long", buffers=_scale_t),
+        Defect("normal-flipped", "normals pointing into the surface", buffers=_flip_normals),
+        Defect("ids-swapped", "shape ids off: shapes 0 and 1 reported as each other", buffers=_swap_ids),
+        Defect("no-shadows", "shadow rays never cast", effects={"shadows": False}),
+        Defect("no-reflection", "the recursion never follows the mirror ray", effects={"reflection": False}),
+        Defect("no-ambient", "the ambient term left out",
+               scene=lambda s: _materials(s, lambda m: replace(m, ambient=(0.0, 0.0, 0.0)))),
+        Defect("light-moved", "the light 5 % off its position",
+               scene=lambda s: replace(s, light=replace(s.light, position=tuple(1.05 * x for x in s.light.position)))),
+        Defect("specular-exponent", "the specular term raised to the 7th power, not the 8th",
+               rules=lambda r: replace(r, specular_exponent=7 if r.specular_exponent != 7 else 9)),
+    )
+}  # fmt: skip
+
+
+def parse_defects(spec: str | None) -> tuple[str, ...]:
+    """``--defects``: none (default), all, or a comma list of DEFECTS' names."""
+    from minirt.errors import MinirtError
+
+    if spec is None or spec.strip().lower() in ("", "none"):
+        return ()
+    if spec.strip().lower() == "all":
+        return tuple(DEFECTS)
+    names = tuple(n.strip() for n in spec.split(",") if n.strip())
+    unknown = [n for n in names if n not in DEFECTS]
+    if unknown:
+        raise MinirtError(f"--defects: unknown defect {', '.join(unknown)} (known: none, all, {', '.join(DEFECTS)})")
+    return names
+
+
+class _DefectiveReference:
+    """What the harness's reference cache gives (``get(rules, samples)``), rendered with a defect."""
+
+    def __init__(self, scene: Scene, defect: Defect):
+        self.scene, self.defect, self.cache = scene, defect, {}
+
+    def get(self, rules: Rules, samples: int | None = None) -> RenderResult:
+        from minirt.harness import compare as harness
+        from minirt.reference import tracer
+
+        key = (rules, samples)
+        if key not in self.cache:
+            d = self.defect
+            sc = self.scene if samples is None else self.scene.with_overrides(samples=samples)
+            sc = d.scene(sc) if d.scene else sc
+            ru = d.rules(rules) if d.rules else rules
+            t = tracer.Tracer(sc, ru)
+            if d.effects:
+                t.effects = replace(t.effects, **d.effects)
+            r = t.render(diagnostics=True, terms=harness.CHECKED_TERMS)
+            if d.buffers:
+                d.buffers(r)
+            r.meta["shapes"] = len(self.scene.shapes)
+            self.cache[key] = r
+        return self.cache[key]
+
+
+def changes(
+    a: RenderResult,
+    b: RenderResult,
+    model: str | None,
+    where: np.ndarray | None = None,
+    tolerance: tuple[np.ndarray, np.ndarray] | None = None,
+) -> bool:
+    """Whether two reference renders differ in what a check of an oracle shading ``model`` judges
+    (the backend's shading_model), on the pixels ``where`` (default all): the geometry -- hit mask, shape ids,
+    t and normals beyond CHANGE_REL, or with ``tolerance`` (per-pixel t and normal-angle tolerances of
+    the check) beyond those -- for every oracle; for the exercise's model also the 8-bit image beyond
+    the check's own tolerance (THRESHOLDS color8_levels, rounding); for the physical one its diffuse
+    term beyond one level."""
+    from minirt.harness.compare import angle_deg
+    from minirt.harness.tolerances import THRESHOLDS
+
+    w = np.ones_like(a.hit) if where is None else where
+    ida, idb = np.where(a.hit, a.shape_id, -1), np.where(b.hit, b.shape_id, -1)
+    if ((a.hit != b.hit) & w).any() or ((ida != idb) & w).any():
+        return True
+    h = a.hit & w
+    if h.any() and tolerance is not None:
+        t_tol, n_tol = tolerance
+        if a.t is not None and b.t is not None and (np.abs(a.t[h] - b.t[h]) > t_tol[h]).any():
+            return True
+        if a.normal is not None and b.normal is not None and (angle_deg(a.normal[h], b.normal[h]) > n_tol[h]).any():
+            return True
+    elif h.any():
+        for x, y in ((a.t, b.t), (a.normal, b.normal)):
+            if x is not None and y is not None:
+                dx = np.abs(x[h] - y[h])
+                if (dx > CHANGE_REL * np.maximum(1.0, np.abs(x[h]))).any():
+                    return True
+    level = THRESHOLDS["color8_levels"].value
+    if model == "exercise":
+        d8 = np.abs(a.color8().astype(int) - b.color8().astype(int)).max(-1)
+        return bool(((d8 > level) & w).any())
+    if model == "physical":
+        da, db = a.terms.get("diffuse"), b.terms.get("diffuse")
+        return da is not None and db is not None and bool((np.abs(da - db).max(-1)[h] > level / 255).any())
+    return False
+
+
+def tolerance(bc) -> tuple[np.ndarray, np.ndarray] | None:
+    """A backend check's per-pixel t and normal-angle tolerances (None when it has no geometry check)."""
+    geom = bc.checks.get("geometry")
+    if geom is None or "t_tolerance" not in geom.images:
+        return None
+    return geom.images["t_tolerance"], geom.images["normal_tolerance"]
+
+
+def judged(bc, defective=None) -> np.ndarray | None:
+    """The pixels a backend check judges: outside its geometry band, its depth ties and its shading's edges
+    -- and, given the check against a defective reference, outside that one's edges too. Edges come from
+    the reference under test (its silhouettes, shadows, terminators): a moved light moves them, and the
+    check rightly sets its own edges aside. The band does not: it is the scene's and the oracle's, so it
+    comes from the correct check alone -- a band that grew with a defect would be a hole in the harness,
+    and must show as a miss (it did: Embree's depth ties, measured against a reference that missed)."""
+    geom, shade = bc.checks.get("geometry"), bc.checks.get("shading")
+    if geom is None or "band" not in geom.images:
+        return None
+    out = ~geom.images["band"].astype(bool) & ~geom.images.get("ties", np.zeros_like(geom.images["band"]))
+    for c in (bc, defective):
+        shade = None if c is None else c.checks.get("shading")
+        if shade is not None and "edges" in shade.images:
+            out &= ~shade.images["edges"].astype(bool)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Jobs
+
+
+@dataclass(frozen=True)
+class Job:
+    scene: str  # the scene's name (family_seed_index)
+    family: str
+    text: str  # the scene file's text
+    backend: str
+    defects: tuple[str, ...] = ()
+
+
+def job_key(job: Job, versions: dict[str, str]) -> str:
+    """The cache key: SHA-256 over everything the job's result depends on (module docstring)."""
+    return digest(
+        {"text": job.text, "backend": job.backend, "defects": list(job.defects),
+         "minirt": versions["minirt"], "drjit": versions["drjit"], "oracle": versions.get(job.backend, "")}
+    )  # fmt: skip
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """One (scene, oracle) check and its defect checks, as a plain dict (what the cache stores).
+    Non-PASS verdicts carry their evidence: the check's JSON and the two images as PNG bytes."""
+    from minirt.harness import backends
+    from minirt.harness import compare as harness
+
+    t0 = time.perf_counter()
+    scene, rules, refs, bc = harness.check_text(job.text, f"{job.scene}.toml", job.backend, explain=False)
+    out: dict[str, Any] = {
+        "scene": job.scene, "family": job.family, "backend": job.backend, "verdict": bc.verdict,
+        "inconclusive": bc.inconclusive, "reason": bc.reason,
+    }  # fmt: skip
+    if bc.verdict != "pass":
+        from minirt.io.jsonout import dumps
+
+        out["evidence"] = {"check": dumps(bc.as_dict()), "images": _images(bc)}
+    if job.defects and bc.result is not None and bc.result.ok:
+        followed = harness.backends.rules_for(job.backend, rules)
+        clean = refs.get(followed, samples=1)
+        found = {}
+        for name in job.defects:
+            bad = _DefectiveReference(scene, DEFECTS[name])
+            try:
+                got = bad.get(followed, samples=1)
+            except Exception as e:  # a defect the tracer cannot render (no shape left) changes nothing judged
+                found[name] = {"changes": False, "changes_judged": False, "verdict": "skip", "reason": str(e)}
+                continue
+            model = backends.get(job.backend).shading_model
+            changed = changes(clean, got, model)
+            dc = (
+                harness.check_backend(scene, rules, job.backend, bad, rendered=bc.result, explain=False)
+                if changed
+                else None
+            )
+            found[name] = {
+                "changes": changed,
+                # a change the check could see: on pixels it judges (outside the band, the ties and both
+                # checks' edges), beyond its tolerances there, in a scene it can judge (clean check conclusive)
+                "changes_judged": changed
+                and not bc.inconclusive
+                and changes(clean, got, model, judged(bc, dc), tolerance(bc)),
+                "verdict": dc.verdict if dc else "pass",
+            }
+        out["defects"] = found
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def _images(bc) -> dict[str, bytes]:
+    """The oracle's and the reference's colour images (or shape ids as grey levels) as PNG bytes."""
+    import tempfile
+
+    from minirt.io.images import write_image
+
+    pics = {}
+    for role, r in (("oracle", bc.result), ("reference", bc.reference)):
+        if r is None or not r.ok:
+            continue
+        img = r.color8()
+        if img is None and r.shape_id is not None:
+            ids = np.where(r.hit, r.shape_id + 1, 0).astype(np.float64)
+            img = np.repeat((255 * ids / max(1.0, ids.max()))[..., None], 3, -1).astype(np.uint8)
+        if img is None:
+            continue
+        with tempfile.TemporaryDirectory() as d:
+            p = Path(d) / "x.png"
+            write_image(p, img)
+            pics[role] = p.read_bytes()
+    return pics
+
+
+def failed_job(job: Job, message: str) -> dict[str, Any]:
+    """A job whose call raised or whose worker died: an ERROR verdict naming why."""
+    return {"scene": job.scene, "family": job.family, "backend": job.backend, "verdict": "error",
+            "inconclusive": False, "reason": message, "seconds": 0.0}  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# The campaign
+
+
+@dataclass
+class Campaign:
+    seed: int
+    families: tuple[str, ...]
+    size: tuple[int, int]
+    backends: tuple[str, ...]
+    defects: tuple[str, ...]
+    scenes: list[tuple[str, str, str]] = field(default_factory=list)  # (name, family, text)
+    results: list[dict[str, Any]] = field(default_factory=list)
+    cached: int = 0
+    seconds: float = 0.0
+
+    def jobs(self) -> list[Job]:
+        return [Job(n, f, t, b, self.defects) for n, f, t in self.scenes for b in self.backends]
+
+
+def scenes(count: int, seed: int, families: Sequence[str], size: tuple[int, int]) -> list[tuple[str, str, str]]:
+    """``count`` scenes, the families taken in turn: scene i is family i mod F's number i // F."""
+    from minirt.campaign import families as fuzz
+
+    out = []
+    for i in range(count):
+        fam = families[i % len(families)]
+        k = i // len(families)
+        out.append((f"{fam}_{seed}_{k}", fam, fuzz.scene_text(fam, seed, k, size[0], size[1])))
+    return out
+
+
+def run(
+    campaign: Campaign,
+    cache: Path | None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    on_done: Callable[[Job, dict[str, Any]], None] | None = None,
+) -> Campaign:
+    """Every job of the campaign, from ``cache`` (a folder; None: no cache) where it holds the job's key."""
+    from minirt.harness.backends import versions
+    from minirt.jobs import batch as jobs
+    from minirt.jobs.cache import Cache
+
+    t0 = time.perf_counter()
+    v = versions(campaign.backends)
+    # an error may be passing (a dead worker, a renderer missing here): never stored, redone next time
+    store = None if cache is None else Cache(cache, lambda j: job_key(j, v), CODEC, _not_error)
+    campaign.results = jobs.run(run_job, campaign.jobs(), workers=workers, scheduler=scheduler, on_done=on_done,
+                                on_error=failed_job, cache=store)  # fmt: skip
+    campaign.cached = store.hits if store else 0
+    campaign.seconds = time.perf_counter() - t0
+    return campaign
+
+
+def _not_error(result: dict[str, Any]) -> bool:
+    return result["verdict"] != "error"
+
+
+def _encode(result: dict[str, Any]) -> bytes:
+    d = dict(result)
+    if "evidence" in d:  # the images' PNG bytes, as hex
+        d["evidence"] = {**d["evidence"], "images": {k: v.hex() for k, v in d["evidence"]["images"].items()}}
+    return json_codec.encode(d)
+
+
+def _decode(data: bytes) -> dict[str, Any]:
+    d = json_codec.decode(data)
+    ev = d.get("evidence")
+    if ev:
+        ev["images"] = {k: bytes.fromhex(v) for k, v in ev.get("images", {}).items()}
+    return d
+
+
+CODEC = Codec("json", _encode, _decode)
+
+
+def summary(c: Campaign) -> dict[str, Any]:
+    """The campaign's JSON document (no timings: the same bytes for the same command)."""
+    verdicts = dict.fromkeys(VERDICTS, 0)
+    failures, inconclusive = [], 0
+    for r in c.results:
+        verdicts[r["verdict"]] += 1
+        inconclusive += bool(r.get("inconclusive"))
+        if r["verdict"] in ("fail", "error"):
+            failures.append({"scene": r["scene"], "family": r["family"], "backend": r["backend"],
+                             "verdict": r["verdict"], "reason": r["reason"]})  # fmt: skip
+    doc: dict[str, Any] = {
+        "seed": c.seed,
+        "families": list(c.families),
+        "size": list(c.size),
+        "backends": list(c.backends),
+        "scenes": len(c.scenes),
+        "jobs": len(c.results),
+        "verdicts": verdicts,
+        "inconclusive": inconclusive,
+        "failures": failures,
+        "by_family": _by_family(c),
+    }
+    if c.defects:
+        doc["defects"] = _defects(c)
+    return doc
+
+
+def _by_family(c: Campaign) -> dict[str, dict[str, int]]:
+    out = {f: dict.fromkeys(VERDICTS, 0) for f in c.families}
+    for r in c.results:
+        out[r["family"]][r["verdict"]] += 1
+    return out
+
+
+def _defects(c: Campaign) -> dict[str, Any]:
+    """Per defect, over scenes: those it changes for some oracle, those it changes on pixels that oracle's
+    check judges (outside its band and edges), those where an oracle it changes FAILed, and the rates."""
+    by_scene: dict[str, dict[str, list[bool]]] = {}
+    for r in c.results:
+        for name, d in (r.get("defects") or {}).items():
+            s = by_scene.setdefault(name, {}).setdefault(r["scene"], [False, False, False])
+            s[0] |= bool(d["changes"])
+            s[1] |= bool(d.get("changes_judged"))
+            s[2] |= bool(d["changes"]) and d["verdict"] == "fail"
+    out = {}
+    for name in c.defects:
+        per = by_scene.get(name, {})
+        changed = sorted(s for s, v in per.items() if v[0])
+        on_judged = [s for s in changed if per[s][1]]
+        caught = [s for s in changed if per[s][2]]
+        out[name] = {
+            "summary": DEFECTS[name].summary,
+            "changes": len(changed),
+            "changes_judged": len(on_judged),
+            "caught": len(caught),
+            "rate": len(caught) / len(changed) if changed else None,
+            "rate_judged": sum(per[s][2] for s in on_judged) / len(on_judged) if on_judged else None,
+            "missed": [s for s in changed if not per[s][2]],
+            "missed_judged": [s for s in on_judged if not per[s][2]],
+        }
+    return out
+
+
+def write_evidence(c: Campaign, out: Path) -> list[Path]:
+    """Every non-PASS job's scene file, check JSON and images under ``out``; returns the scene files."""
+    from minirt.io.atomic import atomic_path
+
+    texts = {n: t for n, _, t in c.scenes}
+    written = []
+    for r in c.results:
+        if r["verdict"] == "pass":
+            continue
+        scene = out / f"{r['scene']}.toml"
+        if not scene.exists():
+            with atomic_path(scene) as tmp:
+                tmp.write_text(texts[r["scene"]], encoding="utf-8")
+            written.append(scene)
+        ev = r.get("evidence") or {}
+        files = {f"{r['scene']}.{r['backend']}.check.json": ev.get("check", "").encode()}
+        for role, png in (ev.get("images") or {}).items():
+            files[f"{r['scene']}.{r['backend']}.{role}.png"] = png
+        for name, data in files.items():
+            if data:
+                with atomic_path(out / name) as tmp:
+                    tmp.write_bytes(data)
+    return written

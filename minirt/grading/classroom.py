@@ -1,0 +1,239 @@
+"""A class graded at once: every student's image of every scene, as independent jobs, with a page per image,
+the class table, the CSV and the most common mistakes.
+
+Sits above the grade of one image (minirt.grading.grade) and its page (minirt.grading.page)."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from minirt.diagnose import search as dg
+from minirt.errors import MinirtError
+from minirt.io.atomic import atomic_path
+from minirt.io.images import STUDENT_EXTENSIONS
+from minirt.model.rules import Rules
+from minirt.model.scene import Scene
+
+if TYPE_CHECKING:
+    from minirt.jobs.cache import Cache
+from minirt.grading.grade import DIFFERS, ERROR, MATCH, ClassRow, grade_image, sentence
+
+
+def find_image(folder: Path, stem: str) -> Path | None:
+    """The student's image of scene ``stem``: any supported extension (the first in a fixed order)."""
+    for ext in STUDENT_EXTENSIONS:
+        for cand in (folder / f"{stem}{ext}", folder / f"{stem}{ext.upper()}"):
+            if cand.is_file():
+                return cand
+    return None
+
+
+def students(class_dir: Path) -> list[Path]:
+    if not class_dir.is_dir():
+        raise MinirtError(f"--class {class_dir}: no such folder")
+    found = sorted(p for p in class_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+    if not found:
+        raise MinirtError(f"--class {class_dir}: no student folders inside (expected DIR/<student>/<scene>.png)")
+    return found
+
+
+def grade_one_row(student: Path, scene: Scene, scene_file: str, rules: Rules, cache: dg.VariantCache) -> ClassRow:
+    stem = Path(scene_file).stem
+    img = find_image(student, stem)
+    if img is None:
+        return ClassRow(student.name, stem, ERROR, {}, None, None, reason=f"no image {stem}.png (or .bmp, .ppm, …)")
+    try:
+        g = grade_image(scene, scene_file, img, rules, cache)
+    except MinirtError as e:
+        return ClassRow(student.name, stem, ERROR, {}, None, None, reason=str(e).splitlines()[0])
+    d = g.diagnosis
+    said = {n: sentence(n, getattr(d.best, n), getattr(d.given, n)) for n in d.changed}
+    return ClassRow(
+        student.name, stem, g.verdict, d.changed, d.mismatch_pixels, d.as_given_pixels, grade=g, sentences=said
+    )
+
+
+@dataclass(frozen=True)
+class ClassJob:
+    """One image of a class to grade: everything a worker process needs, nothing it must share."""
+
+    student: str  # the student's folder
+    scene: Scene
+    scene_file: str
+    rules: Rules
+    out_dir: str  # the class's output folder (pages/ inside)
+    page_stem: str
+    image_digest: str = ""  # SHA-256 of the student's image file ("" when there is none): the cache key's
+    keep_page: bool = False  # return the page's bytes with the row (to cache them)
+    cache_bytes: int = 2 << 30  # the budget of the process's render cache (memory.class_cache_bytes)
+
+
+# Each process keeps one render cache for every image it grades (a worker's share of a class). Its budget
+# is per process: two workers hold twice this at most, plus what a diagnosis holds while it runs.
+PROCESS_CACHE_BYTES = 2 << 30
+
+
+_process_cache: dg.VariantCache | None = None
+
+
+def process_cache(budget: int = PROCESS_CACHE_BYTES) -> dg.VariantCache:
+    """This process's render cache, made with ``budget`` bytes by the first call."""
+    global _process_cache
+    if _process_cache is None:
+        _process_cache = dg.VariantCache(budget)
+    return _process_cache
+
+
+def grade_job(job: ClassJob) -> ClassRow:
+    """Grade one image of a class and write its page (in whichever process runs it); the row comes back
+    without the grade's arrays, so neither the worker nor the caller holds a class's worth of them."""
+    from minirt.grading.page import write_row_page
+
+    row = grade_one_row(Path(job.student), job.scene, job.scene_file, job.rules, process_cache(job.cache_bytes))
+    write_row_page(row, Path(job.out_dir), job.page_stem)
+    row.grade = None
+    if job.keep_page and row.page:
+        row.page_html = (Path(job.out_dir) / row.page).read_bytes()
+    return row
+
+
+ASSET_LINK = re.compile(r'"assets/([A-Za-z0-9._-]+\.png)"')  # a class page's pictures (named by their pixels)
+
+
+def class_cache(folder: Path, out_dir: Path) -> Cache:
+    """The cache of ``grade_class``'s jobs: a row is reused for the same image bytes, scene, rules, page
+    name and versions, and its page is written back from the cached bytes -- when every picture it links
+    is still in ``out_dir/pages/assets`` (pictures are named by their pixels' hash, so a file of that name
+    is that picture); otherwise the image is graded again. Error rows are never kept."""
+    from minirt.harness.backends import versions
+    from minirt.jobs.cache import Cache, digest, pickle_codec
+
+    v = versions([])
+
+    def key(job: ClassJob) -> str:
+        return digest({"kind": "grade", "image": job.image_digest, "scene": repr(job.scene), "rules": repr(job.rules),
+                       "scene_file": Path(job.scene_file).name, "page": job.page_stem, "minirt": v["minirt"],
+                       "drjit": v["drjit"]})  # fmt: skip
+
+    def accept(job: ClassJob, row: ClassRow) -> bool:
+        if not row.page:
+            return True
+        if row.page_html is None:
+            return False
+        assets = Path(out_dir) / "pages" / "assets"
+        if not all((assets / name).is_file() for name in ASSET_LINK.findall(row.page_html.decode("utf-8"))):
+            return False
+        page = Path(out_dir) / row.page
+        page.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(page) as tmp:
+            tmp.write_bytes(row.page_html)
+        return True
+
+    return Cache(folder, key, pickle_codec, keep=lambda row: row.verdict != ERROR, accept=accept)
+
+
+def grade_class(
+    people: list[Path],
+    scenes: list[tuple[str, Scene, Rules]],
+    out_dir: Path,
+    workers: int = 1,
+    scheduler: str | None = None,
+    on_done: Callable[[ClassJob, ClassRow], None] | None = None,
+    cache: Cache | None = None,
+    cache_bytes: int = PROCESS_CACHE_BYTES,
+) -> list[ClassRow]:
+    """Grade every student's image of every scene (``scenes``: (file, scene, rules)), writing each page
+    into ``out_dir/pages/`` as it is graded; rows in student order, then scene order, however the work
+    was spread (minirt.jobs.batch: ``workers`` processes here, or a Dask ``scheduler``'s). A call that fails
+    inside a worker is an ``error`` row, like a missing image. ``cache_bytes``: each process's render
+    cache (``memory.class_cache_bytes`` sizes it to the machine)."""
+    from minirt.grading.page import page_stems
+    from minirt.jobs import batch as jobs
+
+    keys = [(s, f, sc, r) for s in people for f, sc, r in scenes]
+    stems = page_stems((s.name, Path(f).stem) for s, f, _, _ in keys)
+    todo = [
+        ClassJob(
+            str(s), sc, f, r, str(out_dir), stem, _image_digest(s, f) if cache else "", cache is not None, cache_bytes
+        )
+        for (s, f, sc, r), stem in zip(keys, stems, strict=True)
+    ]
+
+    def failed(job: ClassJob, message: str) -> ClassRow:
+        return ClassRow(Path(job.student).name, Path(job.scene_file).stem, ERROR, {}, None, None, reason=message)
+
+    def done(job: ClassJob, row: ClassRow) -> None:
+        row.page_html = None  # stored by now: a class's pages are not held in memory
+        if on_done:
+            on_done(job, row)
+
+    return jobs.run(grade_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=cache)
+
+
+def _image_digest(student: Path, scene_file: str) -> str:
+    img = find_image(student, Path(scene_file).stem)
+    if img is None:
+        return ""
+    try:
+        return hashlib.sha256(img.read_bytes()).hexdigest()
+    except OSError:
+        return ""  # graded (and reported) as unreadable
+
+
+def common_mistakes(rows: list[ClassRow]) -> list[dict[str, Any]]:
+    """Rule settings across the class, most frequent first: (rule, value) -> students and images, and
+    how many of those images still differ beyond tolerance (a setting such as another rounding of the
+    bitmap moves pixels by one level: its images can match and still show it)."""
+    seen: dict[tuple[str, str], set[str]] = {}
+    images: dict[tuple[str, str], int] = {}
+    differing: dict[tuple[str, str], int] = {}
+    for r in rows:
+        for k, v in r.rules.items():
+            seen.setdefault((k, v), set()).add(r.student)
+            images[(k, v)] = images.get((k, v), 0) + 1
+            differing[(k, v)] = differing.get((k, v), 0) + (r.verdict == DIFFERS)
+    out = [
+        {"rule": k, "value": v, "students": len(s), "images": images[(k, v)], "differing_images": differing[(k, v)]}
+        for (k, v), s in seen.items()
+    ]
+    return sorted(out, key=lambda m: (-m["students"], -m["images"], m["rule"], m["value"]))
+
+
+def class_dict(rows: list[ClassRow], scenes: list[str]) -> dict[str, Any]:
+    counts: dict[str, int] = {MATCH: 0, DIFFERS: 0, ERROR: 0}
+    for r in rows:
+        counts[r.verdict] += 1
+    return {
+        "students": sorted({r.student for r in rows}),
+        "scenes": scenes,
+        "verdicts": counts,
+        "common_mistakes": common_mistakes(rows),
+        "grades": [r.as_dict() for r in rows],
+    }
+
+
+def write_csv(path: Path, rows: list[ClassRow]) -> None:
+    import csv
+    import io
+
+    from minirt.io.atomic import atomic_path
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["student", "scene", "verdict", "rules", "mismatch_pixels", "as_given_pixels", "reason"])
+    for r in rows:
+        rules = " ".join(f"{k}={v}" for k, v in sorted(r.rules.items()))
+        w.writerow(
+            [r.student, r.scene, r.verdict, rules, _blank(r.mismatch_pixels), _blank(r.as_given_pixels), r.reason]
+        )
+    with atomic_path(path) as tmp:
+        tmp.write_text(buf.getvalue())
+
+
+def _blank(v: int | None) -> str:
+    return "" if v is None else str(v)

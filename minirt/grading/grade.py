@@ -1,0 +1,321 @@
+"""Grading another tracer's image of a scene: a verdict, the rule settings that explain it, and why.
+
+``grade_image`` reads the image, checks its size, runs the diagnosis (minirt.diagnose.search) and returns a
+``Grade``: ``match`` when the image is the scene's model as given (every pixel within one 8-bit level,
+or ``FLOAT_TOL`` for a float image, ill-conditioned pixels left out), else ``differs`` with the rules
+that reproduce it, each with the pixels it explains and a sentence a student understands.
+``grade_class`` does the same for a folder of students (DIR/<student>/<scene stem>.<ext>), sharing one
+render cache, and never stops for one bad file: that row gets verdict ``error`` and its reason.
+
+Nothing here prints; the CLI does. JSON carries no timings, so the same command writes the same bytes.
+"""
+
+from __future__ import annotations
+
+import shlex
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from minirt.diagnose import search as dg
+from minirt.errors import MinirtError
+from minirt.io.images import read_student_image
+from minirt.jobs import memory
+from minirt.model import rules as rules_mod
+from minirt.model.rules import Rules
+from minirt.model.scene import Scene
+
+MATCH, DIFFERS, ERROR = "match", "differs", "error"
+EXIT = {MATCH: 0, DIFFERS: 1, ERROR: 2}
+
+
+def _corner() -> str:
+    return "pixel corners ((x/W − 0.5, −y/H + 0.5, 0), the exercise's loop)"
+
+
+# One sentence per rule and value, in the words of the exercise: "yours" is the image's setting.
+SENTENCES: dict[str, Callable[[Any, Any], str]] = {
+    "background": lambda yours, ex: (
+        {
+            "on-miss": "your rays that miss everything return the background colour; ",
+            "on-hit": "you add the background colour at every hit; ",
+            "none": "you never add the background colour; ",
+        }[yours]
+        + {
+            "on-hit": "the exercise's pseudo-code adds it at every hit (the last line of TraceRay) "
+            "and leaves misses black.",
+            "on-miss": "here a ray that misses returns the background and hits get none of it.",
+            "none": "here the background is never added.",
+        }[ex]
+    ),
+    "near_root_only": lambda yours, ex: (
+        "you take the far root of a ball when the near one is behind the ray, so you see balls from inside; "
+        "the exercise takes only the smaller root, provided it is not negative (Appendix 2), so a ball is "
+        "invisible from inside."
+        if not yours
+        else "you take only the near root of a ball, so a ball is invisible from inside; here the far root counts too."
+    ),
+    "shadow_range": lambda yours, ex: (
+        "your shadow rays are blocked only by shapes before the light; the exercise's pseudo-code counts "
+        "any intersection of the shadow ray, even beyond the light."
+        if yours == "to-light"
+        else "any shape on your shadow ray blocks it, even beyond the light; here only shapes before the light do."
+    ),
+    "two_sided": lambda yours, ex: (
+        "you turn every normal to face the incoming ray; the exercise uses a plane's normal as given, so a "
+        "plane seen from behind is lit from its front side's view."
+        if yours
+        else "you use a plane's normal as given; here normals are turned to face the ray."
+    ),
+    "clamp": lambda yours, ex: (
+        {
+            True: "you clamp the light terms: no diffuse light below zero and no highlight where s·n ≤ 0; ",
+            False: "you add s·n and (r·s)^n as they are, negative values included; ",
+            "specular": "you add the highlight only where r·s > 0 and the diffuse term unclamped; ",
+        }[yours]
+        + {
+            False: "the exercise adds both as they are (an even power lights the wrong side too).",
+            True: "here both terms are clamped.",
+            "specular": "here only the highlight is cut at r·s > 0.",
+        }[ex]
+    ),
+    "offset": lambda yours, ex: (
+        f"your secondary rays start {_offset_words(yours)}; the exercise's hint moves them "
+        f"{_offset_words(ex)} to avoid hitting their own surface."
+    ),
+    "offset_along": lambda yours, ex: (
+        "you move the start of shadow and reflected rays along their own direction; the exercise's hint moves "
+        "it along the surface normal."
+        if yours == "ray"
+        else "you move the start of secondary rays along the normal; here they move along their own direction."
+    ),
+    "ray_origin": lambda yours, ex: (
+        "your primary rays start at the camera; the exercise's start on the image plane z = 0 (Ray(planePoint, "
+        "planePoint − camera)), so shapes between the camera and the image plane are not seen."
+        if yours == "camera"
+        else "your primary rays start on the image plane; here they start at the camera."
+    ),
+    "pixel_sample": lambda yours, ex: (
+        "your primary rays go through pixel centres; the exercise samples " + _corner() + "."
+        if yours == "center"
+        else "your primary rays go through pixel corners; here they go through pixel centres."
+    ),
+    "specular_exponent": lambda yours, ex: f"your highlight is (r·s)^{yours}; the exercise's is (r·s)^{ex}.",
+    "pixel_shift": lambda yours, ex: (
+        f"your pixel grid is shifted by ({yours[0]:g}, {yours[1]:g}) pixels: the ray of pixel (x, y) passes "
+        f"where the exercise's ray of pixel (x + {yours[0]:g}, y + {yours[1]:g}) does (an off-by-one in the loop?)."
+    ),
+    "encoding": lambda yours, ex: (
+        f"you write a colour c as {_enc_words(yours)}; the exercise writes {_enc_words(ex)} (AdjustColor)."
+    ),
+    "gamma": lambda yours, ex: (
+        f"you {'store the colour linearly' if yours == 'linear' else f'apply {_gamma_words(yours)} before writing'}"
+        f"; the exercise {'writes it linearly, without gamma' if ex == 'linear' else f'applies {_gamma_words(ex)}'}."
+    ),
+    "rows": lambda yours, ex: (
+        "your image is upside down: rows are stored bottom-up (a BMP's native order) while the exercise's "
+        "bitmap(x, y) has y = 0 at the top."
+        if yours == "bottom-up"
+        else "your rows are stored top-down; here bottom-up."
+    ),
+    "channels": lambda yours, ex: (
+        "your red and blue channels are swapped (BGR order, as a BMP stores pixels); "
+        "the exercise's colours are R, G, B."
+        if yours == "bgr"
+        else "your channels are R, G, B; here B, G, R."
+    ),
+    "transpose": lambda yours, ex: (
+        "your image is transposed: x and y are swapped (bitmap(y, x) instead of bitmap(x, y))."
+        if yours
+        else "your image is not transposed; here it is."
+    ),
+}
+
+
+def _offset_words(v: Any) -> str:
+    if v == "error-bound":
+        return "by a floating-point error bound of the hit point"
+    return "exactly at the hit point" if v == 0 else f"{v:g} away from the hit point"
+
+
+def _enc_words(v: str) -> str:
+    return {"round": "floor(c·255 + 0.5)", "floor256": "min(255, floor(256·c))", "floor": "floor(c·255)"}[v]
+
+
+def _gamma_words(v: str) -> str:
+    return {"srgb": "the sRGB transfer curve", "2.2": "a gamma of 2.2 (c^(1/2.2))"}.get(v, v)
+
+
+def sentence(rule: str, yours: Any, given: Any) -> str:
+    s = SENTENCES[rule](yours, given)
+    return s[0].upper() + s[1:]
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Grade:
+    scene: Scene
+    scene_file: str
+    image: str
+    verdict: str
+    reason: str = ""
+    diagnosis: dg.Diagnosis | None = None
+    target: dg.Target | None = None
+    notes: list[str] = field(default_factory=list)
+    size_override: tuple[int, int] | None = None
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT[self.verdict]
+
+    def reproduce(self) -> str:
+        """The command whose PNG is the image (as far as the diagnosis explains it)."""
+        cmd = ["minirt", "render", self.scene_file]
+        if self.size_override:
+            cmd += ["--width", str(self.size_override[0]), "--height", str(self.size_override[1])]
+        if self.diagnosis:
+            for name, value in sorted(self.diagnosis.changed.items()):
+                cmd += ["--rule", f"{name}={value}"]
+        return shlex.join(cmd)
+
+    def summary(self) -> str:
+        if self.verdict == ERROR:
+            return self.reason
+        d = self.diagnosis
+        if self.verdict == MATCH:
+            return f"the image is the scene's model as given ({d.pixels} pixels)"
+        if not d.changed:
+            return f"{d.as_given_pixels} of {d.pixels} pixels differ; no rule setting explains them"
+        rules = ", ".join(f"{k}={v}" for k, v in sorted(d.changed.items()))
+        rest = f"; {d.mismatch_pixels} pixels still unexplained" if d.mismatch_pixels else ""
+        return f"{d.as_given_pixels} of {d.pixels} pixels differ; explained by {rules}{rest}"
+
+    def as_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "verdict": self.verdict,
+            "scene": self.scene.name if self.scene else None,
+            "scene_file": self.scene_file,
+            "image": self.image,
+            "summary": self.summary(),
+            "notes": self.notes,
+        }
+        d = self.diagnosis
+        if self.verdict == ERROR or d is None:
+            out["reason"] = self.reason
+            return out
+        w, h = self.scene.camera.width, self.scene.camera.height
+        out.update(
+            {
+                "size": [w, h],
+                "pixels": d.pixels,
+                "image_format": "float" if self.target.is_float else "8-bit",
+                "tolerance": f"{dg.FLOAT_TOL:g} per channel" if self.target.is_float else "1 level per channel",
+                "ill_conditioned_pixels": int(d.ill.sum()),
+                "as_given": {
+                    "mismatch_pixels": d.as_given_pixels,
+                    "rules": {n: rules_mod.format_rule_value(n, v) for n, v in d.given.as_dict().items()},
+                },
+                "diagnosis": {
+                    "rules": d.changed,
+                    "mismatch_pixels": d.mismatch_pixels,
+                    "explained": [
+                        {
+                            "rule": e.rule,
+                            "value": e.value,
+                            "pixels": e.pixels,
+                            "sentence": sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule)),
+                        }
+                        for e in d.explained
+                    ],
+                    "search": {"steps": d.steps, "renders": d.renders},
+                },
+                "indistinguishable": d.indistinguishable,
+                "reproduce": self.reproduce(),
+            }
+        )
+        return out
+
+
+def load_target(path: str | Path) -> dg.Target:
+    pixels, is_float = read_student_image(path)
+    return dg.Target(pixels, is_float, str(path))
+
+
+def check_size(scene: Scene, target: dg.Target, image: str) -> list[str]:
+    """The image's size against the scene's: fine, transposed (a note), or a one-line error."""
+    w, h = scene.camera.width, scene.camera.height
+    rows, cols = target.shape
+    if (cols, rows) == (w, h):
+        return []
+    if (cols, rows) == (h, w):
+        return [f"the image is {cols}x{rows} for a {w}x{h} scene: x and y are swapped (transposed)"]
+    raise MinirtError(
+        f"{image}: the image is {cols}x{rows}, the scene {scene.source or scene.name} is {w}x{h} "
+        f"(render at the scene's size, or grade with --size {cols}x{rows})"
+    )
+
+
+def grade_image(
+    scene: Scene,
+    scene_file: str,
+    image: str | Path,
+    rules: Rules,
+    cache: dg.VariantCache | None = None,
+    size_override: tuple[int, int] | None = None,
+) -> Grade:
+    """Grade one image of one scene (raises MinirtError for bad input)."""
+    scene = scene.with_overrides(samples=1)  # the exercise traces one ray per pixel
+    target = load_target(image)
+    notes = check_size(scene, target, str(image))
+    w, h = scene.camera.width, scene.camera.height
+    memory.require(
+        memory.grade_bytes(w * h),
+        f"grading {image} ({w}x{h})",
+        "grade on a machine with more memory, or a smaller render of the same scene (--size)",
+    )
+    d = dg.diagnose(scene, rules, target, cache)
+    verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
+    g = Grade(scene, scene_file, str(image), verdict, diagnosis=d, target=target, notes=notes)
+    g.size_override = size_override
+    return g
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class ClassRow:
+    student: str
+    scene: str
+    verdict: str
+    rules: dict[str, str]
+    mismatch_pixels: int | None
+    as_given_pixels: int | None
+    reason: str = ""
+    page: str = ""
+    grade: Grade | None = field(default=None, repr=False)
+    sentences: dict[str, str] = field(default_factory=dict, repr=False)  # rule -> the sentence for the student
+    page_html: bytes | None = field(default=None, repr=False)  # the page's bytes, for the cache (``grade_class``)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "student": self.student,
+            "scene": self.scene,
+            "verdict": self.verdict,
+            "rules": self.rules,
+            "mismatch_pixels": self.mismatch_pixels,
+            "as_given_pixels": self.as_given_pixels,
+            "reason": self.reason,
+            "page": self.page,
+        }
+
+
+def difference_levels(g: Grade, color: np.ndarray, rules: Rules) -> np.ndarray:
+    """Per pixel, the largest channel difference between the image and ``color`` written under
+    ``rules`` (8-bit levels, or float units x 255), in the scene's layout; the full size's worth of
+    255 where the image's layout does not fit."""
+    d = g.target.difference(color, rules)
+    if d is None:
+        return np.full(color.shape[:2], 255.0)
+    return d * 255.0 if g.target.is_float else d.astype(np.float64)

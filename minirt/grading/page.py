@@ -1,0 +1,491 @@
+"""The grade as a page: one static HTML page per graded image, and a class index.
+
+``write_grade_page(grade, DIR)`` writes ``DIR/index.html`` (or ``DIR/<stem>.html``) and its images in
+``DIR/assets/``: the verdict, the image as stored beside the exercise's model and the best-matching
+variant (one scale, no smoothing), difference heat maps before and after the diagnosis, one block per
+rule that explains pixels (with the sentence a student understands and the pixels it explains drawn on
+the image), the rules this scene cannot tell apart, and the command that reproduces the image.
+
+``write_class_page(rows, summary, DIR)`` writes one such page per graded row into ``DIR/pages/`` and a
+class table (students x scenes) with the most common mistakes in ``DIR/index.html``.
+
+Like minirt.pages.report: the pages open from disk and load nothing from the network (a Content Security
+Policy allows images from the page's folder, inline styles, and only the page's own script, by hash);
+every string from a scene, an image's path or a student's folder is escaped by Jinja2's autoescape;
+file names are made from a sanitised stem and fixed words only; every file is written atomically;
+and the same grade writes the same bytes (no dates, no timings).
+
+Cheap per page, since a class has hundreds: the heat maps are NumPy-coloured PNGs at the scene's own
+size (magma, clipped at ``CLIP`` levels) with one small colour-bar image shared by every page in the
+folder, and images with the same pixels (the exercise's model of a scene, shared by every student)
+are written once per run.
+"""
+
+from __future__ import annotations
+
+import base64
+import functools
+import hashlib
+import math
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from minirt.diagnose import search as dg
+from minirt.grading import grade as grading
+from minirt.grading.grade import ClassRow, Grade
+from minirt.io.atomic import atomic_path
+from minirt.io.images import write_image
+from minirt.model import bitmap
+from minirt.model import rules as rules_mod
+
+# Okabe-Ito colours, as minirt.pages.report uses them.
+YELLOW, SKY = (240, 228, 66), (86, 180, 233)
+MASK_RGB = YELLOW  # pixels a rule explains, on the darkened image
+ILL_RGB = SKY  # ill-conditioned pixels on the heat maps (not in the magma colour map)
+CLIP = 32  # heat maps: 8-bit levels 0..CLIP, larger differences drawn as CLIP
+TILE = 320  # target display size of the longest image side, CSS pixels
+COLORBAR = "levels-colorbar.png"  # the one shared file in an assets folder (a fixed name)
+
+VERDICT_CLASS = {grading.MATCH: "v-pass", grading.DIFFERS: "v-warn", grading.ERROR: "v-fail"}
+VERDICTS = (grading.MATCH, grading.DIFFERS, grading.ERROR)
+
+# The page's only script: a self-check for the browser test (and anyone who opens the console). On load
+# the body gets data-images-loaded="N/M", data-errors, data-csp-violations and data-ready.
+SCRIPT = """(function () {
+  "use strict";
+  var errors = 0, csp = 0;
+  window.addEventListener("error", function () { errors++; }, true);
+  window.addEventListener("securitypolicyviolation", function () { csp++; });
+  window.addEventListener("load", function () {
+    var imgs = document.images, loaded = 0;
+    for (var i = 0; i < imgs.length; i++) if (imgs[i].complete && imgs[i].naturalWidth > 0) loaded++;
+    var b = document.body;
+    b.setAttribute("data-images-loaded", loaded + "/" + imgs.length);
+    b.setAttribute("data-errors", String(errors));
+    b.setAttribute("data-csp-violations", String(csp));
+    b.setAttribute("data-ready", "1");
+  });
+})();
+"""
+
+
+# ---------------------------------------------------------------------------------------------
+# Names
+
+
+def safe_stem(text: str, fallback: str = "page") -> str:
+    """A file-name part: [A-Za-z0-9._-] only, no leading dot, at most 80 characters."""
+    s = re.sub(r"[^A-Za-z0-9._-]+", "_", str(text)).strip("_")[:80]
+    if not s or s.startswith("."):
+        s = f"_{s}" if s else fallback
+    return s
+
+
+def _unique(stem: str, used: set[str]) -> str:
+    """``stem``, or stem-2, stem-3, ... when taken (compared case-insensitively: macOS, Windows)."""
+    cand, k = stem, 1
+    while cand.lower() in used:
+        k += 1
+        cand = f"{stem}-{k}"
+    used.add(cand.lower())
+    return cand
+
+
+# ---------------------------------------------------------------------------------------------
+# Images
+
+
+class _Assets:
+    """PNGs in one folder. One page: identical pixels are written once, under the first name asked for.
+    A class (``by_content``): every picture is named by its pixels' hash and written once into the shared
+    folder, by whichever page -- in whichever worker process -- asks first (the exercise's model of a
+    scene, a matching image's empty heat maps: most pages share most pictures). So the same class writes
+    the same files however its pages are spread over processes."""
+
+    def __init__(self, folder: Path, href: str, by_content: bool = False):
+        self.folder, self.href, self.by_content = folder, href, by_content
+        self.by_key: dict[str, str] = {}
+
+    def image8(self, name: str, pixels: np.ndarray) -> str:
+        pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
+        key = hashlib.sha256(pixels.tobytes() + str(pixels.shape).encode()).hexdigest()
+        if self.by_content:
+            name = f"{key[:24]}.png"
+            if not (self.folder / name).is_file():  # same name, same pixels: written by another page
+                write_image(self.folder / name, pixels)
+            return f"{self.href}/{name}"
+        if key not in self.by_key:
+            write_image(self.folder / name, pixels)
+            self.by_key[key] = name
+        return f"{self.href}/{self.by_key[key]}"
+
+    def colorbar(self) -> str:
+        """The colour bar, under its fixed name (the same pixels on every page)."""
+        if not (self.folder / COLORBAR).is_file():
+            write_image(self.folder / COLORBAR, _lut()[None, :, :])
+        return f"{self.href}/{COLORBAR}"
+
+
+@functools.cache
+def _lut() -> np.ndarray:
+    """Magma at the levels 0..CLIP, (CLIP + 1, 3) uint8."""
+    import matplotlib
+
+    rgba = np.asarray(matplotlib.colormaps["magma"](np.linspace(0.0, 1.0, CLIP + 1)))
+    return np.floor(rgba[:, :3] * 255.0 + 0.5).astype(np.uint8)
+
+
+def _heat(levels: np.ndarray, ill: np.ndarray | None) -> np.ndarray:
+    idx = np.clip(np.rint(np.nan_to_num(levels, nan=CLIP, posinf=CLIP)), 0, CLIP).astype(np.intp)
+    img = _lut()[idx]
+    if ill is not None and ill.shape == levels.shape:
+        img[ill] = ILL_RGB
+    return img
+
+
+def _as8(pixels: np.ndarray, is_float: bool) -> np.ndarray:
+    if is_float:
+        return np.floor(np.clip(np.nan_to_num(pixels, nan=0.0), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    return np.asarray(pixels, dtype=np.uint8)
+
+
+def _highlight(base8: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    out = base8.astype(np.float64) * 0.25
+    out[mask] = MASK_RGB
+    return np.floor(out + 0.5).astype(np.uint8)
+
+
+def _display(w: int, h: int) -> dict[str, Any]:
+    s = TILE / max(w, h, 1)
+    s = float(math.floor(s)) if s >= 1 else s
+    return {"scale": s, "pixelated": s >= 1}
+
+
+def _size(shape: tuple[int, ...], disp: dict[str, Any]) -> dict[str, int]:
+    return {"w": max(1, round(shape[1] * disp["scale"])), "h": max(1, round(shape[0] * disp["scale"]))}
+
+
+# ---------------------------------------------------------------------------------------------
+# View models
+
+
+def _tolerance(g: Grade) -> str:
+    return f"{dg.FLOAT_TOL:g} per channel (float image)" if g.target.is_float else "1 level per channel (8-bit image)"
+
+
+def _rule_sentence(rule: str, yours: Any, given: Any) -> str:
+    try:
+        return grading.sentence(rule, yours, given)
+    except (KeyError, TypeError, ValueError, IndexError):
+        return ""
+
+
+def _picture(assets: _Assets, name: str, pixels: np.ndarray, disp: dict[str, Any], **extra: Any) -> dict[str, Any]:
+    return {"src": assets.image8(name, pixels), **_size(pixels.shape, disp), **extra}
+
+
+def _grade_view(g: Grade, stem: str, assets: _Assets) -> dict[str, Any]:
+    v: dict[str, Any] = {
+        "verdict": g.verdict,
+        "vclass": VERDICT_CLASS.get(g.verdict, "v-skip"),
+        "scene": g.scene.name if g.scene is not None else "",
+        "scene_file": g.scene_file,
+        "image": g.image,
+        "summary": g.summary(),
+        "reason": g.reason,
+        "notes": list(g.notes),
+    }
+    d = g.diagnosis
+    if d is None or g.target is None:
+        v["error"] = True
+        return v
+    w, h = g.scene.camera.width, g.scene.camera.height
+    disp = _display(w, h)
+    student8 = _as8(g.target.pixels, g.target.is_float)
+    given8 = bitmap.bitmap(d.given_color, d.given)
+    best8 = bitmap.bitmap(d.best_color, d.best)
+    fmt = "float" if g.target.is_float else "8-bit"
+    v.update(
+        error=False,
+        size=f"{w}×{h}",
+        pixels=d.pixels,
+        image_format=fmt,
+        tolerance=_tolerance(g),
+        ill=int(d.ill.sum()),
+        pixelated=disp["pixelated"],
+        pictures=[
+            _picture(
+                assets,
+                f"{stem}-image.png",
+                student8,
+                disp,
+                title="the image, as stored",
+                what=f"{student8.shape[1]}×{student8.shape[0]}, {fmt}",
+            ),
+            _picture(
+                assets,
+                f"{stem}-given.png",
+                given8,
+                disp,
+                title="the exercise's model",
+                what="the scene's rules, written the exercise's way",
+            ),
+            _picture(
+                assets,
+                f"{stem}-best.png",
+                best8,
+                disp,
+                title="best-matching variant",
+                what=", ".join(f"{k}={x}" for k, x in sorted(d.changed.items())) or "the scene's rules",
+            ),
+        ],
+    )
+    heat = []
+    for name, title, color, rules, count in (
+        ("diff-given", "before: image − exercise's model", d.given_color, d.given, d.as_given_pixels),
+        ("diff-best", "after: image − best-matching variant", d.best_color, d.best, d.mismatch_pixels),
+    ):
+        lv = grading.difference_levels(g, color, rules)
+        fits = g.target.difference(color, rules) is not None
+        heat.append(
+            _picture(
+                assets,
+                f"{stem}-{name}.png",
+                _heat(lv, d.ill),
+                disp,
+                title=title,
+                mismatch=count,
+                peak=_peak(lv),
+                fits=fits,
+            )
+        )
+    v["heatmaps"] = heat
+    v["colorbar"] = assets.colorbar()
+    v["clip"] = CLIP
+    explained = []
+    base = g.target.in_layout(d.best)
+    base8 = _as8(base, g.target.is_float) if base is not None and base.shape[:2] == (h, w) else None
+    for k, e in enumerate(d.explained):
+        yours, given = getattr(d.best, e.rule), getattr(d.given, e.rule)
+        item = {
+            "rule": e.rule,
+            "value": e.value,
+            "given": rules_mod.format_rule_value(e.rule, given),
+            "pixels": e.pixels,
+            "sentence": _rule_sentence(e.rule, yours, given),
+            "picture": None,
+        }
+        if base8 is not None and e.mask is not None and e.mask.shape == (h, w):
+            rule_part = e.rule if re.fullmatch(r"[a-z][a-z0-9_]{0,31}", e.rule) else "rule"
+            item["picture"] = _picture(assets, f"{stem}-rule{k}-{rule_part}.png", _highlight(base8, e.mask), disp)
+        explained.append(item)
+    v["explained"] = explained
+    v["mask_rgb"] = "#{:02x}{:02x}{:02x}".format(*MASK_RGB)
+    v["ill_rgb"] = "#{:02x}{:02x}{:02x}".format(*ILL_RGB)
+    v["indistinguishable"] = [
+        {"rule": str(i.get("rule")), "value": str(i.get("value")), "as": str(i.get("as")),
+         "scene": i.get("scene_that_tells")}
+        for i in d.indistinguishable
+    ]  # fmt: skip
+    v["changed"] = bool(d.changed)
+    v["unexplained"] = d.mismatch_pixels
+    v["as_given"] = d.as_given_pixels
+    v["reproduce"] = g.reproduce()
+    v["steps"] = [
+        {"rules": ", ".join(map(str, s.get("rules", []))), "gain": s.get("gain", 0),
+         "gain_one_level": s.get("gain_one_level", 0)}
+        for s in d.steps
+    ]  # fmt: skip
+    v["renders"] = f"{d.renders:g}"
+    return v
+
+
+def _peak(levels: np.ndarray) -> str:
+    if not levels.size:
+        return "0"
+    m = float(np.nanmax(levels))
+    return f"{m:.0f}" if m == int(m) else f"{m:.2f}"
+
+
+# ---------------------------------------------------------------------------------------------
+# Pages
+
+
+@functools.cache
+def _environment():
+    import jinja2
+
+    return jinja2.Environment(
+        loader=jinja2.PackageLoader("minirt.pages", "templates"),
+        autoescape=True,  # every string from a scene, a path or a folder name is text, never markup
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+    )
+
+
+@functools.cache
+def _page_parts() -> dict[str, Any]:
+    import markupsafe
+
+    env = _environment()
+    style = env.get_template("report.css").render() + env.get_template("grade.css").render()
+    return {
+        "style": markupsafe.Markup(style),
+        "script": markupsafe.Markup(SCRIPT),
+        "csp_hash": base64.b64encode(hashlib.sha256(SCRIPT.encode()).digest()).decode(),
+    }
+
+
+def _write_html(path: Path, template: str, **context: Any) -> None:
+    html = _environment().get_template(template).render(**_page_parts(), **context)
+    with atomic_path(path) as tmp:
+        tmp.write_text(html, encoding="utf-8")
+
+
+def _write_page(g: Grade, out_dir: Path, stem: str, assets: str, by_content: bool, back: str | None) -> Path:
+    out_dir = Path(out_dir)
+    stem = safe_stem(stem, "index")
+    href = "/".join(safe_stem(p, "assets") for p in Path(assets).parts) or "assets"
+    folder = out_dir / href
+    folder.mkdir(parents=True, exist_ok=True)
+    view = _grade_view(g, stem, _Assets(folder, href, by_content))
+    page = out_dir / f"{stem}.html"
+    _write_html(page, "grade.html", g=view, back=back)
+    return page
+
+
+def write_grade_page(g: Grade, out_dir: Path, stem: str = "index", assets: str = "assets") -> Path:
+    """Write ``out_dir/<stem>.html`` and its images in ``out_dir/<assets>/``; return the page's path."""
+    return _write_page(g, out_dir, stem, assets, False, None)
+
+
+@dataclass
+class _Cell:
+    verdict: str
+    vclass: str
+    page: str
+    reason: str
+    rules: str
+
+
+@dataclass
+class _Table:
+    students: list[str]
+    scenes: list[str]
+    cells: dict[tuple[str, str], _Cell] = field(default_factory=dict)
+
+
+def _mistake_views(rows: list[ClassRow], mistakes: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The summary's common mistakes with a sentence: from a row that has the mistake (the sentences kept
+    with it, or its grade's), else parsed back from the text against the rule's listed values and the
+    first grade's given rules."""
+    graded = [r.grade for r in rows if r.grade is not None and r.grade.diagnosis is not None]
+    said: dict[tuple[str, str], str] = {}
+    for r in rows:
+        said.update({(k, r.rules[k]): text for k, text in r.sentences.items() if k in r.rules})
+    for g in graded:
+        d = g.diagnosis
+        for k, value in d.changed.items():
+            said.setdefault((k, value), _rule_sentence(k, getattr(d.best, k), getattr(d.given, k)))
+    out = []
+    for m in mistakes:
+        rule, value = str(m.get("rule")), str(m.get("value"))
+        s = said.get((rule, value), "")
+        if not s and graded and rule in rules_mod.TRACE_RULES + rules_mod.OUTPUT_RULES:
+            given = getattr(graded[0].diagnosis.given, rule)
+            typed = [x for x in rules_mod.values(rule) if rules_mod.format_rule_value(rule, x) == value]
+            if typed:
+                s = _rule_sentence(rule, typed[0], given)
+        out.append({"rule": rule, "value": value, "students": m.get("students", 0), "images": m.get("images", 0),
+                    "differing": m.get("differing_images", 0), "sentence": s})  # fmt: skip
+    return out
+
+
+def page_stems(keys: Iterable[tuple[str, str]]) -> list[str]:
+    """The page stem of each (student, scene), in order: sanitised, and unique case-insensitively (a
+    class's pages are named before any is graded, so every worker writes the name the index links)."""
+    used: set[str] = set()
+    return [_unique(f"{safe_stem(student, 'student')}-{safe_stem(scene, 'scene')}", used) for student, scene in keys]
+
+
+def write_row_page(row: ClassRow, out_dir: Path, stem: str) -> None:
+    """Write the page of one graded row of a class into ``out_dir/pages/<stem>.html`` (its pictures in
+    ``pages/assets/``) and set ``row.page`` to its link; a row without a grade (an error) gets none."""
+    if row.grade is None:
+        row.page = ""
+        return
+    page = _write_page(row.grade, Path(out_dir) / "pages", stem, "assets", True, "../index.html")
+    row.page = f"pages/{page.name}"
+
+
+def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: bool = True) -> Path:
+    """Write a page per graded row that has none yet into ``out_dir/pages/`` (setting ``row.page`` to its
+    link; a class graded by ``classroom.grade_class`` arrives with its pages written) and the class table
+    ``out_dir/index.html``; return the index's path."""
+    out_dir = Path(out_dir)
+    (out_dir / "pages").mkdir(parents=True, exist_ok=True)
+    stems = page_stems((r.student, r.scene) for r in rows)
+    todo = [(r, stem) for r, stem in zip(rows, stems, strict=True) if r.grade is not None and not r.page]
+    progress = None if quiet or not todo else _progress(len(todo))
+    try:
+        for r, stem in todo:
+            write_row_page(r, out_dir, stem)
+            if progress:
+                progress.advance(r.student, r.scene)
+    finally:
+        if progress:
+            progress.close()
+
+    students = [str(s) for s in summary.get("students") or sorted({r.student for r in rows})]
+    scenes = [str(s) for s in summary.get("scenes") or sorted({r.scene for r in rows})]
+    table = _Table(students, scenes)
+    for r in rows:
+        table.cells[(r.student, r.scene)] = _Cell(
+            r.verdict, VERDICT_CLASS.get(r.verdict, "v-skip"), r.page, r.reason,
+            " ".join(f"{k}={x}" for k, x in sorted(r.rules.items())),
+        )  # fmt: skip
+    counts = {v: int((summary.get("verdicts") or {}).get(v, 0)) for v in VERDICTS}
+    per_scene = {s: {v: 0 for v in VERDICTS} for s in scenes}
+    for r in rows:
+        if r.scene in per_scene and r.verdict in VERDICTS:
+            per_scene[r.scene][r.verdict] += 1
+    index = out_dir / "index.html"
+    _write_html(
+        index,
+        "grade_class.html",
+        table=table,
+        counts=counts,
+        per_scene=per_scene,
+        verdicts=VERDICTS,
+        vclass=VERDICT_CLASS,
+        mistakes=_mistake_views(rows, summary.get("common_mistakes") or []),
+        total=len(rows),
+    )
+    return index
+
+
+class _progress:
+    """A progress line on standard error while the pages are written (the CLI's --quiet turns it off)."""
+
+    def __init__(self, total: int):
+        from rich.console import Console
+        from rich.progress import Progress
+
+        self.bar = Progress(console=Console(stderr=True), transient=True)
+        self.bar.start()
+        self.task = self.bar.add_task("pages", total=total)
+
+    def advance(self, student: str, scene: str) -> None:
+        from rich.markup import escape
+
+        self.bar.update(self.task, advance=1, description=escape(f"page {student[:16]:<16} {scene[:12]:<12}"))
+
+    def close(self) -> None:
+        self.bar.stop()

@@ -1,0 +1,85 @@
+"""Child processes and temporary folders that do not outlive minirt.
+
+A renderer run as a subprocess (POV-Ray) must stop when minirt stops, however it stops:
+
+- Ctrl-C, SIGTERM, SIGHUP: the CLI's handler calls :func:`kill_all`, which kills every live child's
+  process group at once (the threads waiting for them then return), and the interrupt unwinds through
+  the ``with`` blocks that remove temporary files and folders.
+- SIGKILL of minirt (or a crash): no handler runs, so each child is started through util-linux's
+  ``setpriv --pdeathsig KILL`` -- the kernel kills it when the thread that started it dies. Where
+  setpriv is missing the child still has its own process group and a time-out.
+- The temporary folders such runs leave are named ``PREFIX<pid>-...``; the next :func:`temporary_folder`
+  of the same prefix removes those whose process is gone.
+
+Each child runs in a new session (its own process group), so a terminal's Ctrl-C reaches minirt only,
+and minirt decides: kill the children, clean up, exit 130.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+import signal
+import subprocess
+import tempfile
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+from minirt.io.atomic import stale
+
+_live: set[subprocess.Popen] = set()
+_lock = threading.Lock()
+
+
+def _pdeathsig_prefix() -> list[str]:
+    exe = shutil.which("setpriv")
+    return [exe, "--pdeathsig", "KILL", "--"] if exe else []
+
+
+def run(cmd: list[str], cwd: Path | str | None = None, timeout: float | None = None) -> subprocess.CompletedProcess:
+    """``subprocess.run(cmd, capture_output=True)`` for a renderer: text decoded as UTF-8 with bad bytes
+    replaced (a renderer's garbage is a message, not a UnicodeDecodeError), no standard input, and the
+    child killed -- with its process group -- on a time-out, an interrupt or minirt's death."""
+    p = subprocess.Popen(
+        [*_pdeathsig_prefix(), *cmd], cwd=cwd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, start_new_session=True,
+    )  # fmt: skip
+    with _lock:
+        _live.add(p)
+    try:
+        try:
+            out, err = p.communicate(timeout=timeout)
+        except BaseException:  # the time-out, Ctrl-C, SIGTERM: the child goes first
+            _kill(p)
+            p.communicate()
+            raise
+    finally:
+        with _lock:
+            _live.discard(p)
+    text = (out or b"").decode("utf-8", "replace"), (err or b"").decode("utf-8", "replace")
+    return subprocess.CompletedProcess(cmd, p.returncode, *text)
+
+
+def _kill(p: subprocess.Popen) -> None:
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.killpg(p.pid, signal.SIGKILL)
+
+
+def kill_all() -> None:
+    """Kill every live child (from a signal handler: no waiting here)."""
+    for p in list(_live):
+        _kill(p)
+
+
+@contextlib.contextmanager
+def temporary_folder(prefix: str) -> Iterator[Path]:
+    """A temporary folder ``PREFIX<pid>-XXXX`` removed on every exit path Python sees; those of killed
+    runs (SIGKILL, a crash) are removed by the next call."""
+    base = Path(tempfile.gettempdir())
+    for q in stale(base, re.compile(re.escape(prefix) + r"(\d+)-")):
+        shutil.rmtree(q, ignore_errors=True)
+    with tempfile.TemporaryDirectory(prefix=f"{prefix}{os.getpid()}-") as tmp:
+        yield Path(tmp)

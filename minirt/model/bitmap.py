@@ -1,0 +1,101 @@
+"""The bitmap as a tracer writes it: output encoding and image layout (the output rules).
+
+The exercise's bitmap is the colour clamped to [0, 1] and written as ``floor(c·255 + 0.5)``, no
+gamma, rows top-down, channels R G B. Tracers that students write differ here as often as in the
+model, so each of these is a rule (minirt.model.rules.OUTPUT_RULES); none of them changes what is traced:
+
+- ``encoding``: ``"round"`` floor(c·255 + 0.5) (ours); ``"floor256"`` min(255, floor(256·c)) (the
+  2014 edition's bitmap writer); ``"floor"`` floor(c·255);
+- ``gamma``: ``"linear"`` (none), ``"srgb"`` (the sRGB transfer function, IEC 61966-2-1) or ``"2.2"``
+  (c^(1/2.2)), applied to the clamped colour before quantising;
+- ``transpose``: x and y swapped (the image is H×W for a W×H scene); ``rows``: ``"bottom-up"`` stores
+  the last row first (BMP's native order written as if top-down); ``channels``: ``"bgr"`` swaps red
+  and blue. Applied in that order: transpose, then rows, then channels.
+
+``bitmap(color, rules)`` is what ``minirt render`` writes as the PNG; ``undo_layout`` brings an image
+written with some layout back to the scene's own (row-major, top-down, RGB), which is where the
+grader compares.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+ENCODINGS = ("round", "floor256", "floor")
+GAMMAS = ("linear", "srgb", "2.2")
+
+
+def transfer(c: np.ndarray, gamma: str) -> np.ndarray:
+    """The clamped colour through the gamma rule's transfer function (values stay in [0, 1])."""
+    c = np.clip(np.nan_to_num(np.asarray(c, dtype=np.float64), nan=0.0), 0.0, 1.0)
+    if gamma == "linear":
+        return c
+    if gamma == "srgb":
+        return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+    if gamma == "2.2":
+        return np.power(c, 1 / 2.2)
+    raise ValueError(f"unknown gamma {gamma!r}")
+
+
+def quantise(c: np.ndarray, encoding: str) -> np.ndarray:
+    """Values in [0, 1] (after ``transfer``) to 8-bit levels."""
+    if encoding == "round":
+        q = np.floor(c * 255.0 + 0.5)
+    elif encoding == "floor256":
+        q = np.minimum(255.0, np.floor(256.0 * c))
+    elif encoding == "floor":
+        q = np.floor(c * 255.0)
+    else:
+        raise ValueError(f"unknown encoding {encoding!r}")
+    return q.astype(np.uint8)
+
+
+def encode(color: np.ndarray, encoding: str = "round", gamma: str = "linear") -> np.ndarray:
+    """(H, W, 3) linear colour before clamping -> (H, W, 3) uint8 in the scene's layout."""
+    return quantise(transfer(color, gamma), encoding)
+
+
+def apply_layout(img: np.ndarray, rows: str = "top-down", channels: str = "rgb", transpose: bool = False) -> np.ndarray:
+    """An image in the scene's layout as a tracer with these layout rules stores it."""
+    out = img
+    if transpose:
+        out = np.swapaxes(out, 0, 1)
+    if rows == "bottom-up":
+        out = out[::-1]
+    if channels == "bgr":
+        out = out[..., ::-1]
+    return np.ascontiguousarray(out)
+
+
+def undo_layout(img: np.ndarray, rows: str = "top-down", channels: str = "rgb", transpose: bool = False) -> np.ndarray:
+    """The inverse of ``apply_layout``: a stored image back in the scene's layout."""
+    out = img
+    if channels == "bgr":
+        out = out[..., ::-1]
+    if rows == "bottom-up":
+        out = out[::-1]
+    if transpose:
+        out = np.swapaxes(out, 0, 1)
+    return np.ascontiguousarray(out)
+
+
+def layout_of(rules: Any) -> dict[str, Any]:
+    return {"rows": rules.rows, "channels": rules.channels, "transpose": rules.transpose}
+
+
+def bitmap(color: np.ndarray, rules: Any) -> np.ndarray:
+    """The 8-bit bitmap a tracer following ``rules`` writes for this colour buffer."""
+    return apply_layout(encode(color, rules.encoding, rules.gamma), **layout_of(rules))
+
+
+def is_default(rules: Any) -> bool:
+    """Are the output rules the exercise's own (so the bitmap is ``RenderResult.color8()``)?"""
+    return (rules.encoding, rules.gamma, rules.rows, rules.channels, rules.transpose) == (
+        "round",
+        "linear",
+        "top-down",
+        "rgb",
+        False,
+    )

@@ -1,0 +1,176 @@
+"""Warnings about scenes whose image depends on rounding or scale (minirt.reference.hazards): an offset below the hit
+points' rounding (acne), an offset larger than a gap it jumps (near contacts), coordinates float32 cannot
+hold to the scene's detail. `render` and `check` print one line each on stderr; `probe` explains a pixel."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from support import inproc
+
+from minirt.model.rules import resolve
+from minirt.model.scene import Ball, Plane, parse_scene
+from minirt.reference import hazards
+from minirt.reference.tracer import render
+
+ROOT = Path(__file__).resolve().parents[2]
+
+_HEAD = """
+[camera]
+distance = 2.0
+width = 16
+height = 16
+[light]
+position = [0.0, 0.0, -1.0]
+[render]
+max_depth = 0
+[materials.m]
+ambient = [0.1, 0.1, 0.1]
+diffuse = [0.7, 0.6, 0.5]
+"""
+_WALL = '[[shapes]]\ntype = "plane"\nnormal = [0.0, 0.0, 1.0]\ndistance = 3.0\nmaterial = "m"\n'
+# The exercise's normals are as given: this wall's points away from the camera, so the 1e-6 offset goes
+# behind it, across a second plane 5e-7 behind (a near contact); 0.1 behind, nothing is jumped.
+DECAL = _HEAD + _WALL + _WALL.replace("3.0", "3.0000005")
+APART = _HEAD + _WALL + _WALL.replace("3.0", "3.1")
+_BALL = '[[shapes]]\ntype = "ball"\ncenter = [0.0, 0.0, 3.0]\nradius = 1.0\nmaterial = "m"\n'
+# A ground of radius 1e8 under y = -1: float32 rounds its centre's -1e8 - 1 to -1e8 (the ground's top to y = 0)
+PLANET = (
+    _HEAD.replace("[0.0, 0.0, -1.0]", "[2.0, 3.0, -1.0]")
+    + _BALL
+    + _BALL.replace("0.0, 0.0, 3.0", "0.0, -100000001.0, 0.0").replace("1.0\n", "100000000.0\n")
+)
+
+
+def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return inproc.minirt(*args, cwd=cwd)  # in this process: the command's exit status and streams
+
+
+def _write(tmp_path: Path, name: str, text: str) -> Path:
+    p = tmp_path / f"{name}.toml"
+    p.write_text(text)
+    return p
+
+
+def warnings(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if line.startswith("minirt: warning: ")]
+
+
+def test_an_offset_jumping_a_near_contact_is_counted_per_pixel():
+    for text, expected in ((DECAL, 256), (APART, 0)):
+        sc = parse_scene(text)
+        rules = resolve(sc)
+        lines = hazards.offset_warnings(sc, rules, render(sc, rules))
+        assert len(lines) == (1 if expected else 0), lines
+        if expected:
+            assert f"jumps over another shape's surface on {expected} pixel(s)" in lines[0]
+
+
+def test_an_offset_below_the_hit_points_rounding_is_counted_in_float32_only():
+    sc = parse_scene((ROOT / "scenes" / "three_balls.toml").read_text()).with_overrides(width=64, height=64)
+    rules = resolve(sc)  # the exercise's 1e-6 along the normal
+    f32 = hazards.offset_warnings(sc, rules, render(sc, rules, precision="f32"), "f32")
+    assert len(f32) == 1 and "below the hit point's float32 rounding" in f32[0]
+    n = int(f32[0].split(" on ")[1].split(" pixel")[0])
+    assert 0 < n < 64 * 64  # the far floor (|p| in the hundreds), not the balls near the camera
+    assert hazards.offset_warnings(sc, rules, render(sc, rules), "f64") == []
+    eb = resolve(sc, None, {"offset": "error-bound"})
+    assert hazards.offset_warnings(sc, eb, render(sc, eb, precision="f32"), "f32") == []
+
+
+def test_float32_names_the_key_it_cannot_hold():
+    sc = parse_scene(PLANET)
+    lines = hazards.float32_warnings(sc)
+    assert len(lines) == 1
+    assert lines[0].startswith("shapes[1].center[1] = -100000001.0 is -100000000.0 in float32 (moved by 1,")
+    assert hazards.float32_warnings(parse_scene(DECAL)) == []  # 3.0000005 moves by 2e-8: far below the detail
+
+
+def test_render_and_check_warn_one_line_each(tmp_path):
+    decal, planet = _write(tmp_path, "decal", DECAL), _write(tmp_path, "planet", PLANET)
+    r = minirt("render", str(decal), "--out", str(tmp_path / "r1"), "-q", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert warnings(r.stderr) == [
+        "minirt: warning: decal: offset 1e-06 (along the normal) jumps over another shape's surface on 256 pixel(s) "
+        "(a near contact closer than the offset): their shadow or reflection rays start beyond it and miss it"
+    ]
+    r = minirt("render", str(planet), "--precision", "f32", "--out", str(tmp_path / "r2"), "-q", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    got = warnings(r.stderr)
+    assert (
+        len(got) == 1 and "planet: shapes[1].center[1] = -100000001.0 is -100000000.0 in float32 (reference)" in got[0]
+    )
+    r = minirt("render", str(planet), "--out", str(tmp_path / "r3"), "-q", cwd=tmp_path)
+    assert warnings(r.stderr) == []  # float64 holds it
+    r = minirt("check", str(planet), str(decal), "--backend", "embree", "-q", cwd=tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    got = warnings(r.stderr)
+    assert len(got) == 2, got
+    assert "planet: shapes[1].center[1]" in got[0] and "float32 (embree)" in got[0]
+    assert "decal: offset 1e-06" in got[1] and "on 256 pixel(s)" in got[1]
+
+
+def test_probe_explains_the_offset_at_a_pixel(tmp_path):
+    decal = _write(tmp_path, "decal", DECAL)
+    r = minirt("probe", str(decal), "8", "8", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "offset 1e-06 along the normal: the shadow ray's origin jumps over shape 1's surface, 5e-07" in r.stdout
+    r = minirt("probe", str(decal), "8", "8", "--json", cwd=tmp_path)
+    off = json.loads(r.stdout)["offset"]
+    assert off["jumps"] == [{"ray": "shadow", "shape": 1, "gap": off["jumps"][0]["gap"]}]
+    assert abs(off["jumps"][0]["gap"] - 5e-7) < 1e-12 and off["below_rounding"] is False
+    # three_balls in float32: at the far floor's horizon (|p| ~ 640) the point's rounding exceeds 1e-6
+    far = minirt("probe", "three_balls", "1", "129", "--precision", "f32", cwd=tmp_path)
+    assert "offset 1e-06 along the normal: below the hit point's rounding 3.8e-05" in far.stdout
+    assert "(acne risk)" in far.stdout
+    near = minirt("probe", "three_balls", "128", "120", "--precision", "f32", cwd=tmp_path)
+    assert "offset 1e-06 along the normal (the hit point's rounding is 3.5e-07: safe)" in near.stdout
+
+
+def _brute_jumped(shapes, p, q, sid):
+    """The definition _jumped must match: every shape but the point's own, sign of its implicit function at
+    both ends of the segment."""
+    out = np.zeros(len(p), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        for k, shape in enumerate(shapes):
+            crossed = np.sign(hazards._surface(shape, p)) != np.sign(hazards._surface(shape, q))
+            out |= (sid != k) & crossed
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_bvh_finds_the_same_jumps_as_testing_every_shape(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 300))
+    center = rng.uniform(-5, 5, (n, 3)) * 10.0 ** rng.integers(-2, 4)
+    radius = np.exp(rng.normal(-1, 1.5, n))
+    # near contacts: ball k + 1 touches ball k from outside, with gaps 1e-9 ... 1e-3
+    for k in range(0, n - 1, 4):
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        center[k + 1] = center[k] + u * (radius[k] + radius[k + 1] + 10.0 ** rng.uniform(-9, -3))
+    shapes = [Ball(tuple(c), float(r), None) for c, r in zip(center, radius, strict=True)]
+    shapes.append(Ball((0.0, -1e8 - 1.0, 0.0), 1e8, None))  # a planet-sized ground
+    shapes.append(Plane((0.0, 0.0, 1.0), 2.0, None))
+    m = 20_000
+    sid = rng.integers(0, len(shapes), m)
+    p = np.empty((m, 3))
+    for i, k in enumerate(sid):
+        s = shapes[k]
+        if isinstance(s, Ball):
+            u = rng.normal(size=3)
+            p[i] = np.asarray(s.center) + s.radius * u / np.linalg.norm(u)
+        else:
+            p[i] = (*rng.uniform(-50, 50, 2), 2.0)
+    v = rng.normal(size=(m, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    q = p + 10.0 ** rng.uniform(-9, 1, (m, 1)) * v
+    got = hazards._jumped(SimpleNamespace(shapes=shapes), p, q, sid)
+    want = _brute_jumped(shapes, p, q, sid)
+    assert 0 < want.sum() < m  # the case can fail both ways
+    np.testing.assert_array_equal(got, want)
