@@ -1,1 +1,6 @@
-"""minirt.grading."""
+"""Grading another tracer's image of a scene: grade (one image: a verdict, the rule settings that
+explain it, a sentence each for the student), page (its HTML page), classroom (a whole class at once,
+as independent jobs, with the class table, the CSV and the most common mistakes).
+
+May import: minirt.pages, minirt.harness, minirt.diagnose and below.
+"""
