@@ -159,10 +159,8 @@ def check(
     """
     from minirt.errors import MinirtError
     from minirt.harness import backends as backends_mod
-    from minirt.harness import compare as harness
+    from minirt.harness import checks
     from minirt.jobs import batch as jobs
-    from minirt.model.bundled import BUNDLED, find_scene
-    from minirt.model.scene import load_scene as _load_file
 
     spec = backends if isinstance(backends, str) else ",".join(backends)
     names = backends_mod.parse_backends(spec)
@@ -170,19 +168,18 @@ def check(
     if size is not None and (len(size) != 2 or min(size) < 1):
         raise MinirtError(f"size {size!r}: expected (width, height), each >= 1")
     if scenes is None:
-        paths = sorted(BUNDLED.glob("*.toml"))
+        paths = checks.scene_files(None)
     else:
-        paths = []
-        for item in [scenes] if isinstance(scenes, str | PathLike) else scenes:
-            p = Path(item)
-            paths += sorted(p.glob("*.toml")) if p.is_dir() else [find_scene(item)]
+        items = [scenes] if isinstance(scenes, str | PathLike) else list(scenes)
+        paths = checks.scene_files(items) if items else []
         if not paths:
             raise MinirtError(f"check: no scene files in {scenes!s}")
-    for p in paths:  # bad input first, before any long work
-        _load_file(p)
+    checks.read_all(paths)  # bad input first, before any long work
     workers = jobs.pool(workers, scheduler, default=1)
     folder = None if cache is None else Path(cache)
-    return harness.run(paths, names, tuple(size) if size else None, workers=workers, scheduler=scheduler, cache=folder)
+    return checks.run_checks(
+        paths, names, tuple(size) if size else None, workers=workers, scheduler=scheduler, cache=folder
+    )
 
 
 def grade(

@@ -1,6 +1,8 @@
 """A class graded at once: every student's image of every scene, as independent jobs, with a page per image,
 the class table, the CSV and the most common mistakes.
 
+``minirt grade --class`` finds the class (``find_class``), reads the scenes under its flags, then runs
+``grade_folder``: the jobs (``grade_class``), the class's files, and what it prints comes back to it.
 Sits above the grade of one image (minirt.grading.grade) and its page (minirt.grading.page)."""
 
 from __future__ import annotations
@@ -40,6 +42,23 @@ def students(class_dir: Path) -> list[Path]:
     if not found:
         raise MinirtError(f"--class {class_dir}: no student folders inside (expected DIR/<student>/<scene>.png)")
     return found
+
+
+def find_class(class_dir: Path, scenes_dir: Path | None = None) -> tuple[list[Path], list[Path]]:
+    """The class's student folders and the scene files (of ``scenes_dir``, default the bundled scenes) that
+    some student has an image of; bad input names --class or --scenes."""
+    from minirt.model.bundled import BUNDLED
+
+    people = students(class_dir)
+    folder = scenes_dir or BUNDLED
+    if not folder.is_dir():
+        raise MinirtError(f"--scenes {folder}: no such folder")
+    files = sorted(folder.glob("*.toml"))
+    submitted = {p.stem for s in people for p in s.iterdir() if p.is_file()}
+    files = [f for f in files if f.stem in submitted]
+    if not files:
+        raise MinirtError(f"--class {class_dir}: no image is named after a scene in {folder} (e.g. exercise.png)")
+    return people, files
 
 
 def grade_one_row(student: Path, scene: Scene, scene_file: str, rules: Rules, cache: dg.VariantCache) -> ClassRow:
@@ -173,6 +192,67 @@ def grade_class(
             on_done(job, row)
 
     return jobs.run(grade_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=cache)
+
+
+@dataclass(frozen=True)
+class ClassGrades:
+    """What ``grade_folder`` wrote: the class document (grades.json's content, with the pages' links), the
+    class page, and how many of its ``total`` images came from the cache (None without one)."""
+
+    summary: dict[str, Any]
+    index: Path
+    total: int
+    cached: int | None
+
+
+def grade_folder(
+    people: list[Path],
+    scenes: list[tuple[str, Scene, Rules]],
+    out_dir: Path,
+    *,
+    workers: int = 0,
+    scheduler: str | None = None,
+    cache: Path | None = None,
+    quiet: bool = True,
+    on_start: Callable[[int, int], None] | None = None,
+    on_done: Callable[[ClassJob, ClassRow], None] | None = None,
+) -> ClassGrades:
+    """Grade every student's image of every scene (``scenes``: (file, scene, rules)) and write the class's
+    files into ``out_dir`` (a folder that exists): a page per image, index.html, grades.csv, grades.json.
+
+    ``workers``: local processes (0: one per core, none with fewer than 16 images), or a Dask ``scheduler``;
+    each process's render cache is sized to this machine's memory (a class that cannot fit is refused).
+    ``cache``: a folder keeping each image's row by content hash (``class_cache``). ``on_start(total,
+    workers)`` once the work is sized, ``on_done(job, row)`` as each image is graded (a progress bar);
+    ``quiet``: no progress of the pages written after the jobs."""
+    from minirt.grading.page import write_class_page
+    from minirt.io.images import write_json
+    from minirt.jobs import batch as jobs
+    from minirt.jobs import memory
+
+    total = len(people) * len(scenes)
+    workers = workers or jobs.default_workers(total)
+    budget = PROCESS_CACHE_BYTES  # a cluster's workers: their memory is not ours to measure
+    if scheduler is None:
+        biggest = max(scenes, key=lambda x: x[1].camera.width * x[1].camera.height)[1].camera
+        n = max(1, workers)
+        budget = memory.class_cache_bytes(
+            biggest.width * biggest.height, n, budget,
+            f"grading a class at {biggest.width}x{biggest.height} in {n} process{'es' if n > 1 else ''}",
+        )  # fmt: skip
+    if on_start:
+        on_start(total, workers)
+    store = None if cache is None else class_cache(cache, out_dir)
+    rows = grade_class(
+        people, scenes, out_dir, workers=workers, scheduler=scheduler, on_done=on_done, cache=store,
+        cache_bytes=budget,
+    )  # fmt: skip
+    summary = class_dict(rows, [Path(f).stem for f, _, _ in scenes])
+    index = write_class_page(rows, summary, out_dir, quiet=quiet)
+    summary["grades"] = [r.as_dict() for r in rows]  # with the pages' links
+    write_csv(out_dir / "grades.csv", rows)
+    write_json(out_dir / "grades.json", summary)
+    return ClassGrades(summary, index, total, None if store is None else store.hits)
 
 
 def _image_digest(student: Path, scene_file: str) -> str:

@@ -20,17 +20,20 @@ worth a warning because the image then shows rounding or jumps instead of the sc
   across it, or a sizeable fraction of a pixel at the image plane -- changes what is drawn (a centre at
   -1e8 - 1 becomes -1e8 and a ground of radius 1e8 then passes through the camera).
 
-The functions return one line per finding (no scene text beyond its own numbers and key names): the CLI
-prints them as warnings; ``offset_at`` explains one pixel for ``minirt probe``.
+The functions return one line per finding (no scene text beyond its own numbers and key names):
+``scene_warnings`` gathers them for a scene as ``minirt render`` and ``minirt check`` print them (as warnings);
+``offset_at`` explains one pixel for ``minirt probe``.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from minirt.errors import MinirtError
 from minirt.model import camera
 from minirt.model.effects import effects
 from minirt.model.result import RenderResult
@@ -39,6 +42,7 @@ from minirt.model.scene import Ball, Scene
 
 UNIT_ROUNDOFF = {"f64": 2.0**-53, "f32": 2.0**-24}
 DETAIL_FRACTION = 2.0**-8  # see the module docstring: a move beyond 1/256 of the scene's detail is visible
+HAZARD_PREVIEW_PIXELS = 2**18  # offset hazards of a render without buffers are counted on a render this size
 
 
 def _surface(shape, x: np.ndarray) -> np.ndarray:
@@ -246,3 +250,32 @@ def float32_warnings(scene: Scene, who: str = "float32") -> list[str]:
                 f"scene's detail {detail:.3g}: its smallest radius, camera distance or pixel pitch)"
             )
     return lines
+
+
+def scene_warnings(
+    scene: Scene,
+    rules: Rules,
+    reference: RenderResult | None = None,
+    precision: str = "f64",
+    float32_by: Sequence[str] = (),
+) -> list[str]:
+    """The warning lines of a scene: for float32 tracers (``float32_by``, their names) its coordinates, then its
+    offset hazards (on ``reference``'s primary hits, else on a reference render of the scene, reduced to
+    HAZARD_PREVIEW_PIXELS when larger; none when that render cannot be made: it said why itself)."""
+    from minirt.reference import tracer  # deferred: the tracer imports Dr.Jit, needed only without ``reference``
+
+    lines = float32_warnings(scene, "float32 (" + ", ".join(float32_by) + ")") if float32_by else []
+    if rules.offset == "error-bound":
+        return lines
+    note = ""
+    if reference is None or not reference.ok or reference.hit is None:
+        w, h = scene.camera.width, scene.camera.height
+        k = math.sqrt(HAZARD_PREVIEW_PIXELS / (w * h))
+        if k < 1:
+            scene = scene.with_overrides(width=max(1, int(w * k)), height=max(1, int(h * k)))
+            note = f" (counted on a {scene.camera.width}x{scene.camera.height} render of the scene)"
+        try:
+            reference = tracer.render(scene, rules, precision=precision)
+        except MinirtError:  # the render itself reported why it cannot trace this scene
+            return lines
+    return lines + [line + note for line in offset_warnings(scene, rules, reference, precision)]

@@ -152,10 +152,10 @@ def test_a_hostile_key_is_printed_as_text(tmp_path):
 
 
 def test_size_needs_both_numbers():
-    from minirt.cli.app import _parse_size
+    from minirt.cli.options import parse_size
     from minirt.errors import MinirtError
 
-    assert _parse_size("64") == (64, 64)
-    assert _parse_size("10x20") == (10, 20)
+    assert parse_size("64") == (64, 64)
+    assert parse_size("10x20") == (10, 20)
     with pytest.raises(MinirtError):
-        _parse_size("10x")
+        parse_size("10x")

@@ -65,7 +65,7 @@ def test_the_render_estimate_follows_the_measured_peaks():
 def test_a_render_that_cannot_fit_is_one_line_and_the_reference_alone_streams(tmp_path):
     """16384² with Mitsuba: ~155 GB by the estimate, beyond any machine this runs on; the reference
     alone passes the guard (it is written tile by tile: memory.py does not count it)."""
-    from minirt.cli import app as cli
+    from minirt.cli import render as cli
     from minirt.model.rules import resolve
     from minirt.model.scene import load_scene
 

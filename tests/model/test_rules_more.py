@@ -20,7 +20,7 @@ import pytest
 from support.plain import Plain
 from support.versus_plain import SIZE, _compare
 
-from minirt.cli.app import _parse_rules
+from minirt.cli.options import parse_rules as _parse_rules
 from minirt.errors import MinirtError
 from minirt.model import camera
 from minirt.model.effects import effects

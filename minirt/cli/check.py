@@ -1,0 +1,197 @@
+"""``minirt check`` and ``minirt report``: the reference against the oracles, as a table and its verdict,
+or as an HTML report.
+
+Both run minirt.harness.checks (the Python API's ``minirt.check`` runs it too) and print the table of
+verdicts and figures, then each checked scene's hazard warnings.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from minirt.cli.console import emit_json, err, out, progress_bar, warn
+from minirt.cli.options import (
+    CacheOpt,
+    CheckWorkersOpt,
+    JsonOpt,
+    OraclesOpt,
+    QuietOpt,
+    ScenesArg,
+    SchedulerOpt,
+    SizeOpt,
+    output_file,
+    output_folder,
+    parse_size,
+    pool,
+)
+from minirt.errors import MinirtError
+from minirt.io.untrusted import terminal_text
+
+VERDICT_STYLE = {"pass": "green", "warn": "yellow", "fail": "bold red", "error": "bold magenta", "skip": "dim"}
+
+
+def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, scheduler, cache):
+    """Shared by `check` and `report`: the flags, each checked in the order bad input is told, then the
+    check (minirt.harness.checks) with a progress bar on a terminal. Returns the result, the backends' names
+    and the size."""
+    from minirt.harness import backends, checks
+
+    workers = pool(workers, scheduler, default=1)
+
+    files = checks.scene_files(paths)
+    names = backends.parse_backends(backend)
+    backends.require_oracle(names)
+    wh = parse_size(size)
+    checks.read_all(files)  # bad input first, before any long work
+    if cache is not None:
+        output_folder(cache, "--cache")
+    total = checks.job_count(files, names)
+    with progress_bar(not quiet) as bar:
+        task = bar.add_task("checking", total=total) if bar else None
+
+        def step(done: int, steps: int, scene: str, name: str) -> None:
+            if bar:
+                bar.update(task, completed=done, description=f"{terminal_text(scene, 40)}: {name}")
+
+        result = checks.run_checks(files, names, wh, workers=workers, scheduler=scheduler, cache=cache, on_step=step)
+        if bar:
+            bar.update(task, completed=total)
+    return result, names, wh
+
+
+def _print_warnings(result, names: list[str], size: tuple[int, int] | None) -> None:
+    """The hazard warnings of every checked scene (minirt.harness.checks.hazard_warnings), one line each."""
+    from minirt.harness import checks
+
+    for scene_name, line in checks.hazard_warnings(result, names, size):
+        warn(scene_name, line)
+
+
+def _print_check(result) -> None:
+    t = Table(title="minirt check", title_justify="left")
+    for col in ("scene", "backend", "verdict", "geometry", "shading", "rules explaining its image", "seconds"):
+        t.add_column(col)
+    for s in result.scenes:
+        for name, b in s.backends.items():
+            g = b.checks.get("geometry")
+            sh = b.checks.get("shading")
+            geo = (
+                f"mask {g.figures['mask_mismatch']} ({g.figures['mask_mismatch_outside_band']} off band), "
+                f"id {g.figures['id_mismatch']}, dt {g.figures['depth_rel_err_max']:.1e}, "
+                f"n {g.figures['normal_deg_max']:.1e} deg"
+                if g
+                else "-"
+            )
+            if sh is None:
+                shade = "-"
+            elif sh.verdict == "skip":
+                shade = "skip"
+            elif "color8_max_diff" in sh.figures:
+                shade = f"8-bit max {sh.figures['color8_max_diff']}, dE p95 {sh.figures['delta_e_p95']:.2f}"
+            elif "diffuse_rel_err_max" in sh.figures:
+                shade = f"diffuse rel {sh.figures['diffuse_rel_err_max']:.1e}, lit flips {sh.figures['lit_mismatch']}"
+            else:
+                shade = f"Z pass {sh.figures.get('pass_fraction', 0):.2%}"
+            st = b.checks.get("stochastic")
+            if st is not None and st.figures:
+                shade += f"; Z pass {st.figures['pass_fraction']:.2%}"
+            v = b.verdict
+            verdict = f"[{VERDICT_STYLE[v]}]{v.upper()}[/]"
+            if v in ("skip", "error", "fail", "warn") and b.reason:
+                verdict += f" {terminal_text(b.reason)}"  # a backend's own words: no markup
+            rd = b.rule_diagnosis
+            if rd.ran:  # the diagnosis: which settings reproduce the oracle's image
+                rules_ = ", ".join(f"{k}={v}" for k, v in rd.rules_explaining.items()) or "the scene's own"
+                if rd.mismatch_pixels:
+                    rules_ += f" ({rd.mismatch_pixels} px unexplained)"
+            else:  # what each rule the oracle cannot follow would change in the reference
+                rules_ = ", ".join(f"{k} changes {n} px" for k, n in b.rules.items() if n) or "-"
+            t.add_row(terminal_text(s.scene), name, verdict, geo, shade, rules_, f"{b.seconds:.1f}")
+    err.print(t)
+
+
+def check(
+    scene_paths: ScenesArg = None,
+    backend: OraclesOpt = "all",
+    json_out: JsonOpt = None,
+    junit: Annotated[Path | None, typer.Option("--junit", help="Write the results as JUnit XML.")] = None,
+    size: SizeOpt = None,
+    workers: CheckWorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    cache: CacheOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Compare the reference tracer with the oracles: geometry pixel by pixel, shading, rules.
+
+    Exit status: 0 all pass (or warn/skip), 1 a check failed, 2 bad input or a backend error.
+    """
+    from minirt.io.atomic import atomic_path
+
+    if json_out != "-":
+        output_file(Path(json_out) if json_out else None, "--json")
+    output_file(junit, "--junit")
+    result, names, wh = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
+    _print_check(result)
+    _print_warnings(result, names, wh)
+    if json_out:
+        emit_json(json_out, result.as_dict())
+    if junit:
+        from minirt.harness.compare import junit_xml
+
+        with atomic_path(junit) as tmp:
+            tmp.write_text(junit_xml(result))
+    counts = {v: 0 for v in ("pass", "warn", "fail", "error", "skip")}
+    for s in result.scenes:
+        for b in s.backends.values():
+            counts[b.verdict] += 1
+    summary = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
+    vague = sum(b.inconclusive for s in result.scenes for b in s.backends.values())
+    if vague:
+        summary += f" ({vague} inconclusive: the oracle cannot judge the scene)"
+    (err if json_out == "-" else out).print(f"{result.verdict.upper()}: {summary}")
+    raise typer.Exit(result.exit_code())
+
+
+def report(
+    scene_paths: ScenesArg = None,
+    backend: OraclesOpt = "all",
+    out_dir: Annotated[Path, typer.Option("--out", "-o", help="Output folder for index.html.")] = Path("reports"),
+    size: SizeOpt = None,
+    sweep_dir: Annotated[
+        Path | None, typer.Option("--sweep", help="Embed a sweep written by `minirt sweep --out DIR`.")
+    ] = None,
+    workers: CheckWorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    cache: CacheOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Write the HTML comparison report (DIR/index.html, opens from disk) and DIR/report.json."""
+    import json as json_
+
+    from minirt.pages.report import write_report
+
+    sweep_data = None
+    if sweep_dir is not None:
+        f = sweep_dir / "sweep.json"
+        if not f.is_file():
+            raise MinirtError(f"--sweep {sweep_dir}: no sweep.json there (run: minirt sweep SCENE --out {sweep_dir})")
+        try:
+            sweep_data = json_.loads(f.read_text())
+        except (OSError, ValueError) as e:
+            raise MinirtError(f"{f}: not a readable sweep ({e})") from None
+    from minirt.harness import backends
+
+    backends.require_oracle(backends.parse_backends(backend))  # before the folder is made
+    output_folder(out_dir)
+    result, names, wh = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
+    _print_check(result)
+    _print_warnings(result, names, wh)
+    command = "minirt " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["report"] else "minirt report"
+    index = write_report(result, out_dir, command=command, sweep=sweep_data, sweep_dir=sweep_dir)
+    out.print(f"{result.verdict.upper()}: wrote {terminal_text(index)}")
+    raise typer.Exit(result.exit_code())

@@ -1,0 +1,204 @@
+"""``minirt grade``: another tracer's image of a scene graded -- is it the exercise's model, and if not,
+which rule settings explain it -- or, with --class, a whole class's images.
+
+minirt.grading.grade grades one image and minirt.grading.classroom a class; this module checks the flags,
+keeps the progress bar and prints the verdict, its diagnosis and the class's counts.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from minirt.cli.console import MAX_MESSAGE, emit_json, err, out, progress_bar
+from minirt.cli.options import (
+    GradeWorkersOpt,
+    JsonOpt,
+    ProfileOpt,
+    QuietOpt,
+    RuleOpt,
+    load,
+    output_file,
+    output_folder,
+    parse_size,
+    pool,
+)
+from minirt.errors import MinirtError
+from minirt.io.untrusted import terminal_text
+
+
+def grade(
+    scene_path: Annotated[
+        str | None,
+        typer.Argument(
+            metavar="SCENE", help="The scene the image shows: a file or a bundled scene's name.", show_default=False
+        ),
+    ] = None,
+    image: Annotated[
+        Path | None,
+        typer.Argument(
+            metavar="IMAGE", help="The other tracer's image: PNG, BMP, PPM/PGM, TGA, TIFF or EXR.", show_default=False
+        ),
+    ] = None,
+    json_out: JsonOpt = None,
+    out_dir: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Write an HTML page with the pictures (DIR/index.html).")
+    ] = None,
+    class_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--class", metavar="DIR", help="Grade a whole class: DIR/<student>/<scene stem>.png (any supported type)."
+        ),
+    ] = None,
+    scenes_dir: Annotated[
+        Path | None,
+        typer.Option("--scenes", metavar="DIR", help="With --class: the scenes (default: the bundled scenes)."),
+    ] = None,
+    size: Annotated[str | None, typer.Option("--size", help="The scene rendered at WIDTHxHEIGHT.")] = None,
+    workers: GradeWorkersOpt = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler",
+            metavar="ADDRESS",
+            help="With --class: grade on a running Dask cluster (tcp://host:8786); its workers need minirt "
+            "and the same paths.",
+        ),
+    ] = None,
+    cache: Annotated[
+        Path | None,
+        typer.Option(
+            "--cache",
+            metavar="DIR",
+            help="With --class: keep each image's grade in DIR by content hash (image bytes, scene, rules, "
+            "versions); a rerun grades only new or changed images.",
+        ),
+    ] = None,
+    profile: ProfileOpt = None,
+    rule: RuleOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Grade another tracer's image of a scene: is it the exercise's model, and if not, which rule
+    settings explain it (searched over every rule; `minirt render SCENE --rule ...` with them reproduces
+    the image).
+
+    Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
+    (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,
+    one row per student and scene (missing or unreadable images are rows with verdict "error"); exit 0
+    when the class was graded. Each image of a class is one job: on --workers processes here (each
+    with its own render cache, pages written as images are graded) or on a Dask cluster (--scheduler);
+    the files are the same bytes either way.
+    """
+    if class_dir is not None:
+        if scene_path is not None or image is not None:
+            raise MinirtError("--class grades DIR/<student>/<scene>.png: give no SCENE or IMAGE with it")
+        _grade_class(
+            class_dir, scenes_dir=scenes_dir, out_dir=out_dir or Path("grades"), json_out=json_out, size=size,
+            profile=profile, rule=rule, quiet=quiet, workers=workers, scheduler=scheduler, cache=cache,
+        )  # fmt: skip
+        return
+    if scene_path is None or image is None:
+        raise MinirtError(
+            "grade needs SCENE and IMAGE (or --class DIR), e.g. minirt grade scenes/rules.toml student.png"
+        )
+    class_only = ((scenes_dir, "--scenes"), (workers, "--workers"), (scheduler, "--scheduler"), (cache, "--cache"))
+    for given, option in class_only:
+        if given is not None:
+            raise MinirtError(f"{option} goes with --class")
+    from minirt.grading import grade as grading
+    from minirt.model.bundled import find_scene
+
+    if json_out not in (None, "-"):
+        output_file(Path(json_out), "--json")
+    if out_dir is not None:
+        output_folder(out_dir)
+    path = find_scene(scene_path)
+    wh = parse_size(size)
+    scene, rules = load(path, *(wh or (None, None)), None, profile, rule)
+    with progress_bar(not quiet) as bar:
+        task = bar.add_task("grading", total=None) if bar else None
+        g = grading.grade_image(scene, str(path), image, rules, size_override=wh)
+        if bar:
+            bar.update(task, completed=1, total=1)
+    if json_out is not None:
+        emit_json(json_out, g.as_dict())
+    page = None
+    if out_dir is not None:
+        from minirt.grading.page import write_grade_page
+
+        page = write_grade_page(g, out_dir)
+    if json_out != "-":
+        _print_grade(g, page)
+    raise typer.Exit(g.exit_code)
+
+
+def _print_grade(g, page: Path | None) -> None:
+    from minirt.grading import grade as grading
+
+    style = {"match": "green", "differs": "yellow", "error": "red"}[g.verdict]
+    err.print(f"[bold {style}]{g.verdict.upper()}[/]", end=" ")
+    err.print(terminal_text(f"{g.scene.name}: {g.summary()}", MAX_MESSAGE))
+    for note in g.notes:
+        err.print(f"  note: {terminal_text(note, MAX_MESSAGE)}")
+    d = g.diagnosis
+    for e in d.explained:
+        s = grading.sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule))
+        err.print(terminal_text(f"  {e.rule}={e.value} ({e.pixels} pixels): {s}", MAX_MESSAGE))
+    for i in d.indistinguishable:
+        tell = (
+            f"scene {i['scene_that_tells']} tells them apart"
+            if i["scene_that_tells"]
+            else "no bundled scene tells them apart"
+        )
+        err.print(terminal_text(f"  cannot tell {i['rule']}={i['value']} from {i['as']} in this scene ({tell})"))
+    if d.changed:
+        err.print(f"  reproduce: {terminal_text(g.reproduce(), MAX_MESSAGE)}")
+    if page is not None:
+        out.print(f"wrote {terminal_text(page)}")
+
+
+def _grade_class(
+    class_dir, *, scenes_dir, out_dir, json_out, size, profile, rule, quiet, workers, scheduler, cache
+) -> None:
+    """``grade --class``: the class found and the flags checked (in the order bad input is told, before any
+    work), then minirt.grading.classroom.grade_folder with a progress bar; prints the verdicts' counts."""
+    from minirt.grading import classroom
+
+    people, files = classroom.find_class(class_dir, scenes_dir)
+    if json_out not in (None, "-"):
+        output_file(Path(json_out), "--json")
+    output_folder(out_dir)
+    if cache is not None:
+        output_folder(cache, "--cache")
+    wh = parse_size(size)
+    loaded = [(str(f), *load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
+    workers = pool(workers, scheduler, default=0)  # 0: one per core, sized to the images by grade_folder
+    with progress_bar(not quiet) as bar:
+        task = None
+
+        def start(total: int, processes: int) -> None:
+            nonlocal task
+            label = f"grading ({processes} processes)" if scheduler is None and processes > 1 else "grading"
+            task = bar.add_task(label, total=total) if bar else None
+
+        def done(job, row) -> None:
+            if bar:
+                bar.update(task, description=terminal_text(f"{row.student[:16]:<16} {row.scene[:12]:<12}"))
+                bar.advance(task)
+
+        graded = classroom.grade_folder(
+            people, loaded, out_dir, workers=workers, scheduler=scheduler, cache=cache, quiet=quiet,
+            on_start=start, on_done=done,
+        )  # fmt: skip
+    summary = graded.summary
+    if json_out is not None:
+        emit_json(json_out, summary)
+    v = summary["verdicts"]
+    (err if json_out == "-" else out).print(
+        f"graded {len(people)} students x {len(files)} scenes: {v['match']} match, {v['differs']} differ, "
+        f"{v['error']} error"
+        + (f" ({graded.cached} of {graded.total} from the cache)" if graded.cached is not None else "")
+        + f"; wrote {terminal_text(graded.index)}"
+    )
