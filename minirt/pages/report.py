@@ -682,7 +682,7 @@ def refresh_sample(out: Path = Path("reports/sample"), size: int = 64, backends:
     from minirt.harness import backends as bk
     from minirt.harness import compare as harness
 
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]  # the repository: minirt/pages/report.py
     paths = sorted((root / "scenes").glob("*.toml"))
     names = bk.parse_backends(backends)
     from minirt.diagnose.search import VariantCache
