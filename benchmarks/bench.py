@@ -403,16 +403,22 @@ def bench_numpy(cfg: Config, ref: dict[str, Any]) -> dict[str, Any]:
 # cold whole-command time, peak memory (child processes)
 
 
+def timed_child(args: list[str], cache: Path | None = None, ok: tuple[int, ...] = (0,)) -> tuple[float, str]:
+    """Run a command from the repository root; its wall seconds and standard output. ``cache``: the Dr.Jit
+    kernel cache it uses (``DRJIT_CACHE_DIR``; an empty folder times every compile), else the user's.
+    An exit status outside ``ok`` raises, with the end of its standard error."""
+    env = {**os.environ, "DRJIT_CACHE_DIR": str(cache)} if cache is not None else None
+    t0 = time.perf_counter()
+    p = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    dt = time.perf_counter() - t0
+    if p.returncode not in ok:
+        raise RuntimeError(f"{' '.join(args)} failed ({p.returncode}): {p.stderr.strip()[-400:]}")
+    return dt, p.stdout
+
+
 def _cli_once(cache_dir: Path) -> float:
     with tempfile.TemporaryDirectory(prefix="minirt-bench-out-") as out:
-        cmd = [sys.executable, "-m", "minirt", "render", str(COLD_SCENE), "--out", out]
-        env = {**os.environ, "DRJIT_CACHE_DIR": str(cache_dir)}
-        t0 = time.perf_counter()
-        p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL)
-        dt = time.perf_counter() - t0
-        if p.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed ({p.returncode}): {p.stderr.strip()[-300:]}")
-    return dt
+        return timed_child([sys.executable, "-m", "minirt", "render", str(COLD_SCENE), "--out", out], cache_dir)[0]
 
 
 def bench_cold(cfg: Config) -> dict[str, Any]:
