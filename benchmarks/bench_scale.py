@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from bench import timed_child  # noqa: E402  (benchmarks/ is the script's folder: on sys.path)
+from bench import timed_child, trace_seconds  # noqa: E402  (benchmarks/ is the script's folder: on sys.path)
 
 from minirt.campaign.generate import balls_scene  # noqa: E402
 
@@ -78,22 +78,10 @@ def _warm(tracer, reps: int) -> float:
 
 
 def _trace_kernel(tracer, reps: int) -> float:
-    """Primary rays and every level traced and evaluated (as benchmarks/bench.py's ``trace``)."""
-    import drjit as dr
-
-    def once() -> None:
-        o, d = tracer.primary_rays()
-        c, _ = tracer.trace(o, d)
-        dr.eval(c)
-        dr.sync_thread()
-
-    once()
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        once()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    """Primary rays and every level traced and evaluated (bench.py's ``trace``): the median of ``reps``
+    runs after a warm-up."""
+    trace_seconds(tracer)
+    return statistics.median([trace_seconds(tracer) for _ in range(reps)])
 
 
 def bench_threshold(tmp: Path, sizes: list[int], size: int, reps: int) -> list[dict[str, Any]]:
