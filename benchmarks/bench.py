@@ -150,7 +150,7 @@ def _scene(path: Path, size: int | None = None) -> Scene:
     return sc.with_overrides(width=size, height=size) if size else sc
 
 
-def _trace_seconds(tr: Any) -> float:
+def trace_seconds(tr: Any) -> float:
     """Wall time of one trace of every pixel's primary ray by the Tracer ``tr``: the rays, the kernels and
     their results evaluated (Dr.Jit is asynchronous: sync_thread waits for the work, not just its launch)."""
     import drjit as dr
@@ -205,11 +205,11 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
     tracers = {prec: Tracer(sc, rules, precision=prec) for prec in ("f64", "f32")}
     for _ in range(cfg.warmup):
         for tr in tracers.values():
-            _trace_seconds(tr)
+            trace_seconds(tr)
     runs: dict[str, list[float]] = {prec: [] for prec in tracers}
     for _ in range(cfg.reps):
         for prec, tr in tracers.items():
-            runs[prec].append(_trace_seconds(tr))
+            runs[prec].append(trace_seconds(tr))
     for prec, tr in tracers.items():
         out[prec] = {"trace": _stats(runs[prec], px), "effects": tr.effects.simulated()}
         # render: every buffer, as `minirt render` writes them; render_checked: the two terms a check
@@ -235,8 +235,8 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
     for threads in sorted({1, cores}):
         dr.set_thread_count(threads)
         try:
-            _trace_seconds(tr)
-            times = [_trace_seconds(tr) for _ in range(cfg.reps)]
+            trace_seconds(tr)
+            times = [trace_seconds(tr) for _ in range(cfg.reps)]
         finally:
             dr.set_thread_count(cores)
         scaling[str(threads)] = statistics.median(times)
@@ -403,16 +403,22 @@ def bench_numpy(cfg: Config, ref: dict[str, Any]) -> dict[str, Any]:
 # cold whole-command time, peak memory (child processes)
 
 
+def timed_child(args: list[str], cache: Path | None = None, ok: tuple[int, ...] = (0,)) -> tuple[float, str]:
+    """Run a command from the repository root; its wall seconds and standard output. ``cache``: the Dr.Jit
+    kernel cache it uses (``DRJIT_CACHE_DIR``; an empty folder times every compile), else the user's.
+    An exit status outside ``ok`` raises, with the end of its standard error."""
+    env = {**os.environ, "DRJIT_CACHE_DIR": str(cache)} if cache is not None else None
+    t0 = time.perf_counter()
+    p = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    dt = time.perf_counter() - t0
+    if p.returncode not in ok:
+        raise RuntimeError(f"{' '.join(args)} failed ({p.returncode}): {p.stderr.strip()[-400:]}")
+    return dt, p.stdout
+
+
 def _cli_once(cache_dir: Path) -> float:
     with tempfile.TemporaryDirectory(prefix="minirt-bench-out-") as out:
-        cmd = [sys.executable, "-m", "minirt", "render", str(COLD_SCENE), "--out", out]
-        env = {**os.environ, "DRJIT_CACHE_DIR": str(cache_dir)}
-        t0 = time.perf_counter()
-        p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL)
-        dt = time.perf_counter() - t0
-        if p.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed ({p.returncode}): {p.stderr.strip()[-300:]}")
-    return dt
+        return timed_child([sys.executable, "-m", "minirt", "render", str(COLD_SCENE), "--out", out], cache_dir)[0]
 
 
 def bench_cold(cfg: Config) -> dict[str, Any]:
@@ -591,7 +597,7 @@ def bench_rivals(cfg: Config) -> dict[str, Any]:
     out: dict[str, Any] = {"scene": sc.name, "width": cfg.ref_size, "height": cfg.ref_size}
     ref_times: list[float] = []
     for _ in range(cfg.warmup):
-        _trace_seconds(tr)
+        trace_seconds(tr)
     # Mitsuba: its own `direct` render of the exported scene.
     mitsuba: dict[str, Any]
     try:
@@ -611,7 +617,7 @@ def bench_rivals(cfg: Config) -> dict[str, Any]:
             mitsuba_render()
         mt = []
         for _ in range(cfg.reps):
-            ref_times.append(_trace_seconds(tr))
+            ref_times.append(trace_seconds(tr))
             mt.append(mitsuba_render())
         mitsuba = {"status": "ok", "variant": variant, "integrator": "direct", "spp": 1,
                    "median_s": statistics.median(mt), "runs_s": mt}  # fmt: skip
@@ -630,14 +636,14 @@ def bench_rivals(cfg: Config) -> dict[str, Any]:
             cmd = po.command(sc, 1, 1, 1, "png8")
             pt, wall = [], []
             for _ in range(max(1, cfg.reps // 2)):
-                ref_times.append(_trace_seconds(tr))
+                ref_times.append(trace_seconds(tr))
                 _, tm = po._run(cmd, Path(tmp), timeout=600)
                 pt.append(tm.get("trace", float("nan")))
                 wall.append(tm["wall"])
         povray = {"status": "ok", "trace_median_s": statistics.median(pt), "trace_runs_s": pt,
                   "wall_median_s": statistics.median(wall), "frames": len(po.color_frames(sc, rules))}  # fmt: skip
     out["povray"] = povray
-    out["reference_trace_f64_median_s"] = statistics.median(ref_times) if ref_times else _trace_seconds(tr)
+    out["reference_trace_f64_median_s"] = statistics.median(ref_times) if ref_times else trace_seconds(tr)
     ref = out["reference_trace_f64_median_s"]
     out["speedup_vs_mitsuba_direct"] = mitsuba["median_s"] / ref if mitsuba["status"] == "ok" else None
     out["speedup_vs_povray_trace"] = povray["trace_median_s"] / ref if povray["status"] == "ok" else None

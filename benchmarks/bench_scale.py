@@ -43,6 +43,8 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from bench import timed_child, trace_seconds  # noqa: E402  (benchmarks/ is the script's folder: on sys.path)
+
 from minirt.campaign.generate import balls_scene  # noqa: E402
 
 _CHILD = r"""
@@ -65,16 +67,6 @@ def _write(tmp: Path, n: int, size: int, seed: int) -> Path:
     return p
 
 
-def _child(args: list[str], cache: Path) -> tuple[float, str]:
-    env = {**os.environ, "DRJIT_CACHE_DIR": str(cache)}
-    t0 = time.perf_counter()
-    p = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL)
-    dt = time.perf_counter() - t0
-    if p.returncode != 0:
-        raise RuntimeError(f"{' '.join(args)} failed ({p.returncode}): {p.stderr.strip()[-400:]}")
-    return dt, p.stdout
-
-
 def _warm(tracer, reps: int) -> float:
     tracer.render()
     times = []
@@ -86,22 +78,10 @@ def _warm(tracer, reps: int) -> float:
 
 
 def _trace_kernel(tracer, reps: int) -> float:
-    """Primary rays and every level traced and evaluated (as benchmarks/bench.py's ``trace``)."""
-    import drjit as dr
-
-    def once() -> None:
-        o, d = tracer.primary_rays()
-        c, _ = tracer.trace(o, d)
-        dr.eval(c)
-        dr.sync_thread()
-
-    once()
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        once()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    """Primary rays and every level traced and evaluated (bench.py's ``trace``): the median of ``reps``
+    runs after a warm-up."""
+    trace_seconds(tracer)
+    return statistics.median([trace_seconds(tracer) for _ in range(reps)])
 
 
 def bench_threshold(tmp: Path, sizes: list[int], size: int, reps: int) -> list[dict[str, Any]]:
@@ -116,7 +96,7 @@ def bench_threshold(tmp: Path, sizes: list[int], size: int, reps: int) -> list[d
         sc = load_scene(path)
         for accel in ("unrolled", "bvh"):
             cache = Path(tempfile.mkdtemp(dir=tmp, prefix="jit-"))
-            wall, out = _child([sys.executable, "-c", _CHILD, str(path), accel], cache)
+            wall, out = timed_child([sys.executable, "-c", _CHILD, str(path), accel], cache)
             row[f"{accel}_cold_wall_s"] = wall
             row[f"{accel}_cold_render_s"] = json.loads(out.strip().splitlines()[-1])["render"]
             row[f"{accel}_warm_render_s"] = _warm(Tracer(sc, resolve(sc), accel=accel), reps)
@@ -131,7 +111,7 @@ def bench_layouts(tmp: Path, sizes: list[int], size: int) -> list[dict[str, Any]
         path = _write(tmp, n, size, seed=n)
         cache = Path(tempfile.mkdtemp(dir=tmp, prefix="jit-"))
         out = tmp / f"out-{n}"
-        wall, _ = _child([sys.executable, "-m", "minirt", "render", str(path), "--out", str(out)], cache)
+        wall, _ = timed_child([sys.executable, "-m", "minirt", "render", str(path), "--out", str(out)], cache)
         rows.append({"balls": n, "whole_command_cold_s": wall, "kernels_compiled": len(list(cache.iterdir()))})
         print(f"layouts n={n}: {wall:.2f} s", file=sys.stderr, flush=True)
     return rows
@@ -145,11 +125,7 @@ def bench_check(tmp: Path, n: int, size: int) -> dict[str, Any]:
     path = _write(tmp, n, size, seed=7)
     doc = tmp / f"check-{n}.json"
     args = [sys.executable, "-m", "minirt", "check", str(path), "-q", "--json", str(doc)]
-    t0 = time.perf_counter()
-    p = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, stdin=subprocess.DEVNULL)
-    wall = time.perf_counter() - t0
-    if p.returncode not in (0, 1):  # 1: a FAIL verdict, still a timing
-        raise RuntimeError(f"{' '.join(args)} failed ({p.returncode}): {p.stderr.strip()[-400:]}")
+    wall, _ = timed_child(args, ok=(0, 1))  # 1: a FAIL verdict, still a timing
     backends = json.loads(doc.read_text())["scenes"][0]["backends"]
     per = {k: {"verdict": v["verdict"], "seconds": v["seconds"]} for k, v in backends.items()}
     row = {"balls": n, "size": size, "whole_command_s": wall, "backends": per}

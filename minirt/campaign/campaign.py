@@ -39,7 +39,6 @@ from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Material, Scene
 
 VERDICTS = ("pass", "warn", "fail", "error", "skip")
-CATCH_TARGET = 0.99  # the campaign's goal: defects caught in >= 99 % of the scenes they change
 CHANGE_REL = 1e-9  # t and normals differing by more than this (relative) change the image's geometry
 
 

@@ -9,11 +9,12 @@ the image), the rules this scene cannot tell apart, and the command that reprodu
 ``write_class_page(rows, summary, DIR)`` writes one such page per graded row into ``DIR/pages/`` and a
 class table (students x scenes) with the most common mistakes in ``DIR/index.html``.
 
-Like minirt.pages.report: the pages open from disk and load nothing from the network (a Content Security
-Policy allows images from the page's folder, inline styles, and only the page's own script, by hash);
-every string from a scene, an image's path or a student's folder is escaped by Jinja2's autoescape;
-file names are made from a sanitised stem and fixed words only; every file is written atomically;
-and the same grade writes the same bytes (no dates, no timings).
+Like minirt.pages.report (the parts both share are in minirt.pages.assets): the pages open from disk
+and load nothing from the network (a Content Security Policy allows images from the page's folder,
+inline styles, and only the page's own script, by hash); every string from a scene, an image's path or
+a student's folder is escaped by Jinja2's autoescape; file names are made from a sanitised stem and
+fixed words only; every file is written atomically; and the same grade writes the same bytes (no
+dates, no timings).
 
 Cheap per page, since a class has hundreds: the heat maps are NumPy-coloured PNGs at the scene's own
 size (magma, clipped at ``CLIP`` levels) with one small colour-bar image shared by every page in the
@@ -23,10 +24,7 @@ are written once per run.
 
 from __future__ import annotations
 
-import base64
 import functools
-import hashlib
-import math
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -38,13 +36,11 @@ import numpy as np
 from minirt.diagnose import search as dg
 from minirt.grading import grade as grading
 from minirt.grading.grade import ClassRow, Grade
-from minirt.io.atomic import atomic_path
-from minirt.io.images import write_image
 from minirt.model import bitmap
 from minirt.model import rules as rules_mod
+from minirt.model.result import to8
+from minirt.pages.assets import SKY, YELLOW, Assets, display, highlight, page_parts, write_page
 
-# Okabe-Ito colours, as minirt.pages.report uses them.
-YELLOW, SKY = (240, 228, 66), (86, 180, 233)
 MASK_RGB = YELLOW  # pixels a rule explains, on the darkened image
 ILL_RGB = SKY  # ill-conditioned pixels on the heat maps (not in the magma colour map)
 CLIP = 32  # heat maps: 8-bit levels 0..CLIP, larger differences drawn as CLIP
@@ -53,26 +49,6 @@ COLORBAR = "levels-colorbar.png"  # the one shared file in an assets folder (a f
 
 VERDICT_CLASS = {grading.MATCH: "v-pass", grading.DIFFERS: "v-warn", grading.ERROR: "v-fail"}
 VERDICTS = (grading.MATCH, grading.DIFFERS, grading.ERROR)
-
-# The page's only script: a self-check for the browser test (and anyone who opens the console). On load
-# the body gets data-images-loaded="N/M", data-errors, data-csp-violations and data-ready.
-SCRIPT = """(function () {
-  "use strict";
-  var errors = 0, csp = 0;
-  window.addEventListener("error", function () { errors++; }, true);
-  window.addEventListener("securitypolicyviolation", function () { csp++; });
-  window.addEventListener("load", function () {
-    var imgs = document.images, loaded = 0;
-    for (var i = 0; i < imgs.length; i++) if (imgs[i].complete && imgs[i].naturalWidth > 0) loaded++;
-    var b = document.body;
-    b.setAttribute("data-images-loaded", loaded + "/" + imgs.length);
-    b.setAttribute("data-errors", String(errors));
-    b.setAttribute("data-csp-violations", String(csp));
-    b.setAttribute("data-ready", "1");
-  });
-})();
-"""
-
 
 # ---------------------------------------------------------------------------------------------
 # Names
@@ -100,35 +76,9 @@ def _unique(stem: str, used: set[str]) -> str:
 # Images
 
 
-class _Assets:
-    """PNGs in one folder. One page: identical pixels are written once, under the first name asked for.
-    A class (``by_content``): every picture is named by its pixels' hash and written once into the shared
-    folder, by whichever page -- in whichever worker process -- asks first (the exercise's model of a
-    scene, a matching image's empty heat maps: most pages share most pictures). So the same class writes
-    the same files however its pages are spread over processes."""
-
-    def __init__(self, folder: Path, href: str, by_content: bool = False):
-        self.folder, self.href, self.by_content = folder, href, by_content
-        self.by_key: dict[str, str] = {}
-
-    def image8(self, name: str, pixels: np.ndarray) -> str:
-        pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
-        key = hashlib.sha256(pixels.tobytes() + str(pixels.shape).encode()).hexdigest()
-        if self.by_content:
-            name = f"{key[:24]}.png"
-            if not (self.folder / name).is_file():  # same name, same pixels: written by another page
-                write_image(self.folder / name, pixels)
-            return f"{self.href}/{name}"
-        if key not in self.by_key:
-            write_image(self.folder / name, pixels)
-            self.by_key[key] = name
-        return f"{self.href}/{self.by_key[key]}"
-
-    def colorbar(self) -> str:
-        """The colour bar, under its fixed name (the same pixels on every page)."""
-        if not (self.folder / COLORBAR).is_file():
-            write_image(self.folder / COLORBAR, _lut()[None, :, :])
-        return f"{self.href}/{COLORBAR}"
+def _colorbar(assets: Assets) -> str:
+    """The colour bar, under its fixed name (the same pixels on every page)."""
+    return assets.shared(COLORBAR, _lut()[None, :, :])
 
 
 @functools.cache
@@ -149,21 +99,7 @@ def _heat(levels: np.ndarray, ill: np.ndarray | None) -> np.ndarray:
 
 
 def _as8(pixels: np.ndarray, is_float: bool) -> np.ndarray:
-    if is_float:
-        return np.floor(np.clip(np.nan_to_num(pixels, nan=0.0), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    return np.asarray(pixels, dtype=np.uint8)
-
-
-def _highlight(base8: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    out = base8.astype(np.float64) * 0.25
-    out[mask] = MASK_RGB
-    return np.floor(out + 0.5).astype(np.uint8)
-
-
-def _display(w: int, h: int) -> dict[str, Any]:
-    s = TILE / max(w, h, 1)
-    s = float(math.floor(s)) if s >= 1 else s
-    return {"scale": s, "pixelated": s >= 1}
+    return to8(pixels) if is_float else np.asarray(pixels, dtype=np.uint8)
 
 
 def _size(shape: tuple[int, ...], disp: dict[str, Any]) -> dict[str, int]:
@@ -185,11 +121,11 @@ def _rule_sentence(rule: str, yours: Any, given: Any) -> str:
         return ""
 
 
-def _picture(assets: _Assets, name: str, pixels: np.ndarray, disp: dict[str, Any], **extra: Any) -> dict[str, Any]:
+def _picture(assets: Assets, name: str, pixels: np.ndarray, disp: dict[str, Any], **extra: Any) -> dict[str, Any]:
     return {"src": assets.image8(name, pixels), **_size(pixels.shape, disp), **extra}
 
 
-def _grade_view(g: Grade, stem: str, assets: _Assets) -> dict[str, Any]:
+def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
     v: dict[str, Any] = {
         "verdict": g.verdict,
         "vclass": VERDICT_CLASS.get(g.verdict, "v-skip"),
@@ -205,7 +141,7 @@ def _grade_view(g: Grade, stem: str, assets: _Assets) -> dict[str, Any]:
         v["error"] = True
         return v
     w, h = g.scene.camera.width, g.scene.camera.height
-    disp = _display(w, h)
+    disp = display(w, h, TILE)
     student8 = _as8(g.target.pixels, g.target.is_float)
     given8 = bitmap.bitmap(d.given_color, d.given)
     best8 = bitmap.bitmap(d.best_color, d.best)
@@ -265,7 +201,7 @@ def _grade_view(g: Grade, stem: str, assets: _Assets) -> dict[str, Any]:
             )
         )
     v["heatmaps"] = heat
-    v["colorbar"] = assets.colorbar()
+    v["colorbar"] = _colorbar(assets)
     v["clip"] = CLIP
     explained = []
     base = g.target.in_layout(d.best)
@@ -282,7 +218,8 @@ def _grade_view(g: Grade, stem: str, assets: _Assets) -> dict[str, Any]:
         }
         if base8 is not None and e.mask is not None and e.mask.shape == (h, w):
             rule_part = e.rule if re.fullmatch(r"[a-z][a-z0-9_]{0,31}", e.rule) else "rule"
-            item["picture"] = _picture(assets, f"{stem}-rule{k}-{rule_part}.png", _highlight(base8, e.mask), disp)
+            shown = highlight(base8, e.mask, MASK_RGB)
+            item["picture"] = _picture(assets, f"{stem}-rule{k}-{rule_part}.png", shown, disp)
         explained.append(item)
     v["explained"] = explained
     v["mask_rgb"] = "#{:02x}{:02x}{:02x}".format(*MASK_RGB)
@@ -316,37 +253,10 @@ def _peak(levels: np.ndarray) -> str:
 # Pages
 
 
-@functools.cache
-def _environment():
-    import jinja2
-
-    return jinja2.Environment(
-        loader=jinja2.PackageLoader("minirt.pages", "templates"),
-        autoescape=True,  # every string from a scene, a path or a folder name is text, never markup
-        undefined=jinja2.StrictUndefined,
-        trim_blocks=True,
-        lstrip_blocks=True,
-        keep_trailing_newline=True,
-    )
-
-
-@functools.cache
-def _page_parts() -> dict[str, Any]:
-    import markupsafe
-
-    env = _environment()
-    style = env.get_template("report.css").render() + env.get_template("grade.css").render()
-    return {
-        "style": markupsafe.Markup(style),
-        "script": markupsafe.Markup(SCRIPT),
-        "csp_hash": base64.b64encode(hashlib.sha256(SCRIPT.encode()).digest()).decode(),
-    }
-
-
-def _write_html(path: Path, template: str, **context: Any) -> None:
-    html = _environment().get_template(template).render(**_page_parts(), **context)
-    with atomic_path(path) as tmp:
-        tmp.write_text(html, encoding="utf-8")
+def _parts() -> dict[str, Any]:
+    """The grade pages' style (the report's, and their own) and their only script, a self-check for the
+    browser test (and anyone who opens the console)."""
+    return page_parts("grade.js", "report.css", "grade.css")
 
 
 def _write_page(g: Grade, out_dir: Path, stem: str, assets: str, by_content: bool, back: str | None) -> Path:
@@ -355,9 +265,9 @@ def _write_page(g: Grade, out_dir: Path, stem: str, assets: str, by_content: boo
     href = "/".join(safe_stem(p, "assets") for p in Path(assets).parts) or "assets"
     folder = out_dir / href
     folder.mkdir(parents=True, exist_ok=True)
-    view = _grade_view(g, stem, _Assets(folder, href, by_content))
+    view = _grade_view(g, stem, Assets(folder, href, by_content))
     page = out_dir / f"{stem}.html"
-    _write_html(page, "grade.html", g=view, back=back)
+    write_page(page, "grade.html", _parts(), g=view, back=back)
     return page
 
 
@@ -457,9 +367,10 @@ def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: 
         if r.scene in per_scene and r.verdict in VERDICTS:
             per_scene[r.scene][r.verdict] += 1
     index = out_dir / "index.html"
-    _write_html(
+    write_page(
         index,
         "grade_class.html",
+        _parts(),
         table=table,
         counts=counts,
         per_scene=per_scene,

@@ -23,9 +23,6 @@ from typing import Any
 
 import numpy as np
 
-ENCODINGS = ("round", "floor256", "floor")
-GAMMAS = ("linear", "srgb", "2.2")
-
 
 def transfer(c: np.ndarray, gamma: str) -> np.ndarray:
     """The clamped colour through the gamma rule's transfer function (values stay in [0, 1])."""

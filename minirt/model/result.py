@@ -59,9 +59,6 @@ class RenderResult:
             return None
         return to8(self.color)
 
-    def has_geometry(self) -> bool:
-        return self.hit is not None
-
 
 def to8(color: np.ndarray) -> np.ndarray:
     """clamp(c, 0, 1), then floor(c * 255 + 0.5) as 8 bits (NaN as 0): the same roundings in one buffer,

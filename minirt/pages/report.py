@@ -7,10 +7,11 @@
   page's own script, by hash);
 - ``DIR/report.json``: ``result.as_dict()`` plus a ``report`` block (command, date, machine,
   versions) and the sweep when one was run;
-- ``DIR/assets/*.png``: 8-bit images at the renders' own resolution (written with
-  ``minirt.io.images.write_image``; the page scales them up without smoothing) and matplotlib figures
-  (heat maps with colour bars, Agg, fixed PNG metadata). File names come from the scene's index,
-  the backend's registry name and the harness's own buffer names, never from a scene file.
+- ``DIR/assets/*.png``: 8-bit images at the renders' own resolution (written by
+  ``minirt.pages.assets``; the page scales them up without smoothing) and matplotlib figures
+  (``minirt.pages.figures``: heat maps with colour bars, Agg, fixed PNG metadata). File names come
+  from the scene's index, the backend's registry name and the harness's own buffer names, never from
+  a scene file.
 
 The page follows Blender's render_report.py: failures and errors first; per scene the backends'
 pictures side by side at one scale, per oracle new | reference (hover or toggle swaps them in
@@ -26,14 +27,11 @@ bit-identical assets.
 
 from __future__ import annotations
 
-import base64
-import hashlib
 import json
 import math
 import os
 import platform
 import re
-import shutil
 import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -45,47 +43,17 @@ import numpy as np
 from minirt.harness import backends
 from minirt.harness.compare import ORDER, BackendCheck, Check, CheckResult, SceneCheck
 from minirt.harness.tolerances import THRESHOLDS
-from minirt.io.atomic import atomic_path
-from minirt.io.images import write_image, write_json
-from minirt.model.result import RenderResult, to8
-from minirt.pages.sheet import preview
+from minirt.io.images import write_json
+from minirt.model.result import to8
+from minirt.pages.assets import Assets, display, highlight, page_parts, write_page
+from minirt.pages.figures import HEATMAPS, NOT_JUDGED, NOT_JUDGED_DEFAULT, heatmap, overlay
+from minirt.pages.sheet import normals8, preview
 
 Progress = Callable[[int, int, str], None]
 
 # Most severe first: the order of scenes and backends on the page.
 SEVERITY = ["error", "fail", "warn", "pass", "skip"]
 
-# Okabe-Ito colours (distinguishable with every common colour-vision deficiency).
-BLUE, ORANGE, PURPLE, YELLOW, SKY = (0, 114, 178), (230, 159, 0), (204, 121, 167), (240, 228, 66), (86, 180, 233)
-
-# Boolean evidence drawn on the darkened reference: harness image key -> (label, colour).
-OVERLAY = {
-    "mask_inside_band": ("hit/miss differs inside the silhouette band (allowed)", BLUE),
-    "mask_outside_band": ("hit/miss differs outside the band (defect)", ORANGE),
-    "id_mismatch": ("shape id differs (defect)", PURPLE),
-    "lit_mismatch": ("lit on one side, shadowed on the other", YELLOW),
-}
-
-# Difference maps: harness image key -> (title, colour-bar label, colormap, threshold key for a line on the bar).
-HEATMAPS = {
-    "depth_rel_err": ("t: relative error |Δt| / t", "relative", "viridis", None),
-    "normal_deg": ("normal: angle between normals", "degrees", "viridis", None),
-    "color8_diff": ("colour: 8-bit difference (max channel)", "levels", "magma", "color8_levels"),
-    "delta_e": ("colour: CIEDE2000 ΔE", "ΔE00", "magma", None),
-    "flip": ("colour: FLIP error", "FLIP", "magma", None),
-    "diffuse_rel_err": ("diffuse: relative error / (lc·dc)", "relative", "magma", "diffuse_rel"),
-    "p_value": ("Z-test: −log10 p (per pixel, min over RGB)", "−log10 p", "magma", None),
-}
-
-# What each check leaves unjudged (its image "not_judged"): hatched grey on its maps, named in the caption.
-NOT_JUDGED = {
-    "geometry": "the silhouette band",
-    "shading": "edges (silhouettes, shadow and reflection boundaries)",
-    "samples": "edges (silhouettes, shadow and reflection boundaries, over every sample's ray)",
-    "stochastic": "edges and pixels not fully covered",
-}
-NOT_JUDGED_DEFAULT = "pixels this check does not judge"
-HATCH = "#9a9a9a"
 
 # Figures that count defects: highlighted in the table when non-zero.
 DEFECT_COUNTS = {
@@ -97,8 +65,6 @@ DEFECT_COUNTS = {
     "diffuse_over_tolerance",
     "lit_mismatch",
 }
-
-# How the page names a backend in a sentence.
 
 TILE = 192  # target display size of the longest image side, CSS pixels
 
@@ -178,131 +144,8 @@ def _machine() -> dict[str, Any]:
     }
 
 
-def _normals8(r: RenderResult) -> np.ndarray:
-    n = np.where(r.hit[..., None], r.normal * 0.5 + 0.5, 0.0)
-    return (np.clip(n, 0, 1) * 255 + 0.5).astype(np.uint8)
-
-
-# ---------------------------------------------------------------------------------------------
-# Assets
-
-
-class _Assets:
-    """Writes PNGs into DIR/assets and remembers what it wrote (identical pixels are written once)."""
-
-    def __init__(self, folder: Path):
-        self.folder = folder
-        self.written: dict[str, str] = {}  # file name -> content key
-        self._by_key: dict[str, str] = {}
-
-    def image8(self, name: str, pixels: np.ndarray) -> str:
-        pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
-        key = hashlib.sha256(pixels.tobytes() + str(pixels.shape).encode()).hexdigest()
-        if key in self._by_key:
-            return self._by_key[key]
-        write_image(self.folder / name, pixels)
-        return self._remember(name, key)
-
-    def figure(self, name: str, fig) -> str:
-        with atomic_path(self.folder / name) as tmp:
-            fig.savefig(tmp, format="png", metadata={"Software": None})
-        return self._remember(name, name)
-
-    def copy(self, name: str, src: Path) -> str:
-        with atomic_path(self.folder / name) as tmp:
-            shutil.copyfile(src, tmp)
-        return self._remember(name, name)
-
-    def _remember(self, name: str, key: str) -> str:
-        self.written[name] = key
-        self._by_key[key] = f"assets/{name}"
-        return f"assets/{name}"
-
-    def prune(self) -> None:
-        """Remove PNGs a previous report left in the folder."""
-        for p in self.folder.glob("*.png"):
-            if p.name not in self.written:
-                p.unlink()
-
-
-def _heatmap(
-    data: np.ndarray, title: str, unit: str, cmap: str, line: float | None = None, excluded: np.ndarray | None = None
-):
-    """A difference map with a colour bar; `excluded` pixels (not judged by the check) are drawn grey and
-    hatched, and the colour scale is that of the judged pixels, so an edge pixel cannot wash them out."""
-    import matplotlib
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(2.9, 2.45), dpi=100, facecolor="#24262a")
-    ax = fig.add_axes((0.04, 0.05, 0.66, 0.78))
-    ex = excluded if excluded is not None and excluded.shape == data.shape and excluded.any() else None
-    judged = data[~ex] if ex is not None else data
-    vmax = float(np.nanmax(judged)) if judged.size and np.isfinite(judged).any() else 1.0
-    vmax = vmax if vmax > 0 else 1.0
-    if line is not None:
-        vmax = max(vmax, line * 1.25)
-    cm = matplotlib.colormaps[cmap].with_extremes(bad=HATCH)
-    shown = np.ma.masked_array(data, mask=ex) if ex is not None else data
-    im = ax.imshow(shown, cmap=cm, vmin=0.0, vmax=vmax, interpolation="nearest")
-    if ex is not None:
-        # one hatched region per connected run of excluded pixels, on pixel edges (contourf on corners)
-        h, w = ex.shape
-        grid = np.pad(ex.astype(float), 1)
-        ys, xs = np.arange(-1, h + 1), np.arange(-1, w + 1)
-        with matplotlib.rc_context({"hatch.color": "#3a3a3a", "hatch.linewidth": 0.6}):
-            ax.contourf(xs, ys, grid, levels=[0.5, 1.5], colors="none", hatches=["/////"])
-        ax.set_xlim(-0.5, w - 0.5)
-        ax.set_ylim(h - 0.5, -0.5)
-    ax.set_xticks([])
-    ax.set_yticks([])
-    for s in ax.spines.values():
-        s.set_color("#55585e")
-    fig.suptitle(title, fontsize=7.5, color="#e8e8e8", x=0.04, ha="left", y=0.97)
-    cax = fig.add_axes((0.74, 0.05, 0.05, 0.78))
-    cb = fig.colorbar(im, cax=cax)
-    cb.set_label(unit, fontsize=7, color="#d0d0d0")
-    cb.ax.tick_params(labelsize=6.5, colors="#d0d0d0")
-    cb.ax.yaxis.get_offset_text().set(size=6.5, color="#d0d0d0")
-    cb.outline.set_edgecolor("#55585e")
-    if line is not None:
-        cb.ax.axhline(line, color="#ffffff", lw=1.2, ls="--")
-    return fig
-
-
-def _overlay(base: np.ndarray, images: dict[str, np.ndarray]) -> tuple[np.ndarray, list[dict[str, Any]]]:
-    """Reference darkened to a third, band pixels lifted a little, mismatches painted in solid colours."""
-    out = base.astype(np.float64) * 0.3
-    band = images.get("band")
-    if band is not None and band.shape == out.shape[:2]:
-        out[band] = out[band] * 0.5 + 70.0
-    legend = []
-    if band is not None:
-        legend.append(
-            {"label": "silhouette band (tolerance zone)", "rgb": "#7a7a7a", "count": int(band.sum()), "key": "band"}
-        )
-    for key, (label, rgb) in OVERLAY.items():
-        m = images.get(key)
-        if m is None or m.dtype != bool or m.shape != out.shape[:2]:
-            continue
-        out[m] = rgb
-        legend.append({"label": label, "rgb": "#{:02x}{:02x}{:02x}".format(*rgb), "count": int(m.sum()), "key": key})
-    return np.clip(out + 0.5, 0, 255).astype(np.uint8), legend
-
-
-def _mask_image(base: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    out = base.astype(np.float64) * 0.25
-    out[mask] = YELLOW
-    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
-
-
 # ---------------------------------------------------------------------------------------------
 # View models: plain dicts and strings for the template (which escapes every string)
-
-
-def _display(w: int, h: int) -> dict[str, Any]:
-    s = TILE / max(w, h, 1)
-    s = float(math.floor(s)) if s >= 1 else s
-    return {"w": round(w * s), "h": round(h * s), "pixelated": s >= 1}
 
 
 def _check_view(name: str, c: Check) -> dict[str, Any]:
@@ -329,7 +172,7 @@ def _label(verdict: str, inconclusive: bool) -> str:
     return "INCONCLUSIVE" if inconclusive else verdict.upper()
 
 
-def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _Assets, base8: np.ndarray | None):
+def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: Assets, base8: np.ndarray | None):
     b = _slug(bc.backend, f"b{bj}")
     stem = f"s{si:02d}-{b}"
     res, ref = bc.result, bc.reference
@@ -358,7 +201,7 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
         elif res.color is not None and ref.color is not None:
             new8, old8, what = res.color8(), ref.color8(), "colour"
         else:
-            new8, old8, what = _normals8(res), _normals8(ref), "normals"
+            new8, old8, what = normals8(res), normals8(ref), "normals"
         part = what.replace(" ", "_")  # asset names stay [a-z0-9_-]: no spaces in URLs
         v["swap"] = {
             "new": assets.image8(f"{stem}-{part}.png", new8),
@@ -367,7 +210,7 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
         }
         geom = bc.checks.get("geometry")
         if geom is not None and geom.images:
-            img, legend = _overlay(ref.color8() if ref.color is not None else _normals8(ref), geom.images)
+            img, legend = overlay(ref.color8() if ref.color is not None else normals8(ref), geom.images)
             v["overlay"] = {"src": assets.image8(f"{stem}-mismatch.png", img), "legend": legend}
     for cname, c in bc.checks.items():
         for key, (title, unit, cmap, tkey) in HEATMAPS.items():
@@ -390,7 +233,7 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
             ex = ex if isinstance(ex, np.ndarray) and ex.dtype == bool and ex.shape == data.shape else None
             n_ex = int(ex.sum()) if ex is not None else 0
             judged_peak = float(data[~ex].max()) if n_ex and (~ex).any() else (0.0 if n_ex else peak)
-            fig = _heatmap(data, title, unit, cmap, line, ex)
+            fig = heatmap(data, title, unit, cmap, line, ex)
             v["heatmaps"].append({
                 "src": assets.figure(f"{stem}-{_slug(key, 'map')}.png", fig), "title": title, "check": cname,
                 "max": _fmt(judged_peak), "max_all": _fmt(peak), "excluded": n_ex,
@@ -400,12 +243,12 @@ def _backend_view(si: int, bj: int, sc: SceneCheck, bc: BackendCheck, assets: _A
         mask = bc.rule_masks.get(rule)
         src = None
         if base8 is not None and mask is not None and mask.shape == base8.shape[:2]:
-            src = assets.image8(f"s{si:02d}-rule-{_slug(rule, f'r{k}')}.png", _mask_image(base8, mask))
+            src = assets.image8(f"s{si:02d}-rule-{_slug(rule, f'r{k}')}.png", highlight(base8, mask))
         v["rule_effects"].append({"name": rule, "count": count, "src": src})
     return v
 
 
-def _diagnosis_view(stem: str, bc: BackendCheck, assets: _Assets, base8: np.ndarray | None) -> dict[str, Any]:
+def _diagnosis_view(stem: str, bc: BackendCheck, assets: Assets, base8: np.ndarray | None) -> dict[str, Any]:
     """The rule diagnosis as one sentence ("POV-Ray's image is explained by: …"), the pixels each setting
     explains, how it compares with the rules the oracle declares, and the unexplained pixels' mask."""
     d = bc.rule_diagnosis
@@ -432,18 +275,18 @@ def _diagnosis_view(stem: str, bc: BackendCheck, assets: _Assets, base8: np.ndar
     v["not_needed"] = [f"{k}={x}" for k, x in d.not_needed.items()]
     m = d.unexplained_mask
     if d.mismatch_pixels and base8 is not None and m is not None and m.shape == base8.shape[:2]:
-        v["src"] = assets.image8(f"{stem}-unexplained.png", _mask_image(base8, m))
+        v["src"] = assets.image8(f"{stem}-unexplained.png", highlight(base8, m))
     return v
 
 
-def _scene_view(si: int, sc: SceneCheck, assets: _Assets) -> dict[str, Any]:
+def _scene_view(si: int, sc: SceneCheck, assets: Assets) -> dict[str, Any]:
     ref = sc.reference
     w = ref.width if ref else next((b.result.width for b in sc.backends.values() if b.result), 1)
     h = ref.height if ref else next((b.result.height for b in sc.backends.values() if b.result), 1)
     tiles = []
     base8 = None
     if ref is not None and ref.ok:
-        base8 = ref.color8() if ref.color is not None else _normals8(ref)
+        base8 = ref.color8() if ref.color is not None else normals8(ref)
         tile = {"label": "reference", "what": "colour, scene rules", "verdict": None, "badge": None}
         tile["version"] = _version(ref.meta)
         tile["src"] = assets.image8(f"s{si:02d}-reference.png", base8)
@@ -471,13 +314,13 @@ def _scene_view(si: int, sc: SceneCheck, assets: _Assets) -> dict[str, Any]:
         "verdicts": " ".join(verdicts),
         "reason": sc.reason,
         "size": f"{w}×{h}",
-        "display": _display(w, h),
+        "display": display(w, h, TILE),
         "tiles": tiles,
         "backends": [_backend_view(si, j, sc, bc, assets, base8) for j, bc in order],
     }
 
 
-def _sweep_view(sweep: dict[str, Any] | None, sweep_dir: Path | None, assets: _Assets) -> dict[str, Any] | None:
+def _sweep_view(sweep: dict[str, Any] | None, sweep_dir: Path | None, assets: Assets) -> dict[str, Any] | None:
     if sweep is None and sweep_dir is not None and (Path(sweep_dir) / "sweep.json").is_file():
         try:
             sweep = json.loads((Path(sweep_dir) / "sweep.json").read_text())
@@ -535,19 +378,6 @@ def _sweep_view(sweep: dict[str, Any] | None, sweep_dir: Path | None, assets: _A
 
 # ---------------------------------------------------------------------------------------------
 # The page
-
-
-def _environment():
-    import jinja2
-
-    return jinja2.Environment(
-        loader=jinja2.PackageLoader("minirt.pages", "templates"),
-        autoescape=True,  # every string from a scene file is text, never markup
-        undefined=jinja2.StrictUndefined,
-        trim_blocks=True,
-        lstrip_blocks=True,
-        keep_trailing_newline=True,
-    )
 
 
 def _counts(result: CheckResult) -> dict[str, dict[str, int]]:
@@ -608,7 +438,7 @@ def write_report(
     before each step and once at the end with done == total. ``date`` defaults to now (UTC).
     """
     out_dir = Path(out_dir)
-    assets = _Assets(out_dir / "assets")
+    assets = Assets(out_dir / "assets")
     assets.folder.mkdir(parents=True, exist_ok=True)
     date = date or datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     total = len(result.scenes) + 2
@@ -636,13 +466,11 @@ def write_report(
         "assets": sorted(assets.written),
     }
     backend_names = list(dict.fromkeys(b for s in result.scenes for b in s.backends))
-    env = _environment()
-    script = env.get_template("report.js").render()
-    style = env.get_template("report.css").render()
-    csp_hash = base64.b64encode(hashlib.sha256(script.encode()).digest()).decode()
-    import markupsafe
-
-    html = env.get_template("report.html").render(
+    index = out_dir / "index.html"
+    write_page(
+        index,
+        "report.html",
+        page_parts("report.js", "report.css"),
         verdict=result.verdict,
         counts=_counts(result),
         order=SEVERITY,
@@ -656,18 +484,12 @@ def write_report(
         sweep=sweep_view,
         sample_command=SAMPLE_COMMAND,
         goldens_command=GOLDENS_COMMAND,
-        script=markupsafe.Markup(script),
-        style=markupsafe.Markup(style),
-        csp_hash=csp_hash,
         verdict_order=ORDER,
     )
     data = {**result.as_dict(), "report": meta}
     if sweep is not None:
         data["sweep"] = sweep
     write_json(out_dir / "report.json", data)
-    index = out_dir / "index.html"
-    with atomic_path(index) as tmp:
-        tmp.write_text(html, encoding="utf-8")
     assets.prune()
     if progress:
         progress(total, total, "done")
@@ -682,7 +504,7 @@ def refresh_sample(out: Path = Path("reports/sample"), size: int = 64, backends:
     from minirt.harness import backends as bk
     from minirt.harness import compare as harness
 
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]  # the repository: minirt/pages/report.py
     paths = sorted((root / "scenes").glob("*.toml"))
     names = bk.parse_backends(backends)
     from minirt.diagnose.search import VariantCache

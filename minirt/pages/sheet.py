@@ -25,8 +25,13 @@ def preview(r: RenderResult) -> tuple[np.ndarray, str]:
         return np.full((r.height, r.width, 3), 64, np.uint8), f"{r.status.upper()}"
     if r.color is not None:
         return r.color8(), r.meta.get("image8_shows", "colour")
+    return normals8(r), "normals"
+
+
+def normals8(r: RenderResult) -> np.ndarray:
+    """The normals as 8-bit RGB (n/2 + 1/2), black where nothing is hit."""
     n = np.where(r.hit[..., None], r.normal * 0.5 + 0.5, 0.0)
-    return (np.clip(n, 0, 1) * 255 + 0.5).astype(np.uint8), "normals"
+    return (np.clip(n, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
 def _difference(r: RenderResult, ref: RenderResult) -> tuple[np.ndarray, str] | None:

@@ -21,7 +21,8 @@ from minirt.io.images import read_image_u8, write_image
 from minirt.model.result import RenderResult
 from minirt.model.rules import resolve
 from minirt.model.scene import load_scene
-from minirt.pages import report
+from minirt.pages import figures, report
+from minirt.pages.assets import Assets
 
 ROOT = Path(__file__).resolve().parents[2]
 SIZE = 32
@@ -204,14 +205,14 @@ def test_heatmap_scale_is_that_of_the_judged_pixels():
     data[0, 0] = 100.0  # an unjudged edge pixel
     ex = np.zeros((8, 8), bool)
     ex[0, 0] = True
-    fig = report._heatmap(data, "t", "relative", "viridis", None, ex)
+    fig = figures.heatmap(data, "t", "relative", "viridis", None, ex)
     (im,) = fig.axes[0].get_images()
     assert im.get_clim() == (0.0, 0.01)
-    assert report._heatmap(data, "t", "relative", "viridis").axes[0].get_images()[0].get_clim() == (0.0, 100.0)
+    assert figures.heatmap(data, "t", "relative", "viridis").axes[0].get_images()[0].get_clim() == (0.0, 100.0)
 
 
 def test_sweep_view_tolerates_missing_keys(tmp_path):
-    assets = report._Assets(tmp_path)
+    assets = Assets(tmp_path)
     assert report._sweep_view(None, None, assets) is None
     assert report._sweep_view(None, tmp_path, assets) is None  # no sweep.json there
     v = report._sweep_view({}, None, assets)

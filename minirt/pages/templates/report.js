@@ -1,3 +1,4 @@
+{% from "_selfcheck.js" import on_load %}
 (function () {
   "use strict";
   // Self-check for the browser test (and for anyone who opens the console): on load, the body element gets
@@ -56,14 +57,5 @@
     apply();
   });
 
-  window.addEventListener("load", function () {
-    var imgs = document.images, loaded = 0;
-    for (var i = 0; i < imgs.length; i++) if (imgs[i].complete && imgs[i].naturalWidth > 0) loaded++;
-    var b = document.body;
-    b.setAttribute("data-images-loaded", loaded + "/" + imgs.length);
-    b.setAttribute("data-errors", String(errors));
-    b.setAttribute("data-alerts", String(alerts));
-    b.setAttribute("data-csp-violations", String(csp));
-    b.setAttribute("data-ready", "1");
-  });
+{{ on_load(true) }}
 })();
