@@ -685,7 +685,7 @@ def refresh_sample(out: Path = Path("reports/sample"), size: int = 64, backends:
     root = Path(__file__).resolve().parent.parent
     paths = sorted((root / "scenes").glob("*.toml"))
     names = bk.parse_backends(backends)
-    from minirt.diagnose.search import VariantCache
+    from minirt.diagnose.variants import VariantCache
 
     here = Path.cwd().resolve() == root  # relative paths on the page when run from the repository root
     variants = VariantCache(harness.VARIANT_CACHE_BYTES)  # one for the run's rule diagnoses
