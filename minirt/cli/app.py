@@ -847,7 +847,7 @@ def sweep(
 ) -> None:
     """What accuracy costs in time (help text: SWEEP_HELP, paragraphs Rich wraps to the terminal)."""
     from minirt.harness import backends
-    from minirt.sweep.sweep import run_sweep
+    from minirt.sweep.run import run_sweep
 
     scene, rules = _load(scene_path, profile=profile, rules=rule)
     names = backends.parse_backends(backend)
