@@ -98,7 +98,7 @@ def single(tmp: Path, size: int, repeats: int) -> dict[str, Any]:
 
 
 def class_cache(tmp: Path, size: int) -> dict[str, Any]:
-    from minirt.diagnose.search import Target, VariantCache, diagnose
+    from minirt.diagnose import Target, VariantCache, diagnose
     from minirt.grading.grade import load_target
 
     scene = load_scene(ROOT / "scenes/rules.toml").with_overrides(width=size, height=size, samples=1)

@@ -69,7 +69,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from minirt.model import camera
-from minirt.model.backend import GeometryTolerance, Margins
+from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth
 from minirt.model.result import RenderResult, geometry_from_flat
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
@@ -592,6 +592,31 @@ class EmbreeOracle(Oracle):
             + "\n"
         )
         return [glb, notes]
+
+    # ---- the sweep (minirt.sweep): what accuracy costs in time ---------------------------------
+    sweep_knobs: ClassVar[dict[str, Any]] = {"subdivisions": tuple(range(MAX_SUBDIVISIONS + 1))}
+
+    def sweep(self, scene: Scene, rules: Rules, knobs: dict[str, Any]) -> list[Series]:
+        """One knob, subdivisions: 0 ... 7, against the analytic geometry (reference f64, 1 ray/pixel,
+        Embree's rules): t relative error, hit/id mismatches, and the harness's own geometry check
+        ("geometry+check": Embree does not shade). Cost: triangles per ball, 20 4^N, so the fit's
+        ``factor_per_level`` is 4^slope: theory 1/4, the radial gap of an inscribed icosphere shrinks with
+        the square of its edge."""
+        k = self.turned(knobs)
+        er = self.adapt(rules)
+        exact = Truth("reference/f64/embree-rules", "reference", {"precision": "f64"}, samples=1, rules=er,
+                      describe={"precision": "f64", "spp": 1})  # fmt: skip
+        levels = tuple(
+            Setting(n, 20 * 4**n, {"subdivisions": n},
+                    f"Embree at subdivision {n} ({20 * 4 ** int(n)} triangles per ball)", f"embree subdivisions {n}")
+            for n in k["subdivisions"]
+        )  # fmt: skip
+        return [
+            Series(self.name, "subdivisions", levels, er, exact, "geometry+check", metric="t_rel_mean",
+                   cost="triangles per ball (20 4^N)",
+                   theory="faces^-1, i.e. 4^-N (radial gap of the inscribed icosphere)",
+                   knobs={"embree_subdivisions": k["subdivisions"]}, level_factor=4.0)
+        ]  # fmt: skip
 
 
 def precision_summary(scene: Scene, tess: Tessellation, far_factor: float, extent: float) -> dict[str, Any]:

@@ -91,7 +91,7 @@ import numpy as np
 
 from minirt.jit.arrays import aligned
 from minirt.model import camera
-from minirt.model.backend import GeometryTolerance, Margins
+from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth
 from minirt.model.result import RenderResult, geometry_from_flat, to8
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
@@ -790,6 +790,35 @@ class MitsubaOracle(Oracle):
             return RenderResult.failed(BACKEND, w, h, "error", f"mitsuba failed: {_one_line(e)}", options=opts)
         res.meta["timings"]["import"] = t_import
         return res
+
+    # ---- the sweep (minirt.sweep): what accuracy costs in time -----------------------------------
+    sweep_knobs: ClassVar[dict[str, Any]] = {
+        "spp": (1, 4, 16, 64, 256, 1024),
+        "converged_spp": 4096,  # its own converged answer (see ``sweep``)
+    }
+    SWEEP_SEED = 0
+    SWEEP_CONVERGED_SEED = 1  # a different seed: the converged render must not share the rows' samples
+
+    def sweep(self, scene: Scene, rules: Rules, knobs: dict[str, Any]) -> list[Series]:
+        """One knob, spp: 1, 4, ..., 1024 samples per pixel of Mitsuba's own sensor (``independent``
+        sampler, box filter), against Mitsuba's own 4096 spp (another seed): its shading differs from the
+        exercise by design (no ambient, 1/(pi r^2) falloff), so only it can be its own limit. Its colours
+        are radiance (~1e-3 here): errors are measured after matching exposure ("color_exposure")."""
+        k = self.turned(knobs)
+        n = k["converged_spp"]
+        seed = self.SWEEP_CONVERGED_SEED
+        converged = Truth(f"mitsuba/{n}spp", self.name, {"mode": "sensor", "spp": n, "seed": seed},
+                          describe={"mode": "sensor", "spp": n, "seed": seed})  # fmt: skip
+        spp = tuple(
+            Setting(s, s, {"mode": "sensor", "spp": s, "seed": self.SWEEP_SEED}, f"Mitsuba at {s} spp",
+                    f"mitsuba {s} spp")
+            for s in k["spp"]
+        )  # fmt: skip
+        return [
+            Series(self.name, "spp", spp, self.adapt(rules), converged, "color_exposure", metric="rmse",
+                   cost="samples per pixel", theory="spp^-0.5 (independent sampler)",
+                   knobs={"mitsuba_spp": k["spp"], "converged_mitsuba_spp": n})
+        ]  # fmt: skip
 
 
 class _Base:

@@ -95,7 +95,7 @@ from minirt.errors import MinirtError
 from minirt.io.images import read_image, read_image_u8
 from minirt.jobs import processes
 from minirt.model import camera
-from minirt.model.backend import GeometryTolerance, Margins, farthest_hit
+from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, farthest_hit
 from minirt.model.effects import Effects, effects
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
@@ -1185,6 +1185,85 @@ class PovrayOracle(Oracle):
     # ---- export ---------------------------------------------------------------------------
     def export(self, scene: Scene, rules: Rules, out_dir: Path, options: dict[str, Any] | None = None) -> list[Path]:
         return export(scene, rules, out_dir)
+
+    # ---- the sweep (minirt.sweep): what accuracy costs in time ---------------------------------
+    sweep_knobs: ClassVar[dict[str, Any]] = {
+        "antialias": (0, 1, 2, 3, 4),  # 0: antialiasing off (-A); R > 0: +A0.0 +R{R}
+        # the exercise's samples through POV-Ray's mesh camera (64 at 256² passes its ray limit)
+        "samples": (1, 4, 16),
+        "converged_spp": 1024,  # the reference's samples for the converged answer
+    }
+    SWEEP_STAGES = ("parse", "bounding", "photon", "radiosity", "trace")  # its own statistics (1 ms steps)
+    SWEEP_RESOLUTION = 0.001
+
+    def sweep(self, scene: Scene, rules: Rules, knobs: dict[str, Any]) -> list[Series]:
+        """Two knobs, both measured against the reference at 1024 spp under POV-Ray's rules:
+
+        - antialias: off, +A0.0 +R1 ... +R4. Method 1 with threshold 0 supersamples every pixel on an
+          R x R jittered grid *plus* its centre ray, averaged with weight 1/(R^2 + 1) each
+          (``tracetask.cpp`` SupersampleOnePixel), so its cost in rays per pixel is R^2 + 1 and it
+          converges to a centre-weighted average, not the box the reference averages: expect a floor.
+          Its pixel square is centred on the ray it shoots, so POV-Ray and its converged reference are
+          rendered with rule ``pixel_sample = "center"`` (with "corner" the skewed camera shifts the
+          supersampled square by half a pixel against the reference's samples).
+        - samples: 1, 4, 16 (the exercise's stratified samples), pixel corner: POV-Ray renders the
+          reference's own samples through its mesh camera, so it converges as the reference's spp does.
+
+        The rows are colour only (no geometry frames, no 8-bit pass): one POV-Ray invocation per render.
+        Time (``_sweep_seconds``): POV-Ray starts a process per render (~0.65 s whatever the size,
+        measured from its own statistics): that start-up is its ``seconds_setup`` and is *not* in its
+        ``seconds_median`` (the time inside POV-Ray: parse, bounding, trace); ``seconds_total`` has both.
+        Its statistics count whole milliseconds: a median below 1 ms is recorded *at* 1 ms, an upper
+        bound (``seconds_at_resolution``)."""
+        from dataclasses import replace
+
+        k = self.turned(knobs)
+        n = k["converged_spp"]
+        f64 = {"precision": "f64"}
+        centre = replace(self.adapt(rules), pixel_sample="center")
+        corner = self.adapt(rules)
+        antialias = tuple(
+            Setting(r, r * r + 1 if r else 1, {"geometry": False} if r == 0 else {"antialias": r},
+                    "POV-Ray -A (antialiasing off)" if r == 0 else f"POV-Ray +A0.0 +R{r}",
+                    "povray antialias off" if r == 0 else f"povray +A0.0 +R{r}")
+            for r in k["antialias"]
+        )  # fmt: skip
+        # The exercise's own samples (pixel corner, the rules' own pixel square): its converged answer is
+        # the reference under the same rules.
+        samples = tuple(
+            Setting(m, m, {"geometry": False, "samples": m},
+                    f"POV-Ray with the exercise's {m} sample{'s' if m != 1 else ''} (mesh camera)",
+                    f"povray {m} exercise samples")
+            for m in k["samples"]
+        )  # fmt: skip
+        ref = "reference"  # the converged answers are the reference tracer's
+        return [
+            Series(self.name, "antialias", antialias, centre,
+                   Truth(f"reference/{n}spp/povray-rules", ref, f64, samples=n, rules=centre,
+                         describe={"precision": "f64", "spp": n}),
+                   "color", metric="rmse", cost="rays per pixel (R^2 + 1)",
+                   theory="~(R^2+1)^-0.75 (jittered grid, edges) down to a floor (centre-weighted filter)",
+                   knobs={"povray_antialias": k["antialias"], "converged_reference_spp": n},
+                   seconds=self._sweep_seconds),
+            Series(self.name, "samples", samples, corner,
+                   Truth(f"reference/{n}spp/povray-rules-corner", ref, f64, samples=n, rules=corner,
+                         describe={"precision": "f64", "spp": n}),
+                   "color", metric="rmse", cost="rays per pixel",
+                   theory="as reference/spp: the same stratified samples, at POV-Ray's cost per ray",
+                   knobs={"povray_samples": k["samples"], "converged_reference_spp": n},
+                   seconds=self._sweep_seconds),
+        ]  # fmt: skip
+
+    @classmethod
+    def _sweep_seconds(cls, res: RenderResult) -> tuple[float, float, float]:
+        """(time inside POV-Ray, the process's start-up, its statistics' resolution) of one render."""
+        tm = res.meta.get("timings", {})
+        if "passes" not in tm:
+            return float(tm.get("wall", math.nan)), 0.0, 0.0
+        # the EXR pass is the image; the unantialiased render adds an 8-bit PNG pass (exact rounding only)
+        passes = [tm["passes"]["exr"]] if "exr" in tm["passes"] else list(tm["passes"].values())
+        work = sum(p.get(k, 0.0) for p in passes for k in cls.SWEEP_STAGES)
+        return round(work, 6), sum(p["wall"] for p in passes) - work, cls.SWEEP_RESOLUTION
 
 
 def decode_geometry(

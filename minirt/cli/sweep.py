@@ -1,6 +1,6 @@
 """``minirt sweep``: what accuracy costs in time -- each backend's accuracy knob against time and error.
 
-minirt.sweep.sweep renders the settings and writes sweep.csv, sweep.md, sweep.json and the plots; this
+minirt.sweep.run renders the settings and writes sweep.csv, sweep.md, sweep.json and the plots; this
 module prints the fitted slopes and the answer lines.
 """
 
@@ -69,7 +69,7 @@ def sweep(
 ) -> None:
     """What accuracy costs in time (help text: SWEEP_HELP, paragraphs Rich wraps to the terminal)."""
     from minirt.harness import backends
-    from minirt.sweep.sweep import run_sweep
+    from minirt.sweep.run import run_sweep
 
     scene, rules = load(scene_path, profile=profile, rules=rule)
     names = backends.parse_backends(backend)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from minirt.diagnose import search as dg
+from minirt import diagnose as dg
 from minirt.errors import MinirtError
 from minirt.io.atomic import atomic_path
 from minirt.io.images import STUDENT_EXTENSIONS

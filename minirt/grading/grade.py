@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from minirt.diagnose import search as dg
+from minirt import diagnose as dg
 from minirt.errors import MinirtError
 from minirt.io.images import read_student_image
 from minirt.jobs import memory

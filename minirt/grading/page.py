@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from minirt.diagnose import search as dg
+from minirt import diagnose as dg
 from minirt.grading import grade as grading
 from minirt.grading.grade import ClassRow, Grade
 from minirt.model import bitmap

@@ -851,7 +851,7 @@ def shared_variants():
     """The process's VariantCache for check's diagnoses, made on first use."""
     global _variants
     if _variants is None:
-        from minirt.diagnose.search import VariantCache
+        from minirt.diagnose.variants import VariantCache
 
         _variants = VariantCache(VARIANT_CACHE_BYTES)
     return _variants
@@ -865,7 +865,7 @@ def diagnose_oracle(scene: Scene, rules: Rules, followed: Rules, res: RenderResu
     scene's own output rules say -- on one ray per pixel, the rays the oracle cast. Where the oracle's
     image is the scene's rules' image within one level on every pixel, nothing needs explaining and
     no search runs (one render)."""
-    from minirt.diagnose import search as dg
+    from minirt import diagnose as dg
     from minirt.model import bitmap
     from minirt.model import rules as rules_mod
 
@@ -1028,7 +1028,7 @@ def check_scene(
     loaded: tuple[Scene, Rules] | None = None,
 ) -> SceneCheck:
     """Check one scene file against the given backends (the reference itself is always rendered).
-    ``variants``: the run's minirt.diagnose.search.VariantCache (default: the process's, ``shared_variants``);
+    ``variants``: the run's minirt.diagnose.variants.VariantCache (default: the process's, ``shared_variants``);
     ``rendered``: backend name -> its render started earlier, ``loaded``: the file's scene and rules
     already parsed (both from ``run``)."""
     scene, rules = loaded or _scene_and_rules(path, size)
@@ -1074,7 +1074,7 @@ def run(
     _fits_in_memory([s for s, _ in loaded], names, 0 if scheduler else workers if workers > 1 else 0)
     if workers > 1 or scheduler is not None or cache is not None:
         return _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache)
-    from minirt.diagnose.search import VariantCache
+    from minirt.diagnose.variants import VariantCache
 
     variants = VariantCache(VARIANT_CACHE_BYTES)
     # POV-Ray runs as a separate process: its renders of every scene start now, one after the other on

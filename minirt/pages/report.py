@@ -433,7 +433,7 @@ def write_report(
     """Write DIR/index.html, DIR/report.json and DIR/assets/; return the index.html path.
 
     ``command`` is the exact command that reproduces the report (shown on the page). ``sweep`` is
-    minirt.sweep.sweep.run_sweep's dict (or None; if None and ``sweep_dir`` holds a sweep.json, that is
+    minirt.sweep.run.run_sweep's dict (or None; if None and ``sweep_dir`` holds a sweep.json, that is
     read); its PNGs are copied from ``sweep_dir``. ``progress(done, total, label)`` is called
     before each step and once at the end with done == total. ``date`` defaults to now (UTC).
     """
@@ -507,7 +507,7 @@ def refresh_sample(out: Path = Path("reports/sample"), size: int = 64, backends:
     root = Path(__file__).resolve().parents[2]  # the repository: minirt/pages/report.py
     paths = sorted((root / "scenes").glob("*.toml"))
     names = bk.parse_backends(backends)
-    from minirt.diagnose.search import VariantCache
+    from minirt.diagnose.variants import VariantCache
 
     here = Path.cwd().resolve() == root  # relative paths on the page when run from the repository root
     variants = VariantCache(harness.VARIANT_CACHE_BYTES)  # one for the run's rule diagnoses

@@ -130,7 +130,7 @@ def image_pixel(
 ) -> dict[str, Any]:
     """Another tracer's value at the probed pixel beside the reference's (``p``, from ``probe``).
 
-    ``target`` is a ``minirt.diagnose.search.Target`` (``minirt.grading.grade.load_target``) whose size
+    ``target`` is a ``minirt.diagnose.target.Target`` (``minirt.grading.grade.load_target``) whose size
     ``minirt.grading.grade.check_size`` has accepted. It is brought back to the scene's layout under the
     layout rules of ``rules`` -- or, when it is stored transposed and the rules do not say so (the
     note ``check_size`` gives), read transposed. An 8-bit image is compared with the reference's

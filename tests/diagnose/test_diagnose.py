@@ -1,4 +1,4 @@
-"""The diagnosis (minirt.diagnose.search) against student images made independently of the fast tracer.
+"""The diagnosis (minirt.diagnose) against student images made independently of the fast tracer.
 
 Student images come from tests/support/plain.py (tests/support/students.py): the recursive pure-Python transcription of
 the pseudo-code, with float32-like noise on the colour and written with the injected output rules. For
@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 from support.students import levels_off, small_scene, student_color, student_image
 
-from minirt.diagnose import search as dg
+from minirt import diagnose as dg
 from minirt.grading import grade as grading
 from minirt.io.images import write_image
 from minirt.model import bitmap, camera

@@ -226,7 +226,7 @@ def test_a_search_variant_is_one_trace_kernel():
     read back) runs the trace once: one kernel for the colour and the margins, one that interleaves.
     Read component by component, the colour's three gathers each evaluated the lazy trace on its own,
     and the margins a fourth time: five kernels, and two and a half times the time."""
-    from minirt.diagnose.search import VariantCache
+    from minirt.diagnose.variants import VariantCache
 
     scene = load_scene("scenes/rules.toml").with_overrides(width=24, height=16)
     rules = resolve(scene).traced()

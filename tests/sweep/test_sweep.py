@@ -1,4 +1,4 @@
-"""The accuracy/time sweep (minirt.sweep.sweep): files written, errors fall where theory says, slopes near theory.
+"""The accuracy/time sweep (minirt.sweep): files written, errors fall where theory says, slopes near theory.
 
 Small on purpose: 16x16 images (the default is 256x256), one timed run per setting, short knob lists.
 The slopes are checked loosely
@@ -13,7 +13,6 @@ import csv
 import itertools
 import json
 import re
-from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
@@ -23,18 +22,16 @@ from support.inproc import minirt
 from minirt.model.rules import resolve
 from minirt.model.scene import load_scene
 from minirt.oracles.embree import EmbreeOracle
-from minirt.sweep import sweep
+from minirt.oracles.povray import PovrayOracle
+from minirt.sweep import document, run, series, timing
 
 SIZE = 16
-KNOBS = sweep.Knobs(
-    reference_spp=(1, 4, 16, 64),
-    mitsuba_spp=(1, 16),
-    povray_antialias=(0, 2),
-    povray_samples=(1, 16),
-    embree_subdivisions=(0, 1, 2, 3, 4),
-    converged_reference_spp=1024,
-    converged_mitsuba_spp=256,
-)
+KNOBS = {
+    "reference": {"spp": (1, 4, 16, 64), "converged_spp": 1024},
+    "mitsuba": {"spp": (1, 16), "converged_spp": 256},
+    "povray": {"antialias": (0, 2), "samples": (1, 16), "converged_spp": 1024},
+    "embree": {"subdivisions": (0, 1, 2, 3, 4)},
+}
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +45,7 @@ def result(exercise, tmp_path_factory):
     sc, rules = exercise
     out = tmp_path_factory.mktemp("sweep")
     calls: list[tuple[int, int, str]] = []
-    res = sweep.run_sweep(sc, rules, ["reference", "embree"], out, size=SIZE, repeats=1,
+    res = run.run_sweep(sc, rules, ["reference", "embree"], out, size=SIZE, repeats=1,
                           progress=lambda d, t, label: calls.append((d, t, label)), knobs=KNOBS)  # fmt: skip
     return res, out, calls
 
@@ -99,23 +96,25 @@ def test_warm_up_is_not_timed():
         wall = 1.0 if len(calls) == 1 else 0.01
         return SimpleNamespace(ok=True, backend="reference", meta={"timings": {"wall": wall}})
 
-    _, timing = sweep._timed(render, repeats=1, slow_seconds=5.0)
-    assert len(calls) == 2 and timing["runs"] == [0.01] and timing["seconds_median"] == 0.01
-    assert timing["seconds_setup"] == pytest.approx(0.99) and timing["seconds_first"] == 1.0
+    _, timed = timing.timed(render, repeats=1, slow_seconds=5.0)
+    assert len(calls) == 2 and timed["runs"] == [0.01] and timed["seconds_median"] == 0.01
+    assert timed["seconds_setup"] == pytest.approx(0.99) and timed["seconds_first"] == 1.0
 
 
-def test_povray_time_below_its_timer_is_floored_and_marked():
+def test_povray_time_below_its_timer_is_floored_and_marked(exercise):
     """POV-Ray's statistics count whole milliseconds: a 0 ms render is recorded at 1 ms and marked, not 0."""
+    sc, rules = exercise
+    cat = series.catalogue(sc, rules, {})
     stages = {"parse": 0.0, "bounding": 0.0, "photon": 0.0, "radiosity": 0.0, "trace": 0.0, "wall": 0.7}
     res = SimpleNamespace(ok=True, backend="povray", meta={"timings": {"passes": {"exr": stages}}})
-    _, timing = sweep._timed(lambda: res, repeats=3, slow_seconds=5.0)
-    assert timing["seconds_median"] == sweep.POVRAY_RESOLUTION and timing["seconds_at_resolution"]
-    assert timing["seconds_setup"] == pytest.approx(0.7)  # the process start-up, apart
-    row = {**sweep._row(None, "povray", "antialias", 0, "ok"), **timing, "error": {"rmse": 0.01}, "cost": 1}
-    assert sweep._usable(row, "rmse")  # on the log plot and in the fits
+    _, timed = timing.timed(lambda: res, repeats=3, slow_seconds=5.0, seconds=cat.series["povray/antialias"].seconds)
+    assert timed["seconds_median"] == PovrayOracle.SWEEP_RESOLUTION and timed["seconds_at_resolution"]
+    assert timed["seconds_setup"] == pytest.approx(0.7)  # the process start-up, apart
+    row = {**run._row("povray", "antialias", 0, "ok"), **timed, "error": {"rmse": 0.01}, "cost": 1}
+    assert series.usable(row, "rmse")  # on the log plot and in the fits
     result = {"scene": "x", "size": [8, 8], "repeats": 3, "rows": [row], "slopes": {}, "converged": {},
-              "answer": sweep.answers([row])}  # fmt: skip
-    assert "≤ 0.001" in sweep.markdown(result)
+              "answer": document.answers([row], cat)}  # fmt: skip
+    assert "≤ 0.001" in document.markdown(result)
     assert "≤ 0.001 s" in result["answer"][0]["line"]
 
 
@@ -133,7 +132,7 @@ def test_answer_line_per_backend(result):
     assert ref["line"].startswith("error < 1/255 costs ") and f"the reference at {ref['value']} spp" in ref["line"]
     emb = ans["embree"]
     if emb["met"]:
-        assert emb["error"] < sweep.GEOMETRY_T_REL and "Embree at subdivision" in emb["line"]
+        assert emb["error"] < series.GEOMETRY_T_REL and "Embree at subdivision" in emb["line"]
     else:
         assert emb["line"].startswith("no setting tried reaches")
     assert res["answer_lines"][0].startswith(f"exercise {SIZE}x{SIZE}: error < 1/255 costs")
@@ -142,14 +141,15 @@ def test_answer_line_per_backend(result):
     assert json.loads((out / "sweep.json").read_text())["answer_lines"] == res["answer_lines"]
 
 
-def test_answer_says_when_no_setting_reaches_it():
-    rows = [{**sweep._row(None, "mitsuba", "spp", n, "ok"), "cost": n, "seconds_median": 0.1 * n,
+def test_answer_says_when_no_setting_reaches_it(exercise):
+    cat = series.catalogue(*exercise, {})
+    rows = [{**run._row("mitsuba", "spp", n, "ok"), "cost": n, "seconds_median": 0.1 * n,
              "seconds_setup": 0.0, "error": {"rmse": e}} for n, e in ((1, 0.05), (4, 0.02))]  # fmt: skip
-    (a,) = sweep.answers(rows)
+    (a,) = document.answers(rows, cat)
     assert not a["met"] and a["value"] == 4
     assert a["line"].startswith("no setting tried reaches error < 1/255 with Mitsuba; best: Mitsuba at 4 spp")
-    skipped = [sweep._row(None, "povray", None, None, "skip", "povray not installed")]
-    (b,) = sweep.answers(skipped)
+    skipped = [run._row("povray", None, None, "skip", "povray not installed")]
+    (b,) = document.answers(skipped, cat)
     assert not b["met"] and "not measured" in b["line"] and "povray not installed" in b["line"]
 
 
@@ -212,7 +212,7 @@ def test_pareto_front_marked(result):
 def test_unavailable_backend_is_a_skip_row(exercise, tmp_path, monkeypatch):
     monkeypatch.setattr(EmbreeOracle, "available", lambda self: (False, "embreex not installed (test)"))
     sc, rules = exercise
-    res = sweep.run_sweep(sc, rules, ["embree", "no-such-backend"], tmp_path, size=8, repeats=1, knobs=KNOBS)
+    res = run.run_sweep(sc, rules, ["embree", "no-such-backend"], tmp_path, size=8, repeats=1, knobs=KNOBS)
     by = {r["backend"]: r for r in res["rows"]}
     assert by["embree"]["status"] == "skip" and "embreex not installed" in by["embree"]["reason"]
     assert by["no-such-backend"]["status"] == "skip" and "unknown backend" in by["no-such-backend"]["reason"]
@@ -223,12 +223,12 @@ def test_unavailable_backend_is_a_skip_row(exercise, tmp_path, monkeypatch):
 def test_oracles_sweep_small(exercise, tmp_path):
     """Mitsuba (its own converged render) and POV-Ray (antialiasing) run through the same path."""
     sc, rules = exercise
-    res = sweep.run_sweep(sc, rules, ["mitsuba", "povray"], tmp_path, size=SIZE, repeats=1, knobs=KNOBS)
+    res = run.run_sweep(sc, rules, ["mitsuba", "povray"], tmp_path, size=SIZE, repeats=1, knobs=KNOBS)
     for r in res["rows"]:
         assert r["status"] == "ok", r
         if r["backend"] == "povray":  # never a 0-second point: floored at the timer's 1 ms and marked
-            assert r["seconds_median"] >= sweep.POVRAY_RESOLUTION
-            assert not r["seconds_at_resolution"] or r["seconds_median"] == sweep.POVRAY_RESOLUTION
+            assert r["seconds_median"] >= PovrayOracle.SWEEP_RESOLUTION
+            assert not r["seconds_at_resolution"] or r["seconds_median"] == PovrayOracle.SWEEP_RESOLUTION
     assert [a["backend"] for a in res["answer"]] == ["mitsuba", "povray"]
     mi = _rows(res, "mitsuba", "spp")
     assert mi[1]["error"]["rmse"] > mi[16]["error"]["rmse"] > 0
@@ -252,7 +252,7 @@ def test_povray_antialias_command_line(exercise):
 # ---------------------------------------------------------------------------------------------
 # Series as jobs (minirt.jobs.batch): local processes, a cache
 
-SMALL = sweep.Knobs(reference_spp=(1, 4), embree_subdivisions=(0, 1), converged_reference_spp=16)
+SMALL = {"reference": {"spp": (1, 4), "converged_spp": 16}, "embree": {"subdivisions": (0, 1)}}
 
 
 def _errors(res) -> list:
@@ -262,14 +262,14 @@ def _errors(res) -> list:
 @pytest.fixture(scope="module")
 def in_process(exercise, tmp_path_factory):
     sc, rules = exercise
-    return sweep.run_sweep(sc, rules, ["reference", "embree"], tmp_path_factory.mktemp("here"), size=8, repeats=1,
+    return run.run_sweep(sc, rules, ["reference", "embree"], tmp_path_factory.mktemp("here"), size=8, repeats=1,
                            knobs=SMALL)  # fmt: skip
 
 
 def test_series_on_worker_processes_give_the_same_rows(exercise, in_process, tmp_path):
     sc, rules = exercise
     calls: list[tuple[int, int, str]] = []
-    res = sweep.run_sweep(sc, rules, ["reference", "embree"], tmp_path, size=8, repeats=1, knobs=SMALL, workers=2,
+    res = run.run_sweep(sc, rules, ["reference", "embree"], tmp_path, size=8, repeats=1, knobs=SMALL, workers=2,
                           progress=lambda d, t, label: calls.append((d, t, label)))  # fmt: skip
     assert _errors(res) == _errors(in_process)  # the same renders, wherever they ran
     assert res["converged"].keys() == in_process["converged"].keys()
@@ -285,14 +285,14 @@ def test_cache_renders_only_the_series_that_changed(exercise, in_process, tmp_pa
     cache = tmp_path / "cache"
 
     def go(knobs):
-        return sweep.run_sweep(sc, rules, ["reference", "embree"], tmp_path / "out", size=8, repeats=1, knobs=knobs,
+        return run.run_sweep(sc, rules, ["reference", "embree"], tmp_path / "out", size=8, repeats=1, knobs=knobs,
                                cache=cache)  # fmt: skip
 
     first = go(SMALL)
     assert first["jobs"]["cached"] == 0 and _errors(first) == _errors(in_process)
     again = go(SMALL)
     assert again["jobs"]["cached"] == 2 and again["rows"] == first["rows"]  # the very rows, times and all
-    more = go(replace(SMALL, embree_subdivisions=(0, 1, 2)))  # embree's knob changed: its series only
+    more = go({**SMALL, "embree": {"subdivisions": (0, 1, 2)}})  # embree's knob changed: its series only
     assert more["jobs"]["cached"] == 1
     assert [r for r in more["rows"] if r["backend"] == "reference"] == [
         r for r in first["rows"] if r["backend"] == "reference"
@@ -303,7 +303,7 @@ def test_cache_renders_only_the_series_that_changed(exercise, in_process, tmp_pa
 def test_a_skipped_series_is_not_cached(exercise, tmp_path):
     sc, rules = exercise
     for _ in range(2):
-        res = sweep.run_sweep(sc, rules, ["no-such-backend"], tmp_path / "o", size=8, repeats=1, knobs=SMALL,
+        res = run.run_sweep(sc, rules, ["no-such-backend"], tmp_path / "o", size=8, repeats=1, knobs=SMALL,
                               cache=tmp_path / "c")  # fmt: skip
         assert res["jobs"]["cached"] == 0 and res["rows"][0]["status"] == "skip"
 
@@ -315,3 +315,13 @@ def test_cli_workers_and_scheduler_together_is_one_line(tmp_path):
         "minirt: error: --workers and --scheduler: give one (the cluster has its own workers)"
     ], p.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_a_knob_no_backend_has_is_an_error(exercise, tmp_path):
+    """Knobs are per backend by name: a misspelt knob or backend would sweep the defaults unnoticed."""
+    sc, rules = exercise
+    with pytest.raises(ValueError, match="no sweep knob sp "):
+        run.run_sweep(sc, rules, ["mitsuba"], tmp_path, size=8, repeats=1, knobs={"mitsuba": {"sp": (1,)}})
+    with pytest.raises(ValueError, match="knobs for unknown backend mitsuba3"):
+        run.run_sweep(sc, rules, ["mitsuba"], tmp_path, size=8, repeats=1, knobs={"mitsuba3": {"spp": (1,)}})
+    assert not (tmp_path / "sweep.json").exists()

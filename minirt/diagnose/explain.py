@@ -1,0 +1,253 @@
+"""What explains what: the diagnosis of an image, and the settings a scene cannot tell apart.
+
+``diagnose`` runs the search (minirt.diagnose.search) from the scene's own rules and reports, for each
+rule the answer changed, the pixels that change explains (``Explained``, ``Diagnosis``: counts leave
+ill-conditioned pixels out). ``indistinguishable`` lists the single-rule changes of the answer that the
+scene cannot tell apart from it, each with a bundled grading scene that does (``tells_apart``,
+``GRADING_SET``) or why none does (``why_same``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from minirt.diagnose.search import SAMPLE, _moot, _moves, _Search, _valid
+from minirt.diagnose.target import FLOAT_TOL, Target, _coded
+from minirt.diagnose.variants import VariantCache
+from minirt.model import bitmap
+from minirt.model import rules as rules_mod
+from minirt.model.rules import Rules
+from minirt.model.scene import Scene
+
+
+@dataclass
+class Explained:
+    rule: str
+    value: str
+    pixels: int
+    mask: np.ndarray = field(repr=False)
+
+
+@dataclass
+class Diagnosis:
+    """What the search found. Counts leave ill-conditioned pixels out."""
+
+    given: Rules
+    best: Rules
+    pixels: int
+    as_given_mask: np.ndarray  # pixels beyond tolerance under the scene's own rules
+    best_mask: np.ndarray  # those still beyond tolerance under the best rules
+    ill: np.ndarray  # ill-conditioned pixels among those that differ (left out)
+    explained: list[Explained]
+    indistinguishable: list[dict[str, Any]]
+    given_color: np.ndarray
+    best_color: np.ndarray
+    steps: list[dict[str, Any]]
+    renders: int  # candidate renders looked at (VariantCache.requested): traced now or taken from the cache
+
+    @property
+    def changed(self) -> dict[str, str]:
+        return {n: rules_mod.format_rule_value(n, getattr(self.best, n)) for n in self.given.differs(self.best)}
+
+    @property
+    def as_given_pixels(self) -> int:
+        return int(self.as_given_mask.sum())
+
+    @property
+    def mismatch_pixels(self) -> int:
+        return int(self.best_mask.sum())
+
+
+def diagnose(
+    scene: Scene,
+    given: Rules,
+    target: Target,
+    cache: VariantCache | None = None,
+    alternatives: bool = True,
+    outputs: bool = True,
+) -> Diagnosis:
+    """Search rule space for the setting that best reproduces ``target`` (see the module's docstring).
+    ``alternatives=False`` skips the list of settings the scene cannot tell apart from the answer
+    (about half the time of a diagnosis; ``check`` does not show it). ``outputs=False`` keeps ``given``'s
+    output rules: for an image whose encoding and layout are known (an oracle's ``color8()``)."""
+    cache = cache or VariantCache()
+    cache.requested = set()
+    search = _Search(scene, target, cache, outputs)
+    best = search.run(given)
+    pair = [given, best]
+    mg, _, ill_g = search.final_mask(given, pair)
+    mb, off_b, ill_b = search.final_mask(best, pair)
+    shape = search.target._model_shape
+    explained = []
+    for name in given.differs(best):
+        back = replace(best, **{name: getattr(given, name)})
+        if not _valid(back):
+            back = replace(best, **{n: getattr(given, n) for n in _coupled(name)})
+        _, off_back, _ = search.final_mask(back, [])
+        gained = off_back & ~off_b & ~ill_b
+        explained.append(
+            Explained(name, rules_mod.format_rule_value(name, getattr(best, name)), int(gained.sum()), gained)
+        )
+    explained.sort(key=lambda e: (-e.pixels, e.rule))
+    return Diagnosis(
+        given=given,
+        best=best,
+        pixels=shape[0] * shape[1],
+        as_given_mask=mg,
+        best_mask=mb,
+        ill=ill_g | ill_b,
+        explained=explained,
+        indistinguishable=indistinguishable(scene, best, cache, target) if alternatives else [],
+        given_color=cache.get(scene, given).color,
+        best_color=cache.get(scene, best).color,
+        steps=search.steps,
+        renders=len(cache.requested),
+    )
+
+
+def _coupled(name: str) -> tuple[str, ...]:
+    """Rules that are only valid together (reverting one alone would be an invalid rule set)."""
+    if name in ("offset", "offset_along"):
+        return ("offset", "offset_along")
+    return (name,)
+
+
+def indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Target) -> list[dict[str, Any]]:
+    """Single-rule changes of ``best`` that this scene cannot tell apart from it: written the same way,
+    their image equals best's on every pixel that is not ill-conditioned. Each with a bundled grading
+    scene that does tell them apart (None when none does). A change that differs on a stride of pixels
+    is told apart without a full render. It depends on the scene and the answer only, not on the image:
+    a class's images with the same answer share one list (kept in the cache)."""
+    key = (*VariantCache._key(scene, best), best, target.is_float)
+    if key not in cache.alternatives:
+        asked, cache.requested = cache.requested, set()
+        found = _indistinguishable(scene, best, cache, target)
+        cache.alternatives[key] = (found, cache.requested)
+        cache.requested = asked
+    found, renders = cache.alternatives[key]
+    cache.requested |= renders  # what the list looked at counts whether it was made now or before
+    return [dict(e) for e in found]
+
+
+def _indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Target) -> list[dict[str, Any]]:
+    vb = cache.get(scene, best)
+    h, w = vb.color.shape[:2]
+    stride = np.arange(0, h * w, max(1, (h * w) // (4 * SAMPLE)))
+    coded = _coded(vb.color.reshape(-1, 3), best, target.is_float)
+    out = []
+    moot = _moot(scene, best)
+    for cand in _moves(best, rules_mod.TRACE_RULES):
+        (name,) = best.differs(cand)
+        if name in moot or _distinct(scene, best, cand, coded, stride, cache, target.is_float) == 0:
+            value = getattr(cand, name)
+            out.append(
+                {
+                    "rule": name,
+                    "value": rules_mod.format_rule_value(name, value),
+                    "as": rules_mod.format_rule_value(name, getattr(best, name)),
+                    "scene_that_tells": tells_apart(name, getattr(best, name), value, cache),
+                }
+            )
+            if out[-1]["scene_that_tells"] is None:
+                out[-1]["why"] = why_same(name, getattr(best, name), value)
+    return out
+
+
+def _distinct(
+    scene: Scene, a: Rules, b: Rules, coded_a: np.ndarray, stride: np.ndarray, cache: VariantCache, is_float: bool
+) -> int:
+    """Pixels (not ill-conditioned in either) where b's image, written as a's output rules say, differs
+    from a's (``coded_a``, flat): 0 means the two cannot be told apart. Only a count below the stride's
+    says 0 is rendered in full."""
+    tol = FLOAT_TOL if is_float else 0
+    vs = cache.subset(scene, b, stride)
+    d = np.abs(_coded(vs.color, a, is_float) - coded_a[stride]).max(-1) > tol
+    if d.any():
+        where = stride[d]
+        va = cache.get(scene, a)
+        ill = (
+            va.shadow_ill.reshape(-1)[where]
+            | vs.shadow_ill[d]
+            | cache.band(scene, a, where)
+            | cache.band(scene, b, where)
+        )
+        if (~ill).any():
+            return int((~ill).sum())
+    vb = cache.get(scene, b)
+    d = np.abs(_coded(vb.color.reshape(-1, 3), a, is_float) - coded_a).max(-1) > tol
+    where = np.flatnonzero(d)
+    va = cache.get(scene, a)
+    ill = va.shadow_ill.reshape(-1)[where] | vb.shadow_ill.reshape(-1)[where]
+    ill |= cache.band(scene, a, where) | cache.band(scene, b, where)
+    return int((~ill).sum())
+
+
+# The bundled scenes that tell every pair of rule values apart (tests/diagnose/test_diagnose.py proves it):
+# rules.toml alone separates all but one pair; the others add margin.
+GRADING_SET = ("rules", "three_balls", "exercise")
+
+
+# Pairs of values that give the same image, beyond a handful of pixels one level apart, whenever the other
+# rules are the exercise's: with the offset along the normal and "anything on the shadow ray blocks", a
+# point facing away from the light shadows itself (its shadow ray re-enters its own surface), so clamping
+# the diffuse term, or cutting the highlight at s·n <= 0, barely shows -- only just past a ball's lit edge,
+# where a shadow ray can slip past its own ball (5 pixels, each one level, in three_balls at 256²). Under
+# the 2014 edition's rules (offset along the ray) they differ widely.
+SAME_UNDER_EXERCISE = {("clamp", frozenset({True, "specular"})): "eth2014"}
+
+
+def tells_apart(name: str, a: Any, b: Any, cache: VariantCache | None = None, min_pixels: int = 50) -> str | None:
+    """The first bundled grading scene in which rule ``name`` = a and = b differ on >= min_pixels pixels
+    (8-bit, as stored, ill-conditioned pixels left out), under the scene's own rules."""
+    for stem in GRADING_SET:
+        if distinct_pixels(stem, name, a, b, cache) >= min_pixels:
+            return stem
+    return None
+
+
+def why_same(name: str, a: Any, b: Any) -> str:
+    """Why no bundled scene tells two values apart (for the indistinguishable list)."""
+    if (name, frozenset({a, b})) in SAME_UNDER_EXERCISE:
+        return (
+            "the same image whenever secondary rays are offset along the normal and anything on the shadow ray "
+            "blocks: a point facing away from the light always shadows itself"
+        )
+    return "no bundled grading scene tells them apart"
+
+
+def distinct_pixels(
+    stem: str, name: str, a: Any, b: Any, cache: VariantCache | None = None, profile: str | None = None
+) -> int:
+    """Pixels of bundled scene ``stem`` (its own rules, or ``profile``'s; one ray per pixel) whose 8-bit
+    image differs between rule ``name`` = a and = b (0 when the scene is not installed)."""
+    from minirt.errors import SceneError
+    from minirt.model.bundled import bundled_scene
+
+    cache = cache or VariantCache()
+    try:
+        sc = bundled_scene(stem).with_overrides(samples=1)
+    except SceneError:  # a bundled scene missing from this install: ask the others
+        return 0
+    base = rules_mod.resolve(sc, profile)
+    ra, rb = _make_valid(replace(base, **{name: a})), _make_valid(replace(base, **{name: b}))
+    va, vb = cache.get(sc, ra), cache.get(sc, rb)
+    ia, ib = bitmap.bitmap(va.color, ra), bitmap.bitmap(vb.color, rb)
+    if ia.shape != ib.shape:
+        return ia.shape[0] * ia.shape[1]
+    differ = (ia != ib).any(-1)
+    if ra.transpose != rb.transpose or ra.rows != rb.rows or ra.channels != rb.channels:
+        return int(differ.sum())  # the layouts differ: compared as stored, nothing to leave out
+    where = np.flatnonzero(bitmap.undo_layout(differ[..., None], **bitmap.layout_of(ra))[..., 0].reshape(-1))
+    ill = va.shadow_ill.reshape(-1)[where] | vb.shadow_ill.reshape(-1)[where]
+    ill |= cache.band(sc, ra, where) | cache.band(sc, rb, where)
+    return int((~ill).sum())
+
+
+def _make_valid(r: Rules) -> Rules:
+    """offset_along = "ray" with the error-bound offset is no rule set: use the 2014 edition's 1e-3."""
+    if not _valid(r) and r.offset == "error-bound":
+        return replace(r, offset=1e-3)
+    return r

@@ -1,0 +1,221 @@
+"""The candidates' renders: ``Variant`` (one rule set's colour and ill-conditioned pixels) and the
+``VariantCache`` that keeps them.
+
+Renders are cached per (scene, size, traced rules) in a ``VariantCache`` that a class run shares
+across students, so each variant is traced once however many images are graded.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from minirt.diagnose.target import LEVEL_TOL
+from minirt.model import bitmap
+from minirt.model.rules import Rules
+from minirt.model.scene import Ball, Scene
+
+# A float32 tracer's ray directions, roots and hit points carry relative errors of order gamma(n) =
+# n·2^-24 for the n ≈ 10-30 chained roundings of a ray's set-up and intersection; 2^6 u = 3.8e-6
+# covers n up to 64. A decision whose relative margin is below it may go either way in such a tracer.
+EPS_REL = 2.0**-24 * 64
+
+
+# Images up to this many pixels render every candidate in full (and keep it for the next image).
+FULL_RENDER_PIXELS = 512 * 512
+
+
+@dataclass
+class Variant:
+    """One candidate's render, on every pixel or on a subset (``idx``, row-major pixel indices)."""
+
+    rules: Rules  # traced rules only (output rules at their defaults)
+    color: np.ndarray  # (H, W, 3) float64, or (N, 3) on a subset
+    shadow_ill: np.ndarray  # (H, W) or (N,) bool: shadow rays within rounding of a ball's silhouette
+    idx: np.ndarray | None = None  # None: every pixel
+    f32_flips: np.ndarray | None = None  # (H, W) bool, on demand (full renders only)
+    f32_stored: np.ndarray | None = None  # (H, W, 3) float32: the same rules traced in float32
+
+    @property
+    def f32_color(self) -> np.ndarray | None:
+        """The float32 render as float64 (exact: every float32 is a float64), so that it is encoded with
+        the same float64 arithmetic as ``color``; kept as float32, half the bytes."""
+        return None if self.f32_stored is None else self.f32_stored.astype(np.float64)
+
+    @property
+    def nbytes(self) -> int:
+        extra = sum(a.nbytes for a in (self.f32_flips, self.f32_stored) if a is not None)
+        return self.color.nbytes + self.shadow_ill.nbytes + extra
+
+
+class VariantCache:
+    """Renders of one or more scenes under many rule sets, shared by every image graded in one process;
+    subset renders are the search's own and not kept. Tracing, not compiling, is what the cache saves:
+    Dr.Jit keeps compiled kernels.
+
+    Full renders (float64 colour, shadow flags, and the float32 twin when asked for: ``Variant.nbytes``
+    counts them all) are kept up to ``max_bytes``, least recently used first out -- except the *pinned*
+    ones: the scene's own rules with at most one rule changed, which every image of the scene asks for.
+    They are few (a scene's rules have ~35 single changes) and never evicted, so a long class run does not
+    trace them again; only the renders of one image's own search path age out.
+
+    ``requested`` collects the candidate renders (rules, precision) asked for since it was last cleared,
+    traced now or taken from the cache: the diagnosis reports that count, which does not depend on what
+    earlier images left in the cache (a class graded by one process or by several writes the same
+    pages)."""
+
+    def __init__(self, max_bytes: int = 2 << 30):
+        self.max_bytes = max_bytes
+        self._items: OrderedDict[tuple, Variant] = OrderedDict()
+        self._bytes = 0  # the kept variants' nbytes summed, kept up to date as they come, grow and go
+        self._pinned: set[tuple] = set()
+        self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self.alternatives: dict[tuple, tuple[list[dict[str, Any]], set]] = {}  # see explain.indistinguishable
+        self.requested: set[tuple] = set()
+        self.renders = 0  # rays traced, in units of whole images
+        self.hits = 0
+
+    @staticmethod
+    def _key(scene: Scene, rules: Rules) -> tuple:
+        return (scene.digest, scene.source, scene.camera.width, scene.camera.height, rules.traced())
+
+    def get(self, scene: Scene, rules: Rules, f32: bool = False, pin: bool = False) -> Variant:
+        """The full render of ``rules`` (with its float32 twin if ``f32``); ``pin`` keeps it for good."""
+        key = self._key(scene, rules)
+        self.requested.add((key, "f64"))
+        if pin:
+            self._pinned.add(key)
+        v = self._items.get(key)
+        if v is None:
+            v = self._trace(scene, rules.traced(), None)
+            self._items[key] = v
+            self._bytes += v.nbytes
+            self._trim()
+        else:
+            self.hits += 1
+            self._items.move_to_end(key)
+        if f32:
+            self.requested.add((key, "f32"))
+            if v.f32_flips is None:
+                before = v.nbytes
+                v.f32_stored, v.f32_flips = self._f32_render(scene, v)
+                if self._items.get(key) is v:  # still kept (not trimmed when it came in)
+                    self._bytes += v.nbytes - before
+                self._trim()
+        return v
+
+    def subset(self, scene: Scene, rules: Rules, idx: np.ndarray, keep: bool = False) -> Variant:
+        """The candidate's colour on the pixels ``idx``: from a full render when one is cached, or when
+        ``keep`` (a candidate other images will ask for too) or the image is small (a render's fixed
+        cost, tracing Dr.Jit's graph in Python, ~20-30 ms, outweighs its rays up to ~512²: render it all
+        and keep it); else only those pixels' rays, not kept."""
+        key = self._key(scene, rules)
+        self.requested.add((key, "f64"))
+        n = scene.camera.width * scene.camera.height
+        if keep:
+            self._pinned.add(key)
+        if key not in self._items and (keep or n <= FULL_RENDER_PIXELS):
+            self.get(scene, rules)
+        v = self._items.get(key)
+        if v is not None:
+            self.hits += 1
+            return Variant(v.rules, v.color.reshape(-1, 3)[idx], v.shadow_ill.reshape(-1)[idx], idx)
+        return self._trace(scene, rules.traced(), idx)
+
+    def band(self, scene: Scene, rules: Rules, idx: np.ndarray) -> np.ndarray:
+        """(N,) bool: primary rays of pixels ``idx`` whose hit/miss, closest-shape or inside/outside
+        decision is within EPS_REL of flipping (minirt.reference.band). Computed once per pixel and camera
+        rules, only for the pixels asked about: the search asks only where two candidates differ."""
+        from minirt.reference import band
+
+        key = (scene.digest, scene.source, scene.camera.width, scene.camera.height, _ray_key(rules))
+        n = scene.camera.width * scene.camera.height
+        known, flag = self._bands.setdefault(key, (np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)))
+        todo = idx[~known[idx]]
+        if todo.size:
+            from minirt.model import camera
+
+            # only these pixels' rays (each the same bits as in the whole image's): the search asks for a
+            # few thousand of an 800² image, and whole images' rays per camera rule set were an eighth of it
+            o, d = camera.primary_rays(scene, rules, todo)
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                m = band.margins(scene, o, d)
+            flag[todo] = m["margin"] < EPS_REL
+            known[todo] = True
+        return flag[idx]
+
+    def _f32_render(self, scene: Scene, v: Variant) -> tuple[np.ndarray | None, np.ndarray]:
+        """The same rules traced in float32, and the pixels where that image differs by more than a level:
+        decisions that rounding flips anywhere in the ray tree (reflections, planes' shadows, self-shadowing
+        offsets). A float32 tracer may draw either image at those pixels."""
+        from minirt.errors import MinirtError
+
+        try:
+            c32 = self._trace(scene, v.rules, None, "f32").color
+        except MinirtError:  # beyond float32's range: no float32 tracer could draw it; nothing to add
+            return None, np.zeros(v.color.shape[:2], dtype=bool)
+        a, b = bitmap.encode(v.color), bitmap.encode(c32)
+        return c32.astype(np.float32), (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
+
+    def subset32(self, scene: Scene, rules: Rules, idx: np.ndarray) -> Variant | None:
+        """The candidate traced in float32 on the pixels ``idx`` (None beyond float32's range)."""
+        from minirt.errors import MinirtError
+
+        self.requested.add((self._key(scene, rules), "f32"))
+        try:
+            return self._trace(scene, rules.traced(), idx, "f32")
+        except MinirtError:
+            return None
+
+    def _trace(self, scene: Scene, rules: Rules, idx: np.ndarray | None, precision: str = "f64") -> Variant:
+        import drjit as dr
+
+        from minirt.reference.tracer import Tracer
+
+        n = scene.camera.width * scene.camera.height
+        self.renders += 1 if idx is None else idx.size / n
+        tr = Tracer(scene, rules, precision=precision, runtime=True)
+        o, d = tr.primary_rays(idx)  # full images and subsets alike: one kernel for both
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            color, levels = tr.trace(o, d, tree=True)
+        m = levels[0].record.get("shadow_margin")
+        # One trace kernel for both; the colour copied out of Dr.Jit's buffer, which then goes back to its
+        # allocation cache for the next variant: a cache of views would hold every buffer, and each
+        # render would write into fresh memory, page-faulting inside its kernels (in a check's process,
+        # 0.25 -> 4.7 ms for the interleave of a 256^2 variant).
+        c = tr._to_numpy3(color, also=() if m is None else (m,)).copy()
+        sill = np.zeros(c.shape[0], dtype=bool) if m is None else np.asarray(m) < EPS_REL * _scale(scene)
+        if idx is None:
+            h, w = scene.camera.height, scene.camera.width
+            return Variant(rules, c.reshape(h, w, 3), sill.reshape(h, w))
+        return Variant(rules, c, sill, idx)
+
+    def _trim(self) -> None:
+        if self._bytes <= self.max_bytes:
+            return
+        for key in [k for k in self._items if k not in self._pinned]:  # oldest first
+            if self._bytes <= self.max_bytes or len(self._items) <= 1:
+                break
+            self._bytes -= self._items.pop(key).nbytes
+
+    @property
+    def nbytes(self) -> int:
+        """The kept renders' bytes: a running sum (summing over the cache at every insertion made a long
+        session's check runs quadratic in its size)."""
+        return self._bytes
+
+
+def _ray_key(rules: Rules) -> tuple:
+    return (rules.ray_origin, rules.pixel_sample, tuple(rules.pixel_shift))
+
+
+def _scale(scene: Scene) -> float:
+    """The scene's working size: where its balls, light and camera are (planes are unbounded)."""
+    s = [1.0, scene.camera.distance, *map(abs, scene.light.position)]
+    for b in scene.shapes:
+        if isinstance(b, Ball):
+            s.append(max(map(abs, b.center)) + b.radius)
+    return max(s)
