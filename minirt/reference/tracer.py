@@ -107,6 +107,7 @@ class Tracer:
         return self.values.intersect(shape, o, d, gate)
 
     def intersect_ball(self, ball: Ball, o, d) -> Any:
+        """t of the ray (o, d) at the ball, inf on a miss (``shapes.ball_t``)."""
         return self.values.intersect(ball, o, d)
 
     def occludes_ball(self, ball: Ball, o, d) -> Any:
