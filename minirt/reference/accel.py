@@ -7,7 +7,7 @@ here in NumPy, traversed in a Dr.Jit loop with a small per-ray stack); planes, b
 one after the other in a loop of their own.
 
 **The same answers as testing every shape.** Every ball a ray reaches is tested with the very function the
-brute-force path uses (the tracer's ``_ball_t``), on the same inputs, so its t carries the same bits; ties
+brute-force path uses (``minirt.reference.shapes.ball_t``), on the same inputs, so its t carries the same bits; ties
 keep the lower shape id whatever the visiting order (``(t < t_best) | (t == t_best & id < id_best)``). The
 tree only decides which balls are *not* tested, and it may skip a ball only if that ball's computed t
 could not have won. That is where care is needed: a box test that is exact about the ball is not enough,
@@ -26,6 +26,10 @@ into the one it enters first and pushes the other with its entry t, and a popped
 beyond the best t found since is dropped without a box test. Measured against testing each node's own box
 when it is popped (and ordering by the sign of the direction): 13-20 % less trace time, 512², 16 to
 100,000 balls, same buffers bit for bit.
+
+The kernel code below takes ``v``, the scene's values as the kernel reads them (minirt.reference.values:
+the ``Tabled`` representation, which calls it): its float types ``v.T`` and the rules the ball and plane
+tests read.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ import numpy as np
 
 from minirt.jit.arrays import aligned
 from minirt.model.scene import Ball, Plane, Scene
+from minirt.reference import shapes
 
 LEAF = 1  # balls per leaf at most. Every loop iteration pays for LEAF masked ball tests, leaf or not: 1 is
 # fastest (measured, 384², 32 to 16,384 balls: leaves of 2 cost 5-25 % more time, of 4 20-45 %)
@@ -142,7 +147,7 @@ def _outward(x: np.ndarray, dtype, down: bool) -> np.ndarray:
 
 
 class ShapeTable:
-    """A scene's shapes as Dr.Jit arrays of the tracer's precision (``T``: minirt.reference.tracer._Types).
+    """A scene's shapes as Dr.Jit arrays of the tracer's precision (``T``: minirt.reference.values.Types).
 
     Per shape id (gathered by the shading code): the four material colours, and for the normal and
     the error bound whether it is a ball, its centre or plane normal, its radius (1 for planes) and the
@@ -314,14 +319,14 @@ def _slab(T: Any, tab: ShapeTable, node: Any, o: Any, inv: Any, pa: Any, ps: Any
     return t_near, t_far
 
 
-def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any, blocks=None) -> tuple[Any, Any]:
+def traverse(v: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any, blocks=None) -> tuple[Any, Any]:
     """Closest hit among the table's balls, merged into (t_best, id_best) by the lower-id tie rule.
 
     With ``blocks`` (a function (center, radius) -> Bool for the shadow ray o, d) the traversal answers
     "does any ball block?" instead, and a ray stops at its first blocker: then the result is
     (blocked, None) and t_best is the distance beyond which boxes are skipped (inf for shadow_range "any").
     """
-    T = tracer.T
+    T = v.T
     U, Int, F = T.UInt, T.Int, T.Float
     n = dr.width(d)
     inv = _inverse(T, d)
@@ -354,7 +359,7 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
             c, r = _ball_at(T, tab, k, on)
             if blocks is None:
                 sid = dr.gather(Int, tab.b_id, k, on)
-                tk = tracer._ball_t(c, r, o, d, gate=True)  # a packet all of whose rays pass the ball skips its roots
+                tk = shapes.ball_t(v, c, r, o, d, gate=True)  # a packet all of whose rays pass the ball skips its roots
                 closer = on & ((tk < t_best) | ((tk == t_best) & (sid < id_best)))
                 t_best = dr.select(closer, tk, t_best)
                 id_best = dr.select(closer, sid, id_best)
@@ -386,9 +391,9 @@ def traverse(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best:
     return t_best, id_best
 
 
-def planes_closest(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any) -> tuple[Any, Any]:
+def planes_closest(v: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any) -> tuple[Any, Any]:
     """Every plane in a loop (planes are unbounded: no tree), merged by the lower-id tie rule."""
-    T = tracer.T
+    T = v.T
     n = dr.width(d)
     k = dr.zeros(T.UInt, n)
     count = tab.count("planes")
@@ -400,7 +405,7 @@ def planes_closest(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id
         nrm = dr.gather(T.Array3, tab.p_normal, k)
         q = dr.gather(T.Array3, tab.p_point, k)
         sid = dr.gather(T.Int, tab.p_id, k)
-        tk = tracer._plane_t(nrm, q, o, d)
+        tk = shapes.plane_t(v, nrm, q, o, d)
         closer = (tk < t_best) | ((tk == t_best) & (sid < id_best))
         return k + 1, dr.select(closer, tk, t_best), dr.select(closer, sid, id_best)
 
@@ -408,9 +413,9 @@ def planes_closest(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id
     return t_best, id_best
 
 
-def planes_block(tracer: Any, tab: ShapeTable, o: Any, s: Any, light_dist: Any, to_light: bool) -> Any:
+def planes_block(v: Any, tab: ShapeTable, o: Any, s: Any, light_dist: Any, to_light: bool) -> Any:
     """Does any plane block the shadow ray (within light_dist under shadow_range "to-light")?"""
-    T = tracer.T
+    T = v.T
     n = dr.width(s)
     k = dr.zeros(T.UInt, n)
     count = tab.count("planes")
@@ -420,18 +425,18 @@ def planes_block(tracer: Any, tab: ShapeTable, o: Any, s: Any, light_dist: Any, 
         return (k < count) & ~blocked
 
     def body(k, blocked):
-        tk = tracer._plane_t(dr.gather(T.Array3, tab.p_normal, k), dr.gather(T.Array3, tab.p_point, k), o, s)
+        tk = shapes.plane_t(v, dr.gather(T.Array3, tab.p_normal, k), dr.gather(T.Array3, tab.p_point, k), o, s)
         return k + 1, blocked | ((tk < light_dist) if to_light else (tk < math.inf))
 
     _, blocked = dr.while_loop((k, blocked), cond, body, label="plane shadows")
     return blocked
 
 
-def balls_each(tracer: Any, tab: ShapeTable, o: Any, fn, acc: Any, stop=None) -> Any:
+def balls_each(v: Any, tab: ShapeTable, o: Any, fn, acc: Any, stop=None) -> Any:
     """acc = fn(acc, center, radius, id) over every ball in a loop (for per-ray quantities no tree can
     prune, such as the distance from the nearest silhouette, and for the brute-force "loop" path).
     ``stop(acc)``: lanes where it holds leave the loop early."""
-    T = tracer.T
+    T = v.T
     n = dr.width(o)
     k = dr.zeros(T.UInt, n)
     count = tab.count("balls")
@@ -448,13 +453,13 @@ def balls_each(tracer: Any, tab: ShapeTable, o: Any, fn, acc: Any, stop=None) ->
     return acc
 
 
-def balls_closest_loop(tracer: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any) -> tuple[Any, Any]:
+def balls_closest_loop(v: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best: Any) -> tuple[Any, Any]:
     """Every ball in a loop, merged by the lower-id tie rule: the brute force the tree must equal."""
 
     def merge(acc, c, r, sid):
         t_best, id_best = acc
-        tk = tracer._ball_t(c, r, o, d)
+        tk = shapes.ball_t(v, c, r, o, d)
         closer = (tk < t_best) | ((tk == t_best) & (sid < id_best))
         return dr.select(closer, tk, t_best), dr.select(closer, sid, id_best)
 
-    return balls_each(tracer, tab, o, merge, (t_best, id_best))
+    return balls_each(v, tab, o, merge, (t_best, id_best))

@@ -37,7 +37,8 @@ from minirt.model.rules import (
     values,
 )
 from minirt.model.scene import load_scene, parse_scene
-from minirt.reference.tracer import Tracer, _power
+from minirt.reference.shading import _power
+from minirt.reference.tracer import Tracer
 
 NEW_TRACE_RULES = ("background", "clamp", "offset", "offset_along", "specular_exponent", "pixel_shift")
 

@@ -202,7 +202,7 @@ def test_kernels_do_not_depend_on_the_layout():
         second = _kernel_code(parse_scene(balls_scene(2000, seed=2, width=32, height=32)))
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
-    assert len(first) >= 1  # a render is one kernel (Tracer._trace_fused): what matters is that it is captured
+    assert len(first) >= 1  # a render is one kernel (integrator.trace_fused): what matters is that it is captured
     assert second == first
 
 

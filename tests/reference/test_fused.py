@@ -1,4 +1,4 @@
-"""The one-kernel trace (``Tracer._trace_fused``: every reflection level in a Dr.Jit loop) against the
+"""The one-kernel trace (``integrator.trace_fused``: every reflection level in a Dr.Jit loop) against the
 wavefront (one kernel per level, rays compacted between them): the same buffers, bit for bit, wherever the
 two can differ -- every rule profile, both precisions, runtime rules, the shape table and its BVH, the
 diagnostics (ray-tree hashes, shadow margins), the supersampled path, and a first level read lazily after
@@ -16,7 +16,7 @@ import pytest
 from minirt.campaign.generate import balls_scene
 from minirt.model.rules import PROFILES, resolve
 from minirt.model.scene import load_scene, parse_scene
-from minirt.reference import tracer
+from minirt.reference import integrator, sampling
 from minirt.reference.tracer import Tracer
 
 THREE_BALLS = Path(__file__).resolve().parents[2] / "scenes" / "three_balls.toml"
@@ -44,7 +44,7 @@ def _differs(tr: Tracer) -> list[str]:
         wave = _buffers(tr, "wavefront", tree)
         for form, below in (("looped", 1 << 62), ("straight", 0)):
             with pytest.MonkeyPatch.context() as mp:
-                mp.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
+                mp.setattr(integrator, "LOOP_FIRST_LEVEL_BELOW", below)
                 fused = _buffers(tr, "fused", tree)
             assert set(fused) == set(wave)
             assert len(fused["color"]) == 4 * 8 * tr.scene.camera.width * tr.scene.camera.height
@@ -81,12 +81,12 @@ FORMS = pytest.mark.parametrize("below", [1 << 62, 0], ids=["looped", "straight"
 
 @FORMS
 def test_supersampled_same_bits(monkeypatch, below):
-    monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
+    monkeypatch.setattr(integrator, "LOOP_FIRST_LEVEL_BELOW", below)
     scene = load_scene(THREE_BALLS).with_overrides(width=24, height=24, samples=4)
     rules = resolve(scene)
     fused = Tracer(scene, rules).render(diagnostics=False)
     monkeypatch.setattr(Tracer, "trace", partialmethod(Tracer.trace, path="wavefront"))
-    monkeypatch.setattr(tracer, "SAMPLE_BATCH_BYTES", 0)  # a kernel per sample: the wavefront's levels are kernels
+    monkeypatch.setattr(sampling, "SAMPLE_BATCH_BYTES", 0)  # a kernel per sample: the wavefront's levels are kernels
     wave = Tracer(scene, rules).render(diagnostics=False)
     assert fused.color.tobytes() == wave.color.tobytes()
     assert {k: v.tobytes() for k, v in fused.terms.items()} == {k: v.tobytes() for k, v in wave.terms.items()}
@@ -97,7 +97,7 @@ def test_supersampled_same_bits(monkeypatch, below):
 def test_first_level_read_after_the_colour(monkeypatch, below):
     """Without ``out`` the fused trace is lazy: the first level's arrays evaluated later (a kernel of
     their own) carry the wavefront's bits."""
-    monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
+    monkeypatch.setattr(integrator, "LOOP_FIRST_LEVEL_BELOW", below)
     scene = load_scene(THREE_BALLS).with_overrides(width=32, height=32)
     tr = Tracer(scene, resolve(scene))
     o, d = tr.primary_rays()
@@ -115,7 +115,7 @@ def test_first_level_read_after_the_colour(monkeypatch, below):
 def test_auto_picks_the_wavefront_for_many_balls():
     """From WAVEFRONT_MIN_BALLS balls a trace is a wavefront (a level per kernel: its levels are returned),
     below it one kernel (the first level only); record always needs the wavefront."""
-    from minirt.reference.tracer import WAVEFRONT_MIN_BALLS
+    from minirt.reference.integrator import WAVEFRONT_MIN_BALLS
 
     levels = {}
     for n in (WAVEFRONT_MIN_BALLS - 1, WAVEFRONT_MIN_BALLS):
@@ -131,11 +131,11 @@ def test_the_looped_form_holds_the_shading_once(monkeypatch):
     """Below LOOP_FIRST_LEVEL_BELOW rays the first level is the loop's first iteration, so the kernel holds
     the intersection and shading code once, not twice: measured in Dr.Jit operations (what LLVM compiles),
     a render's kernel has well under the straight-line form's (three_balls: ~910 against ~1,380)."""
-    assert 256 < tracer.LOOP_FIRST_LEVEL_BELOW <= 1024 * 1024  # tests' images loop; 1024^2 runs straight
+    assert 256 < integrator.LOOP_FIRST_LEVEL_BELOW <= 1024 * 1024  # tests' images loop; 1024^2 runs straight
     scene = load_scene(THREE_BALLS).with_overrides(width=16, height=16)
     ops = {}
     for form, below in (("looped", 1 << 62), ("straight", 0)):
-        monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
+        monkeypatch.setattr(integrator, "LOOP_FIRST_LEVEL_BELOW", below)
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
             dr.kernel_history()
             Tracer(scene, resolve(scene), runtime=False).render()  # the rules compiled in both times:

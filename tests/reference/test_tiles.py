@@ -145,16 +145,16 @@ def test_render_to_files_streams_a_large_image(tmp_path, monkeypatch):
 @pytest.mark.parametrize("precision", ["f64", "f32"])
 @pytest.mark.parametrize("tile", [None, 31 * 5])
 def test_samples_batched_in_one_kernel_same_bits(monkeypatch, precision, tile):
-    """Supersampling sums a batch of samples in one kernel (tracer.SAMPLE_BATCH_BYTES); the same bits as a
+    """Supersampling sums a batch of samples in one kernel (sampling.SAMPLE_BATCH_BYTES); the same bits as a
     kernel per sample: 7 samples as batches of 3 (the last one 1), with the diagnostics' falloff sums,
     whole and in tiles, and the first sample's offsets where a tile starts (camera.sample_offsets_into)."""
-    from minirt.reference import tracer
+    from minirt.reference import sampling
 
     scene = load_scene("scenes/soft.toml").with_overrides(width=31, height=17, samples=7)
     rules = resolve(scene)
-    monkeypatch.setattr(tracer, "SAMPLE_BATCH_BYTES", 0)  # a kernel per sample
+    monkeypatch.setattr(sampling, "SAMPLE_BATCH_BYTES", 0)  # a kernel per sample
     one = Tracer(scene, rules, precision).render(diagnostics=True, tile_pixels=tile)
-    monkeypatch.setattr(tracer, "SAMPLE_BATCH_BYTES", 16 * 31 * 17 * 3)  # 3 samples a kernel
+    monkeypatch.setattr(sampling, "SAMPLE_BATCH_BYTES", 16 * 31 * 17 * 3)  # 3 samples a kernel
     batched = Tracer(scene, rules, precision).render(diagnostics=True, tile_pixels=tile)
     assert {"variance", "variance_diffuse", "diffuse_r2"} <= set(batched.aux)
     assert _same(one, batched) == []
@@ -179,9 +179,9 @@ def test_row_and_column_of_any_pixel(monkeypatch, width, below):
     (the width a run-time value: one kernel for every image size), from there by the compiled width:
     either way the NumPy camera's integer divmod, bit for bit, at both ends of every row up to the largest
     image (16384^2 = 2^28 pixels) and at random pixels."""
-    from minirt.reference import tracer
+    from minirt.reference import integrator
 
-    monkeypatch.setattr(tracer, "LOOP_FIRST_LEVEL_BELOW", below)
+    monkeypatch.setattr(integrator, "LOOP_FIRST_LEVEL_BELOW", below)
     height = 16384
     scene = load_scene("scenes/exercise.toml").with_overrides(width=width, height=height)
     n = width * height
@@ -255,7 +255,7 @@ def test_small_images_read_their_rules_at_run_time():
 
 
 def test_small_images_read_their_scene_values_at_run_time():
-    """Below LOOP_FIRST_LEVEL_BELOW pixels the scene's values are read at run time too (``Tracer._k``): a
+    """Below LOOP_FIRST_LEVEL_BELOW pixels the scene's values are read at run time too (``values.Values.k``): a
     scene that differs only in its values -- a ball moved and grown, a colour, the light, the camera's
     distance -- runs the very kernels of the first, and renders as a Tracer with the values compiled in
     does, bit for bit."""

@@ -1,4 +1,5 @@
-"""Intersections: the problem set's own test (b), misses, rays from inside, planes from both sides."""
+"""Intersections (minirt.reference.shapes, through the tracer): the problem set's own test (b), misses, rays
+from inside, planes from both sides."""
 
 from __future__ import annotations
 

@@ -1,0 +1,392 @@
+"""The scene as the kernels read it: two representations behind one protocol (``Values``).
+
+A kernel reads the scene -- the shapes' centres, radii, normals and materials, the light, the
+background, the camera's distance -- and finds the shapes a ray meets in one of two ways, chosen per
+Tracer (its ``accel``):
+
+- ``Unrolled``: every shape in code generated for this scene. A shape's value is a Python constant
+  compiled into the kernel as a literal, or under ``runtime`` an opaque value the kernel reads
+  (``Values.k``); a value of the hit shape is a select chain over the shapes; the closest hit tests
+  every shape in turn. Fastest for a few shapes; one kernel per layout.
+- ``Tabled``: the values gathered from the arrays of a ``ShapeTable``, the balls found through its BVH
+  ("bvh") or a loop over them ("loop"), planes in a loop (minirt.reference.accel): kernels independent of
+  the layout, time ~log N.
+
+Both have the same methods, and each method does the same operations on the same values either way, so
+the same bits (tested: tests/reference/test_accel.py and test_values.py). The tracer's code calls these
+methods and never asks which representation it has. A representation also says how the kernel sees the
+rules' yes/no switches (``rule``): compiled in, or under ``runtime`` read at run time like the values.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+from minirt.model.rules import Rules
+from minirt.model.scene import Ball, Plane, Scene
+from minirt.reference import accel, shapes
+from minirt.reference.accel import ShapeTable, gamma
+
+
+@dataclass
+class Types:
+    """The kernels' Dr.Jit types for one precision, and its unit round-off."""
+
+    Float: Any
+    UInt: Any
+    Int: Any
+    Bool: Any
+    Array3: Any
+    Bits: Any
+    np_dtype: Any
+    u: float  # unit round-off
+
+    @classmethod
+    def of(cls, precision: str) -> Types:
+        from drjit import llvm
+
+        if precision == "f64":
+            return cls(
+                llvm.Float64,
+                llvm.UInt32,
+                llvm.Int32,
+                llvm.Bool,
+                llvm.Array3f64,
+                llvm.UInt64,
+                np.float64,
+                2.0**-53,
+            )
+        if precision == "f32":
+            return cls(
+                llvm.Float,
+                llvm.UInt32,
+                llvm.Int32,
+                llvm.Bool,
+                llvm.Array3f,
+                llvm.UInt32,
+                np.float32,
+                2.0**-24,
+            )
+        raise ValueError(f"unknown precision {precision!r} (f64 or f32)")
+
+    def zero3(self) -> Any:
+        """(0, 0, 0) as a 3-vector of literals."""
+        return self.Array3(0.0, 0.0, 0.0)
+
+    def reciprocal(self, x: float) -> float:
+        """1 / x rounded as the kernel's 1.0 / x in this precision (one IEEE division, correctly rounded
+        either side): a per-shape constant the kernel selects instead of dividing per ray."""
+        dt = self.np_dtype
+        return float(dt(1.0) / dt(x))
+
+
+class Values(ABC):
+    """The protocol both representations follow, and what they share.
+
+    Shared: a rule's switch (``rule``) and a scene value (``k``) as the kernel sees them, the closest hit
+    (``closest``, around each representation's search), a shape's own values (``ball``, ``plane``) and the
+    tests of one shape (``intersect``, ``occludes``, ``blocked_each``) -- which the per-shape reports (the
+    probe, a recorded shadow ray) read whatever the representation. Each representation's own: the
+    abstract methods below, and ``tabled_balls``."""
+
+    tabled_balls = 0  # the balls rays find through a shape table (0: none); the integrator's choice of path
+
+    def __init__(self, scene: Scene, rules: Rules, T: Types, runtime: bool):
+        self.scene, self.rules, self.T, self.runtime = scene, rules, T, runtime
+        self._consts: dict[Any, Any] = {}  # ``k``'s opaque values
+        self._index = {id(s): k for k, s in enumerate(scene.shapes)}
+
+    @abstractmethod
+    def vec(self, name: str) -> Any:
+        """A scene 3-vector: "light", "light_color" or "background"."""
+
+    @abstractmethod
+    def camera_z(self, F) -> Any:
+        """-distance, the camera's z, in float type F (rounded from float64 as a literal would be)."""
+
+    @abstractmethod
+    def material(self, shape_id, name: str) -> Any:
+        """The hit shape's material colour ``name`` (ambient, diffuse, specular, reflection); 0 on a miss."""
+
+    @abstractmethod
+    def _closest(self, o, d, t_best, id_best) -> tuple[Any, Any]:
+        """``closest``'s search: (id, t) of the closest hit, merged into (t_best, id_best)."""
+
+    @abstractmethod
+    def blocked(self, o, s, light_dist, record: bool) -> tuple[Any, list[Any]]:
+        """Is the shadow ray (o, s) blocked (``shading.shadow_blocked``), and with ``record`` each shape's t
+        along it in id order (else an empty list)."""
+
+    @abstractmethod
+    def each_ball(self, o, fn, acc) -> Any:
+        """acc = fn(acc, center, radius) over every ball (per-ray quantities no tree can prune, such as the
+        distance from the nearest silhouette)."""
+
+    @abstractmethod
+    def frame(self, shape_id) -> tuple[Any, Any]:
+        """(n, ball) of the hit shape: the hit plane's normal (0 elsewhere), and (C, r, 1 / r, is_ball) of the
+        hit ball (C 0 and r 1 elsewhere; None in a scene without balls) -- what
+        ``interaction.hit_point_and_normal`` applies its formula to, once."""
+
+    @abstractmethod
+    def error_bound(self, shape_id, lp, lo) -> Any:
+        """``interaction.error_bound`` (its derivation is there) of the hit shape's point p of the ray from
+        o, lp = |p| and lo = |o|: gamma(6) (r + |p|) for a ball, gamma(4) (|a| + |p| + |o|) for a plane."""
+
+    @abstractmethod
+    def is_ball(self, shape_id) -> Any:
+        """Whether the hit shape is a ball (false on a miss)."""
+
+    def closest(self, o, d) -> tuple[Any, Any]:
+        """Appendix 1 (``Scene.Intersect``): (id, t) of the closest hit over all shapes, -1 and inf on a miss;
+        ties keep the lower shape id."""
+        # Full width from the start: with no shapes at all these are the results, one per ray.
+        t_best = dr.full(self.T.Float, math.inf, dr.width(d))
+        id_best = dr.full(self.T.Int, -1, dr.width(d))
+        return self._closest(o, d, t_best, id_best)
+
+    def rule(self, cond: bool) -> Any:
+        """A rule's yes/no as the kernel sees it: under ``runtime`` an opaque Dr.Jit Bool (read at run
+        time, one kernel for both answers), else the Python bool itself (compiled in)."""
+        return dr.opaque(self.T.Bool, bool(cond)) if self.runtime else bool(cond)
+
+    def k(self, key, value, F=None) -> Any:
+        """A value of the scene (a shape's, a material's, the light's, the camera's) as the unrolled path's
+        kernels see it, in float type F (default the precision's; a sequence: a 3-vector). Compiled in as
+        a literal -- or under ``runtime`` an opaque value the kernel reads, made once per Tracer under
+        ``key``: a scene that differs only in its values (a ball moved, a colour changed, a campaign's
+        defect) then reuses the compiled kernels, at the cost of the literals' folding (three_balls
+        1024^2: 8.5 -> 9.7 ms a trace), which is why large images compile them in. The same value in the
+        same operations either way, so the same bits (tested, as the table path, whose values are
+        gathered, is). A literal is never cached: one made inside a symbolic conditional may not be used
+        outside it."""
+        F = F or self.T.Float
+        if isinstance(value, int | float):
+            kind, value = F, float(value)
+        else:
+            kind, value = (self.T.Array3 if F is self.T.Float else dr.llvm.Array3f64), [float(c) for c in value]
+        if not self.runtime:
+            return kind(*value) if isinstance(value, list) else kind(value)
+        v = self._consts.get(key)
+        if v is None:
+            v = self._consts[key] = dr.opaque(kind, value)
+        return v
+
+    def ball(self, ball: Ball) -> tuple[Any, Any]:
+        """A ball's centre and radius (``k``)."""
+        k = self._index[id(ball)]
+        return self.k(("center", k), ball.center), self.k(("radius", k), ball.radius)
+
+    def plane(self, plane: Plane) -> tuple[Any, Any]:
+        """A plane's normal and point (``k``)."""
+        k = self._index[id(plane)]
+        return self.k(("normal", k), plane.normal), self.k(("point", k), plane.point)
+
+    def intersect(self, shape, o, d, gate: bool = False) -> Any:
+        """t of the ray (o, d) at the shape, inf on a miss; ``gate``: see ``shapes.ball_t``, ``shapes.plane_t``."""
+        if isinstance(shape, Ball):
+            return shapes.ball_t(self, *self.ball(shape), o, d, gate)
+        return shapes.plane_t(self, *self.plane(shape), o, d, gate)
+
+    def occludes(self, ball: Ball, o, d) -> Any:
+        """Does the ray (o, d) meet the ball at some t > 0 (``shapes.ball_occludes``, without the square root)?"""
+        k = self._index[id(ball)]
+        lo, hi = shapes.sqrt_bounds(ball.radius, self.T.np_dtype)
+        return shapes.ball_occludes(
+            self, *self.ball(ball), o, d, (self.k(("sqrt_lo", k), lo), self.k(("sqrt_hi", k), hi))
+        )
+
+    def blocked_each(self, o, s, light_dist, record: bool) -> tuple[Any, list[Any]]:
+        """``blocked`` shape by shape, and with ``record`` each shape's t along the shadow ray."""
+        blocked = self.T.Bool(False)
+        ts = []
+        for shape in self.scene.shapes:
+            need_t = record or self.rules.shadow_range != "any" or not isinstance(shape, Ball)
+            tk = self.intersect(shape, o, s, gate=True) if need_t else None
+            if record:
+                ts.append(tk)
+            if self.rules.shadow_range != "any":
+                blocked |= tk < light_dist
+            elif isinstance(shape, Ball):
+                blocked |= self.occludes(shape, o, s)
+            else:
+                # Planes keep t: a near-parallel ray's quotient can overflow to inf (a miss), which
+                # signs alone would not see; a division is cheap beside a ball's square roots.
+                blocked |= tk < math.inf
+        return blocked, ts
+
+
+class Unrolled(Values):
+    """Every shape in the kernel's code: constants (``k``), select chains, a test per shape."""
+
+    def vec(self, name: str) -> Any:
+        sc = self.scene
+        return self.k(
+            name, {"light": sc.light.position, "light_color": sc.light.color, "background": sc.background}[name]
+        )
+
+    def camera_z(self, F) -> Any:
+        return self.k(("camera_z", F), -self.scene.camera.distance, F)
+
+    def _by_id(self, shape_id, values: list, zero) -> Any:
+        """Per-lane lookup of a per-shape constant: a select chain (shapes are few)."""
+        out = zero
+        for k, v in enumerate(values):
+            out = dr.select(shape_id == k, v, out)
+        return out
+
+    def material(self, shape_id, name: str) -> Any:
+        vals = [self.k((name, k), getattr(s.material, name)) for k, s in enumerate(self.scene.shapes)]
+        return self._by_id(shape_id, vals, self.T.zero3())
+
+    def _closest(self, o, d, t_best, id_best) -> tuple[Any, Any]:
+        """Every shape tested in id order (so a tie keeps the lower id)."""
+        for k, s in enumerate(self.scene.shapes):
+            tk = self.intersect(s, o, d, gate=True)
+            closer = tk < t_best
+            t_best = dr.select(closer, tk, t_best)
+            id_best = dr.select(closer, k, id_best)
+        return id_best, t_best
+
+    def blocked(self, o, s, light_dist, record: bool) -> tuple[Any, list[Any]]:
+        return self.blocked_each(o, s, light_dist, record)
+
+    def each_ball(self, o, fn, acc) -> Any:
+        """In id order."""
+        for ball in self.scene.shapes:
+            if isinstance(ball, Ball):
+                acc = fn(acc, *self.ball(ball))
+        return acc
+
+    def frame(self, shape_id) -> tuple[Any, Any]:
+        """Each selected by shape id."""
+        T = self.T
+        zero = T.zero3()
+        balls = [(k, s) for k, s in enumerate(self.scene.shapes) if isinstance(s, Ball)]
+        planes = [(k, s) for k, s in enumerate(self.scene.shapes) if isinstance(s, Plane)]
+        n = zero
+        for k, s in planes:
+            n = dr.select(shape_id == k, self.k(("normal", k), s.normal), n)
+        if not balls:
+            return n, None
+        is_ball = T.Bool(False)
+        c, r, inv_r = zero, T.Float(1.0), T.Float(1.0)
+        for k, s in balls:
+            on = shape_id == k
+            is_ball |= on
+            ck, rk = self.ball(s)
+            c = dr.select(on, ck, c)
+            r = dr.select(on, rk, r)
+            inv_r = dr.select(on, self.k(("inv_radius", k), T.reciprocal(s.radius)), inv_r)
+        return n, (c, r, inv_r, is_ball)
+
+    def error_bound(self, shape_id, lp, lo) -> Any:
+        """Per shape, then selected."""
+        u = self.T.u
+        vals = []
+        for k, s in enumerate(self.scene.shapes):
+            if isinstance(s, Ball):  # + 0.0: the table path's sum, same bits
+                vals.append(gamma(6, u) * ((self.k(("radius", k), s.radius) + lp) + 0.0))
+            else:
+                vals.append(gamma(4, u) * ((self.k(("abs_distance", k), abs(s.distance)) + lp) + lo))
+        return self._by_id(shape_id, vals, self.T.Float(0))
+
+    def is_ball(self, shape_id) -> Any:
+        is_ball = self.T.Bool(False)
+        for k, s in enumerate(self.scene.shapes):
+            if isinstance(s, Ball):
+                is_ball |= shape_id == k
+        return is_ball
+
+
+class Tabled(Values):
+    """The scene's values gathered from a ``ShapeTable``; the balls found through its BVH when it has one,
+    else in a loop (the brute force the tree is tested against); planes in a loop."""
+
+    def __init__(self, scene: Scene, rules: Rules, T: Types, runtime: bool, table: ShapeTable):
+        super().__init__(scene, rules, T, runtime)
+        self.table = table
+        self.tabled_balls = table.n_balls
+
+    def vec(self, name: str) -> Any:
+        return self.table.vec(name)
+
+    def camera_z(self, F) -> Any:
+        return self.table.camera_z(F)
+
+    def material(self, shape_id, name: str) -> Any:
+        return dr.gather(self.T.Array3, self.table.material[name], self.T.UInt(shape_id), shape_id >= 0)
+
+    def _closest(self, o, d, t_best, id_best) -> tuple[Any, Any]:
+        """Planes in a loop, then the balls, merged by the lower-id tie rule."""
+        tab = self.table
+        if tab.n_planes:
+            t_best, id_best = accel.planes_closest(self, tab, o, d, t_best, id_best)
+        if tab.n_balls and tab.tree is not None:
+            t_best, id_best = accel.traverse(self, tab, o, d, t_best, id_best)
+        elif tab.n_balls:
+            t_best, id_best = accel.balls_closest_loop(self, tab, o, d, t_best, id_best)
+        return id_best, t_best
+
+    def blocked(self, o, s, light_dist, record: bool) -> tuple[Any, list[Any]]:
+        """Planes in a loop, balls through the BVH (a ray stops at its first blocker): the same decisions
+        per shape, so the same answer. With ``record`` shape by shape (``blocked_each``): a record holds
+        each shape's t, which a ray that stops early never computes."""
+        if record:
+            return self.blocked_each(o, s, light_dist, record)
+        T, tab, to_light = self.T, self.table, self.rules.shadow_range != "any"
+        blocked = dr.full(T.Bool, False, dr.width(s))
+        if tab.n_planes:
+            blocked = accel.planes_block(self, tab, o, s, light_dist, to_light)
+        if tab.n_balls:
+            if to_light:
+                blocks = lambda c, r: shapes.ball_t(self, c, r, o, s) < light_dist  # noqa: E731
+                bound = light_dist
+            else:
+                blocks = lambda c, r: shapes.ball_occludes(self, c, r, o, s)  # noqa: E731
+                bound = dr.full(T.Float, math.inf, dr.width(s))
+            if tab.tree is not None:
+                by_balls, _ = accel.traverse(self, tab, o, s, bound, None, blocks=blocks)
+            else:
+                by_balls = accel.balls_each(
+                    self, tab, o, lambda acc, c, r, _: acc | blocks(c, r), dr.full(T.Bool, False, dr.width(s)),
+                    stop=lambda acc: acc,
+                )  # fmt: skip
+            blocked = blocked | by_balls
+        return blocked, []
+
+    def each_ball(self, o, fn, acc) -> Any:
+        """In a loop, in the table's ball order."""
+        if self.table.n_balls:
+            acc = accel.balls_each(self, self.table, o, lambda acc, c, r, _id: fn(acc, c, r), acc)
+        return acc
+
+    def frame(self, shape_id) -> tuple[Any, Any]:
+        """Gathered: the same values as ``Unrolled.frame`` selects, so the same bits."""
+        T, tab = self.T, self.table
+        hit = shape_id >= 0
+        k = T.UInt(shape_id)
+        is_ball = dr.gather(T.Bool, tab.is_ball, k, hit)
+        n = dr.gather(T.Array3, tab.plane_normal, k, hit & ~is_ball)
+        c = dr.gather(T.Array3, tab.center, k, is_ball)
+        r = dr.select(is_ball, dr.gather(T.Float, tab.radius, k, is_ball), T.Float(1.0))
+        inv_r = dr.select(is_ball, dr.gather(T.Float, tab.inv_radius, k, is_ball), T.Float(1.0))
+        return n, (c, r, inv_r, is_ball)
+
+    def error_bound(self, shape_id, lp, lo) -> Any:
+        """The factor and the length gathered from the table (``ShapeTable.err_factor``, ``err_length``)."""
+        T, tab = self.T, self.table
+        k, hit = T.UInt(shape_id), shape_id >= 0
+        factor = dr.gather(T.Float, tab.err_factor, k, hit)
+        is_ball = dr.gather(T.Bool, tab.is_ball, k, hit)
+        extra = dr.select(is_ball, T.Float(0.0), lo)
+        return factor * ((dr.gather(T.Float, tab.err_length, k, hit) + lp) + extra)
+
+    def is_ball(self, shape_id) -> Any:
+        return dr.gather(self.T.Bool, self.table.is_ball, self.T.UInt(shape_id), shape_id >= 0)
