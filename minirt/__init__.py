@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from minirt.errors import MinirtError, SceneError
     from minirt.grading.grade import Grade
-    from minirt.harness.compare import CheckResult
+    from minirt.harness.results import CheckResult
     from minirt.model.result import RenderResult
     from minirt.model.rules import Rules
     from minirt.model.scene import Scene
@@ -44,7 +44,7 @@ __all__ = [
 
 # The types named in __all__, imported when first asked for (PEP 562).
 _LAZY = {
-    "CheckResult": "minirt.harness.compare",
+    "CheckResult": "minirt.harness.results",
     "Grade": "minirt.grading.grade",
     "MinirtError": "minirt.errors",
     "RenderResult": "minirt.model.result",
@@ -159,7 +159,7 @@ def check(
     """
     from minirt.errors import MinirtError
     from minirt.harness import backends as backends_mod
-    from minirt.harness import compare as harness
+    from minirt.harness import run as harness
     from minirt.jobs import batch as jobs
     from minirt.model.bundled import BUNDLED, find_scene
     from minirt.model.scene import load_scene as _load_file

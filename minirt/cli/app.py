@@ -671,7 +671,7 @@ def run_checks(
 ):
     """Shared by `check` and `report`: render and compare, with a progress bar on a terminal."""
     from minirt.harness import backends
-    from minirt.harness import compare as harness
+    from minirt.harness import run as harness
 
     workers = _pool(workers, scheduler, default=1)
 
@@ -707,7 +707,7 @@ def run_checks(
 def _check_warnings(result, backend: str, size: str | None) -> None:
     """The hazard warnings of every checked scene, on its reference render (rules of the scene)."""
     from minirt.harness import backends
-    from minirt.harness import compare as harness
+    from minirt.harness import run as harness
 
     names = backends.parse_backends(backend)
     for sc in result.scenes:
@@ -786,7 +786,7 @@ def check(
     if json_out:
         _emit_json(json_out, result.as_dict())
     if junit:
-        from minirt.harness.compare import junit_xml
+        from minirt.harness.junit import junit_xml
 
         with atomic_path(junit) as tmp:
             tmp.write_text(junit_xml(result))
