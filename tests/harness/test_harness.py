@@ -7,10 +7,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from support.synthetic import SIZE, candidate, reference
 
 from minirt.harness.geometry import check_geometry, preflight
 from minirt.harness.shading import check_shading
 from minirt.reference.tracer import Tracer
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return reference()
 
 
 def verdicts(scene, rules, ref, cand):
@@ -21,13 +27,13 @@ def verdicts(scene, rules, ref, cand):
     return {"preflight": pre, "geometry": geom, "shading": check_shading(scene, ref, cand, geom)}
 
 
-def test_identical_passes(setup, candidate):
+def test_identical_passes(setup):
     scene, rules, ref = setup
     v = verdicts(scene, rules, ref, candidate(ref))
     assert {k: c.verdict for k, c in v.items()} == {"preflight": "pass", "geometry": "pass", "shading": "pass"}
 
 
-def test_differences_inside_the_band_pass(setup, candidate):
+def test_differences_inside_the_band_pass(setup):
     scene, rules, ref = setup
     cand = candidate(ref, band_eps=2e-2)
     geom = check_geometry(scene, rules, ref, cand)
@@ -48,20 +54,16 @@ def _all_buffers(r, f):
     return r
 
 
-def _off_band(r, channel: int) -> tuple[int, int, int]:
-    """A hit pixel off the band: row height // 2 is the floor's horizon, in the band, where NaN is not judged."""
-    return (r.height // 2 + 6, r.width // 2, channel)
-
-
 DEFECTS = {
     "one-pixel shift": (lambda r, s: _all_buffers(r, lambda a: np.roll(a, 1, axis=1)), "geometry"),
     "horizontal mirror": (lambda r, s: _all_buffers(r, lambda a: a[:, ::-1].copy()), "geometry"),
     "flipped normals": (lambda r, s: setattr(r, "normal", -r.normal) or r, "geometry"),
     "wrong shape id": (lambda r, s: setattr(r, "shape_id", np.where(r.shape_id == 0, 1, r.shape_id)) or r, "geometry"),
-    "NaN pixel": (lambda r, s: r.color.__setitem__(_off_band(r, 0), np.nan) or r, "geometry"),
-    "NaN position": (lambda r, s: r.position.__setitem__(_off_band(r, 1), np.nan) or r, "geometry"),
+    # (NaN at a hit off the band: row SIZE // 2 is the floor's horizon, in the band, where NaN is not judged)
+    "NaN pixel": (lambda r, s: r.color.__setitem__((SIZE // 2 + 6, SIZE // 2, 0), np.nan) or r, "geometry"),
+    "NaN position": (lambda r, s: r.position.__setitem__((SIZE // 2 + 6, SIZE // 2, 1), np.nan) or r, "geometry"),
     "wrong image size": (
-        lambda r, s: (_all_buffers(r, lambda a: a[:-1]) and setattr(r, "height", r.height - 1)) or r,
+        lambda r, s: (_all_buffers(r, lambda a: a[:-1]) and setattr(r, "height", SIZE - 1)) or r,
         "preflight",
     ),
     "+5% on one shape": (
@@ -72,7 +74,7 @@ DEFECTS = {
 
 
 @pytest.mark.parametrize("defect", list(DEFECTS))
-def test_defect_is_caught(setup, candidate, defect):
+def test_defect_is_caught(setup, defect):
     scene, rules, ref = setup
     inject, where = DEFECTS[defect]
     cand = inject(candidate(ref), scene)
@@ -82,7 +84,7 @@ def test_defect_is_caught(setup, candidate, defect):
     assert v[where].reason
 
 
-def test_missing_shadow_is_caught(setup, candidate):
+def test_missing_shadow_is_caught(setup):
     scene, rules, ref = setup
     tr = Tracer(scene, rules)
     tr.effects = replace(tr.effects, shadows=False)  # a tracer that forgets shadow rays

@@ -1,4 +1,4 @@
-"""A check's results (minirt.results): the order of verdicts, the exit code, and when a backend is
+"""A check's results (minirt.harness.results): the order of verdicts, the exit code, and when a backend is
 inconclusive."""
 
 from __future__ import annotations

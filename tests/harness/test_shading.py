@@ -1,4 +1,4 @@
-"""The shading check (minirt.shading): a physical oracle's shadow decisions where its planes did not
+"""The shading check (minirt.harness.shading): a physical oracle's shadow decisions where its planes did not
 cover the shadow rays, and colour-science imported without its plots."""
 
 from __future__ import annotations
@@ -7,12 +7,19 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
+from support.synthetic import candidate, reference
 
 from minirt.harness.geometry import check_geometry
 from minirt.harness.shading import check_shading
 
 
-def test_shadow_decisions_are_not_judged_where_an_oracles_planes_did_not_cover_the_segments(setup, candidate):
+@pytest.fixture(scope="module")
+def setup():
+    return reference()
+
+
+def test_shadow_decisions_are_not_judged_where_an_oracles_planes_did_not_cover_the_segments(setup):
     """A physical oracle whose finite stand-ins for planes still missed points after their last growth
     (Mitsuba's meta plane_coverage_complete False) cannot decide shadows: lit flips are not counted."""
     scene, rules, ref = setup

@@ -1,4 +1,4 @@
-"""The statistics of stochastic renders (minirt.stochastic): Welch's test with the variance floor,
+"""The statistics of stochastic renders (minirt.harness.stochastic): Welch's test with the variance floor,
 pinned to the former hand-written test and to SciPy's, and Sidak's correction."""
 
 from __future__ import annotations
