@@ -188,7 +188,7 @@ def _planar_seconds(tr: Any) -> float:
 def bench_reference(cfg: Config) -> dict[str, Any]:
     import drjit as dr
 
-    from minirt.harness.compare import CHECKED_TERMS
+    from minirt.harness.references import CHECKED_TERMS
     from minirt.reference.tracer import Tracer
 
     sc = _scene(REF_SCENE, cfg.ref_size)

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from minirt.errors import MinirtError, SceneError
     from minirt.grading.grade import Grade
-    from minirt.harness.compare import CheckResult
+    from minirt.harness.results import CheckResult
     from minirt.model.result import RenderResult
     from minirt.model.rules import Rules
     from minirt.model.scene import Scene
@@ -44,7 +44,7 @@ __all__ = [
 
 # The types named in __all__, imported when first asked for (PEP 562).
 _LAZY = {
-    "CheckResult": "minirt.harness.compare",
+    "CheckResult": "minirt.harness.results",
     "Grade": "minirt.grading.grade",
     "MinirtError": "minirt.errors",
     "RenderResult": "minirt.model.result",

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from minirt.errors import MinirtError
 
 if TYPE_CHECKING:
-    from minirt.harness.compare import CheckResult
+    from minirt.harness.results import CheckResult
 
 # Verdicts that pass: WARN is a pass with a remark (minirt check exits 0); SKIP only when allowed,
 # so a missing renderer cannot make "passes against every oracle" true by not running.

@@ -122,7 +122,7 @@ class _DefectiveReference:
         self.scene, self.defect, self.cache = scene, defect, {}
 
     def get(self, rules: Rules, samples: int | None = None) -> RenderResult:
-        from minirt.harness import compare as harness
+        from minirt.harness.references import CHECKED_TERMS
         from minirt.reference import tracer
 
         key = (rules, samples)
@@ -134,7 +134,7 @@ class _DefectiveReference:
             t = tracer.Tracer(sc, ru)
             if d.effects:
                 t.effects = replace(t.effects, **d.effects)
-            r = t.render(diagnostics=True, terms=harness.CHECKED_TERMS)
+            r = t.render(diagnostics=True, terms=CHECKED_TERMS)
             if d.buffers:
                 d.buffers(r)
             r.meta["shapes"] = len(self.scene.shapes)
@@ -155,7 +155,7 @@ def changes(
     the check) beyond those -- for every oracle; for the exercise's model also the 8-bit image beyond
     the check's own tolerance (THRESHOLDS color8_levels, rounding); for the physical one its diffuse
     term beyond one level."""
-    from minirt.harness.compare import angle_deg
+    from minirt.harness.geometry import angle_deg
     from minirt.harness.tolerances import THRESHOLDS
 
     w = np.ones_like(a.hit) if where is None else where

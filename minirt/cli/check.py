@@ -141,7 +141,7 @@ def check(
     if json_out:
         emit_json(json_out, result.as_dict())
     if junit:
-        from minirt.harness.compare import junit_xml
+        from minirt.harness.junit import junit_xml
 
         with atomic_path(junit) as tmp:
             tmp.write_text(junit_xml(result))

@@ -14,8 +14,8 @@ from os import PathLike
 from pathlib import Path
 
 from minirt.harness import backends
-from minirt.harness import compare as harness
-from minirt.harness.compare import CheckResult
+from minirt.harness import run as harness
+from minirt.harness.results import CheckResult
 
 
 def scene_files(items: Sequence[str | PathLike[str]] | None) -> list[Path]:
@@ -55,7 +55,7 @@ def run_checks(
     cache: Path | None = None,
     on_step: Callable[[int, int, str, str], None] | None = None,
 ) -> CheckResult:
-    """Render and compare every scene file with the backends (minirt.harness.compare.run: ``workers``
+    """Render and compare every scene file with the backends (minirt.harness.run.run: ``workers``
     processes, a Dask ``scheduler`` or a ``cache`` folder make each (scene, oracle) one job).
     ``on_step(done, total, scene, backend)``: ``done`` of ``total`` (job_count) steps are behind -- in
     this process a backend of a scene is starting, on workers a job has finished (they finish in any

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from minirt.harness import backends
-from minirt.harness.compare import ORDER, BackendCheck, Check, CheckResult, SceneCheck
+from minirt.harness.results import ORDER, BackendCheck, Check, CheckResult, SceneCheck, worst
 from minirt.harness.tolerances import THRESHOLDS
 from minirt.io.images import write_json
 from minirt.model.result import to8
@@ -502,7 +502,8 @@ def refresh_sample(out: Path = Path("reports/sample"), size: int = 64, backends:
     Run from the repository root: ``make sample``.
     """
     from minirt.harness import backends as bk
-    from minirt.harness import compare as harness
+    from minirt.harness.attribution import VARIANT_CACHE_BYTES
+    from minirt.harness.run import check_scene
 
     root = Path(__file__).resolve().parents[2]  # the repository: minirt/pages/report.py
     paths = sorted((root / "scenes").glob("*.toml"))
@@ -510,8 +511,8 @@ def refresh_sample(out: Path = Path("reports/sample"), size: int = 64, backends:
     from minirt.diagnose.variants import VariantCache
 
     here = Path.cwd().resolve() == root  # relative paths on the page when run from the repository root
-    variants = VariantCache(harness.VARIANT_CACHE_BYTES)  # one for the run's rule diagnoses
-    scenes = [harness.check_scene(p.relative_to(root) if here else p, names, (size, size), variants=variants)
+    variants = VariantCache(VARIANT_CACHE_BYTES)  # one for the run's rule diagnoses
+    scenes = [check_scene(p.relative_to(root) if here else p, names, (size, size), variants=variants)
               for p in paths]  # fmt: skip
-    result = CheckResult(verdict=harness.worst([s.verdict for s in scenes]), scenes=scenes)
+    result = CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
     return write_report(result, out, command=SAMPLE_COMMAND)

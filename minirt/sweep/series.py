@@ -178,7 +178,7 @@ def geometry_errors(test: RenderResult, ref: RenderResult) -> dict[str, float]:
 def harness_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderResult) -> dict[str, Any]:
     """The harness's own geometry check (``minirt check``'s tolerances: silhouette band, t and normal
     bounds from the oracle's declared precision): its verdict and the pixels beyond tolerance."""
-    from minirt.harness.compare import check_geometry
+    from minirt.harness.geometry import check_geometry
 
     g = check_geometry(scene, rules, ref, res)
     f = g.figures

@@ -14,7 +14,8 @@ import pytest
 from support.inproc import minirt
 
 from minirt.harness import backends
-from minirt.harness import compare as harness
+from minirt.harness.results import CheckResult, worst
+from minirt.harness.run import check_scene
 from minirt.model.result import RenderResult
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -83,11 +84,11 @@ def test_crashing_oracle_is_an_error_and_the_others_run(monkeypatch):
         raise RuntimeError("segfault in the intersector")
 
     monkeypatch.setattr(minirt.oracles.embree.EmbreeOracle, "render", boom)
-    sc = harness.check_scene(ROOT / "scenes" / "exercise.toml", ["embree", "mitsuba"], (24, 24))
+    sc = check_scene(ROOT / "scenes" / "exercise.toml", ["embree", "mitsuba"], (24, 24))
     assert sc.backends["embree"].verdict == "error"
     assert "segfault in the intersector" in sc.backends["embree"].reason
     assert sc.backends["mitsuba"].verdict == "pass"
-    assert harness.CheckResult(harness.worst([sc.verdict]), [sc]).exit_code() == 2
+    assert CheckResult(worst([sc.verdict]), [sc]).exit_code() == 2
 
 
 def test_render_result_failed_carries_reason():

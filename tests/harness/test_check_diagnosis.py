@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from minirt import oracles
-from minirt.harness import compare as harness
+from minirt.harness.results import CheckResult
+from minirt.harness.run import check_scene
 from minirt.model import bitmap
 from minirt.model.rules import format_rule_value, resolve
 from minirt.model.scene import load_scene
@@ -31,7 +32,7 @@ SIZE = (48, 48)
 
 @pytest.fixture(scope="module")
 def checked():
-    return harness.check_scene(SCENE, ["povray", "mitsuba", "embree"], SIZE)
+    return check_scene(SCENE, ["povray", "mitsuba", "embree"], SIZE)
 
 
 def shown_by_scene(rules, followed) -> set[str]:
@@ -79,7 +80,7 @@ def test_physical_and_geometry_oracles_keep_the_rule_effects_only(checked):
 
 
 def test_report_shows_the_diagnosis_line(checked, tmp_path):
-    result = harness.CheckResult(verdict=checked.verdict, scenes=[checked])
+    result = CheckResult(verdict=checked.verdict, scenes=[checked])
     html = report.write_report(result, tmp_path, command="x", date="d").read_text()
     d = checked.backends["povray"].rule_diagnosis
     first = max(d.explained, key=lambda k: (d.explained[k], k))
@@ -109,7 +110,7 @@ def test_check_json_has_the_diagnosis_block(tmp_path):
 
 def test_no_search_when_the_oracle_draws_the_scene_rules(tmp_path):
     """An oracle image equal to the scene's rules' within a level: nothing to explain, one render."""
-    sc = harness.check_scene(ROOT / "scenes" / "soft.toml", ["povray"], (24, 24))
+    sc = check_scene(ROOT / "scenes" / "soft.toml", ["povray"], (24, 24))
     d = sc.backends["povray"].rule_diagnosis
     assert d.ran and not d.rules_explaining and d.mismatch_pixels == 0 and d.as_given_pixels == 0
     assert "no search needed" in d.reason and d.renders <= 1
@@ -118,7 +119,7 @@ def test_no_search_when_the_oracle_draws_the_scene_rules(tmp_path):
 def test_settings_no_pixel_shows_are_not_findings():
     """shadows.toml (black background) shows only shadow_range and clamp: a whole-profile step may carry
     rules this image cannot tell (the background rule over black); they are set apart, never undeclared."""
-    sc = harness.check_scene(ROOT / "scenes" / "shadows.toml", ["povray"], SIZE)
+    sc = check_scene(ROOT / "scenes" / "shadows.toml", ["povray"], SIZE)
     d = sc.backends["povray"].rule_diagnosis
     assert d.ran and d.rules_explaining.get("shadow_range") == "to-light"
     assert not d.undeclared and "background" not in d.rules_explaining

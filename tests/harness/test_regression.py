@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from support.evidence import dump_check
 
-from minirt.harness import compare as harness
+from minirt.harness.run import check_scene
 from minirt.oracles import names as oracle_names
 
 SIZE = (64, 64)
@@ -21,7 +21,7 @@ EXPECTED_SKIPS: dict[tuple[str, str], str] = {}  # none: every oracle renders ev
 
 @pytest.mark.slow
 def test_scene_against_every_oracle(scene_path):
-    sc = harness.check_scene(scene_path, ["reference", *oracle_names()], SIZE)
+    sc = check_scene(scene_path, ["reference", *oracle_names()], SIZE)
     problems = []
     for name, b in sc.backends.items():
         expected = EXPECTED_SKIPS.get((sc.scene, name))
@@ -35,7 +35,7 @@ def test_scene_against_every_oracle(scene_path):
 
 
 def test_every_rule_an_oracle_cannot_follow_is_attributed():
-    sc = harness.check_scene("scenes/shadows.toml", ["povray"], (48, 48))
+    sc = check_scene("scenes/shadows.toml", ["povray"], (48, 48))
     b = sc.backends["povray"]
     assert b.verdict == "pass"
     assert set(b.rules) == {"shadow_range", "near_root_only", "two_sided", "clamp", "offset"}
@@ -97,7 +97,7 @@ def test_edge_scene_against_every_oracle(name, tmp_path):
     w, h = size.split("x")
     path = tmp_path / f"{name}.toml"
     path.write_text(f"[camera]\ndistance = 2.0\nwidth = {w}\nheight = {h}\n{_EDGE_MATERIAL}{shapes}")
-    sc = harness.check_scene(path, ["reference", *oracle_names()])
+    sc = check_scene(path, ["reference", *oracle_names()])
     bad = {n: f"{b.verdict} {b.reason}" for n, b in sc.backends.items() if b.verdict != "pass"}
     assert not bad, bad
 
@@ -107,7 +107,7 @@ def test_edges_seen_in_reflections_are_classified():
     """A fuzzed scene: a reflected silhouette crosses a pixel whose primary hit is far from any edge.
     POV-Ray differs there by 4 levels; the reference's ray-tree labels (aux ray_tree) put the pixel in
     the 'in_reflection' edge class, reported apart, instead of failing the check."""
-    sc = harness.check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_reflected_edges.toml", ["povray"])
+    sc = check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_reflected_edges.toml", ["povray"])
     b = sc.backends["povray"]
     assert b.verdict == "pass", b.reason
     shading = b.checks["shading"]
@@ -131,7 +131,7 @@ def _rays_pass_sensor_inconclusive(b) -> None:
 def test_a_huge_rectangles_error_reaches_the_diffuse_tolerance():
     """A fuzzed scene: Mitsuba's rectangle for a far-reaching plane errs by 0.077 at its hit points,
     which turns the light direction; the diffuse tolerance carries abs_error / |L - p| for planes."""
-    sc = harness.check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_huge_rectangle.toml", ["mitsuba"])
+    sc = check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_huge_rectangle.toml", ["mitsuba"])
     b = sc.backends["mitsuba"]
     _rays_pass_sensor_inconclusive(b)
     assert max(p["abs_error"] for p in b.result.meta["planes"].values()) > 0.01  # the case is still hard
@@ -143,7 +143,7 @@ def test_a_grazing_view_of_a_huge_rectangle_errs_by_its_error_over_cos():
     """A fuzzed scene: a ray meets Mitsuba's rectangle at cos 0.188; the interpolated hit point lies 0.495
     off the ray (abs_error 0.092 / 0.188), which turns the light direction 5 times more than abs_error
     alone: the diffuse tolerance carries abs_error / (|cos| |L - p|)."""
-    sc = harness.check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_grazing_rectangle.toml", ["mitsuba"])
+    sc = check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_grazing_rectangle.toml", ["mitsuba"])
     b = sc.backends["mitsuba"]
     assert b.verdict == "pass", b.reason
     # beyond the tolerance without the cosine there: 2e-4 + abs_error / |L - p| = 2e-4 + 0.092 / 18.45 = 5.2e-3
@@ -153,7 +153,7 @@ def test_a_grazing_view_of_a_huge_rectangle_errs_by_its_error_over_cos():
 @pytest.mark.slow
 def test_a_plane_never_shadows_itself_in_mitsuba():
     """A fuzzed scene: the stock visibility test let a huge rectangle shadow its own points."""
-    sc = harness.check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_plane_self_shadow.toml", ["mitsuba"])
+    sc = check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_plane_self_shadow.toml", ["mitsuba"])
     b = sc.backends["mitsuba"]
     _rays_pass_sensor_inconclusive(b)
     assert b.checks["shading"].figures["lit_mismatch"] == 0
@@ -163,9 +163,7 @@ def test_a_plane_never_shadows_itself_in_mitsuba():
 def test_shadow_decisions_within_the_oracles_position_error_are_not_judged():
     """A fuzzed scene: Mitsuba's hit point on a huge rectangle errs by more than its shadow ray's distance
     from a ball's silhouette (the reference's aux shadow_margin), so lit/unlit may legitimately differ."""
-    sc = harness.check_scene(
-        Path(__file__).parents[1] / "scenes" / "fuzz_shadow_within_position_error.toml", ["mitsuba"]
-    )
+    sc = check_scene(Path(__file__).parents[1] / "scenes" / "fuzz_shadow_within_position_error.toml", ["mitsuba"])
     b = sc.backends["mitsuba"]
     assert b.verdict == "pass", b.reason
     fig = b.checks["shading"].figures
@@ -185,7 +183,7 @@ def test_a_planet_sized_ground_is_inconclusive_for_the_float32_oracles(tmp_path)
     POV-Ray judges nearly every pixel, and agrees."""
     path = tmp_path / "planet.toml"
     path.write_text(f"[camera]\ndistance = 2.0\nwidth = 24\nheight = 24\n{_EDGE_MATERIAL}{PLANET}")
-    sc = harness.check_scene(path, ["reference", *oracle_names()])
+    sc = check_scene(path, ["reference", *oracle_names()])
     for name, b in sc.backends.items():
         fig = b.checks["geometry"].figures["inconclusive"]
         if name == "povray":
@@ -204,7 +202,7 @@ def test_a_shadow_segment_leaves_its_own_rectangles_slab_before_it_counts(name):
     (float32), and restarting at the self-hit landed within the rectangle's error slab again, until the
     occluder behind (another plane) was never reached: Mitsuba lit, the reference shadowed. Restarted past
     the slab (2 abs_error / |n·s|), the occluder counts."""
-    sc = harness.check_scene(Path(__file__).parents[1] / "scenes" / f"{name}.toml", ["mitsuba"])
+    sc = check_scene(Path(__file__).parents[1] / "scenes" / f"{name}.toml", ["mitsuba"])
     b = sc.backends["mitsuba"]
     assert b.verdict == "pass", b.reason
     assert b.checks["shading"].figures["lit_mismatch"] == 0
@@ -221,6 +219,6 @@ def test_a_false_alarm_of_the_campaign_stays_fixed(path):
     """Scenes on which a fuzzing campaign (minirt fuzz) once reported FAIL or ERROR against the correct
     reference (each file's first line says what went wrong): every oracle now passes, or says honestly
     that it cannot judge the scene (WARN)."""
-    sc = harness.check_scene(path, ["reference", *oracle_names()])
+    sc = check_scene(path, ["reference", *oracle_names()])
     bad = {n: f"{b.verdict.upper()} {b.reason}" for n, b in sc.backends.items() if b.verdict in ("fail", "error")}
     assert not bad, bad

@@ -10,7 +10,7 @@ from support.inproc import minirt
 
 from minirt.errors import MinirtError
 from minirt.harness import backends
-from minirt.harness import compare as harness
+from minirt.harness import run as harness
 from minirt.jobs import memory
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -15,8 +15,10 @@ import numpy as np
 import pytest
 from support.browser import run_browser
 
-from minirt.harness import compare as harness
-from minirt.harness.compare import BackendCheck, CheckResult, SceneCheck
+from minirt.harness.geometry import check_geometry
+from minirt.harness.results import BackendCheck, CheckResult, SceneCheck, worst
+from minirt.harness.run import check_scene
+from minirt.harness.shading import check_shading
 from minirt.io.images import read_image_u8, write_image
 from minirt.model.result import RenderResult
 from minirt.model.rules import resolve
@@ -51,8 +53,8 @@ def synthetic_scene(real: SceneCheck) -> SceneCheck:
     cand.normal = np.where(cand.hit[..., None], ref.normal, 0.0)
     cand.color = ref.color.copy()
     cand.color[10:18, 10:18] += 0.2
-    geom = harness.check_geometry(scene, rules, ref, cand)
-    shading = harness.check_shading(scene, ref, cand, geom)
+    geom = check_geometry(scene, rules, ref, cand)
+    shading = check_shading(scene, ref, cand, geom)
     assert geom.verdict == "fail" and shading.verdict == "fail"
     geom.reason += " " + PAYLOAD
     rule_mask = np.zeros_like(ref.hit)
@@ -92,9 +94,9 @@ SWEEP = {
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    real = harness.check_scene(ROOT / "scenes" / "exercise.toml", ["reference", "embree"], (SIZE, SIZE))
+    real = check_scene(ROOT / "scenes" / "exercise.toml", ["reference", "embree"], (SIZE, SIZE))
     scenes = [real, synthetic_scene(real)]
-    result = CheckResult(verdict=harness.worst([s.verdict for s in scenes]), scenes=scenes)
+    result = CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
     sweep_dir = tmp_path_factory.mktemp("sweep")
     write_image(sweep_dir / "sweep.png", np.full((20, 30, 3), 200, np.uint8))
     write_image(sweep_dir / "sweep-embree.png", np.full((20, 30, 3), 100, np.uint8))
@@ -272,13 +274,13 @@ def test_committed_sample_is_complete():
 def test_an_inconclusive_check_is_shown_as_such(tmp_path):
     """A check that could not fail (here: an infinite t tolerance) is a WARN the page labels INCONCLUSIVE, in the
     matrix, on the backend and on the check, and report.json says so."""
-    real = harness.check_scene(ROOT / "scenes" / "exercise.toml", ["reference"], (16, 16))
+    real = check_scene(ROOT / "scenes" / "exercise.toml", ["reference"], (16, 16))
     scene = load_scene(ROOT / "scenes" / "exercise.toml").with_overrides(width=16, height=16)
     ref = real.reference
     cand = copy.deepcopy(ref)
     cand.backend = "synthetic"
     cand.meta = {**cand.meta, "precision": {"band_eps": 1e-9, "t_rel": 1e-12, "t_abs": np.inf, "normal_deg": 1e-9}}
-    geom = harness.check_geometry(scene, resolve(scene), ref, cand)
+    geom = check_geometry(scene, resolve(scene), ref, cand)
     assert geom.inconclusive
     b = BackendCheck(backend="synthetic", verdict="warn", reason=geom.reason, checks={"geometry": geom},
                      result=cand, reference=ref)  # fmt: skip

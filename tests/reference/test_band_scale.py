@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from minirt.harness import compare as harness
+from minirt.harness.run import check_scene
 from minirt.model import camera
 from minirt.model.rules import resolve
 from minirt.model.scene import load_scene, parse_scene
@@ -121,7 +121,7 @@ def test_povray_judges_the_ground_beside_far_balls():
     """fuzz far_2027_0: a ground of radius 1.5e6 0.47 under the camera, balls 5e5 and 4.6e6 radii away.
     With one scene-wide band, 100 % of the hit pixels were in it (inconclusive); per shape POV-Ray judges
     the ground and agrees."""
-    sc = harness.check_scene(SCENES / "fuzz_far_balls_over_a_ground.toml", ["povray"])
+    sc = check_scene(SCENES / "fuzz_far_balls_over_a_ground.toml", ["povray"])
     b = sc.backends["povray"]
     assert b.verdict == "pass" and not b.inconclusive, b.reason
     fig = b.checks["geometry"].figures
@@ -133,7 +133,7 @@ def test_povray_judges_the_ground_beside_far_balls():
 def test_povray_cannot_judge_hits_beyond_its_max_distance():
     """fuzz far_2026_6: rays starting just inside a ground of radius 4.5e7 meet its far side 1.04e7 away,
     which POV-Ray drops (MAX_DISTANCE 1e7): those rays are in its band, the ones it can see are judged."""
-    sc = harness.check_scene(SCENES / "campaign" / "far_2026_6.toml", ["povray"])
+    sc = check_scene(SCENES / "campaign" / "far_2026_6.toml", ["povray"])
     b = sc.backends["povray"]
     assert b.verdict != "fail", b.reason
     fig = b.checks["geometry"].figures
@@ -156,7 +156,7 @@ def test_povray_loses_hits_to_its_bounding_boxes_only_inside_the_band():
     """fuzz far_2026_112: POV-Ray missed 5 pixels at the top of the near ball's disc (a box's upper y,
     lower + length in float, off by ulp(1.6e7)); judged against the ball's own precision they were a
     FAIL. With the boxes in the band the check says it cannot judge the scene."""
-    sc = harness.check_scene(SCENES / "campaign" / "far_2026_112.toml", ["povray"])
+    sc = check_scene(SCENES / "campaign" / "far_2026_112.toml", ["povray"])
     b = sc.backends["povray"]
     fig = b.checks["geometry"].figures
     assert fig["mask_mismatch"] > 0  # POV-Ray still loses them ...
@@ -260,7 +260,7 @@ def test_mitsuba_judges_the_near_balls_beside_a_far_one():
     """Two balls before the camera and one 3.3e6 radii away on one pixel's ray. The scene-wide band
     (K eps of the far ball, ~9e5) put every ray in it: inconclusive. Per shape, only the far ball's pixel
     is in Mitsuba's band, and the near balls are judged, and agree."""
-    sc = harness.check_scene(SCENES / "far_ball_beside_near_ones.toml", ["mitsuba"])
+    sc = check_scene(SCENES / "far_ball_beside_near_ones.toml", ["mitsuba"])
     b = sc.backends["mitsuba"]
     assert b.verdict == "pass" and not b.inconclusive, b.reason
     fig = b.checks["geometry"].figures

@@ -14,7 +14,10 @@ import copy
 import numpy as np
 import pytest
 
-from minirt.harness import compare as harness
+from minirt.harness import backends
+from minirt.harness.geometry import check_geometry
+from minirt.harness.run import check_scene
+from minirt.model.rules import resolve
 from minirt.model.scene import parse_scene
 from minirt.reference import band
 
@@ -90,7 +93,7 @@ DIAGONAL = {"normal": "[0.3, 0.7, -0.5]", "distance": "0.0", "size": 48}  # all 
 def diagonal(tmp_path_factory):
     path = tmp_path_factory.mktemp("start") / "plane_through_image_plane.toml"
     path.write_text(_SCENE.format(**DIAGONAL))
-    return harness.check_scene(path, ["reference", "mitsuba", "povray", "embree"])
+    return check_scene(path, ["reference", "mitsuba", "povray", "embree"])
 
 
 @pytest.mark.slow
@@ -116,7 +119,7 @@ def test_a_mask_defect_next_to_the_start_band_still_fails(diagonal, name):
     bad.hit[y, x] = not bad.hit[y, x]
     bad.shape_id[y, x] = -1 if not bad.hit[y, x] else 0
     sc = parse_scene(_SCENE.format(**DIAGONAL))
-    followed = harness.backends.rules_for(name, harness.resolve(sc))
-    geom = harness.check_geometry(sc, followed, b.reference, bad)
+    followed = backends.rules_for(name, resolve(sc))
+    geom = check_geometry(sc, followed, b.reference, bad)
     assert geom.verdict == "fail"
     assert geom.figures["mask_mismatch_outside_band"] == 1

@@ -76,7 +76,7 @@ def test_only_the_terms_asked_for(name, samples, tile, precision):
     """render(terms=...) keeps only those terms (the check's reference renders write two of five), and
     everything it keeps is the same bits as the render of every term: the skipped terms still add to
     the colour."""
-    from minirt.harness.compare import CHECKED_TERMS
+    from minirt.harness.references import CHECKED_TERMS
 
     scene = load_scene(f"scenes/{name}.toml").with_overrides(width=31, height=17, samples=samples)
     tr = Tracer(scene, resolve(scene), precision)

@@ -1,0 +1,183 @@
+"""Scene files checked against backends: one (``check_scene``), or many (``run``) -- in this process, with
+the renders of backends that run as a child process (POV-Ray) started ahead, or as (scene, oracle) jobs on
+worker processes or a Dask cluster (minirt.jobs.batch), with a cache of their results (minirt.jobs.cache);
+either after a memory pre-check (minirt.jobs.memory).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from minirt.harness import backends
+from minirt.harness.attribution import VARIANT_CACHE_BYTES
+from minirt.harness.compare import check_backend, check_text, start_ahead
+from minirt.harness.references import ReferenceCache
+from minirt.harness.results import BackendCheck, CheckResult, SceneCheck, worst
+from minirt.model.result import RenderResult
+from minirt.model.rules import Rules, resolve
+from minirt.model.scene import Scene, load_scene
+
+if TYPE_CHECKING:
+    from minirt.jobs.cache import Cache
+
+
+def _scene_and_rules(path: str | Path, size: tuple[int, int] | None) -> tuple[Scene, Rules]:
+    scene = load_scene(path)
+    if size:
+        scene = scene.with_overrides(width=size[0], height=size[1])
+    return scene, resolve(scene)
+
+
+def check_scene(
+    path: str | Path,
+    names: list[str],
+    size: tuple[int, int] | None = None,
+    progress=None,
+    variants=None,
+    rendered: dict | None = None,
+    loaded: tuple[Scene, Rules] | None = None,
+) -> SceneCheck:
+    """Check one scene file against the given backends (the reference itself is always rendered).
+    ``variants``: the run's minirt.diagnose.VariantCache (default: the process's, ``shared_variants``);
+    ``rendered``: backend name -> its render started earlier, ``loaded``: the file's scene and rules
+    already parsed (both from ``run``)."""
+    scene, rules = loaded or _scene_and_rules(path, size)
+    if rendered is None:
+        # POV-Ray's render, a child process that mostly waits, starts now on a thread of its own and
+        # overlaps the reference's and the other oracles' work here (as ``run`` does): the same results
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            started = start_ahead(pool, names, scene, rules)
+            if started:
+                return check_scene(path, names, size, progress, variants, started, (scene, rules))
+    sc = SceneCheck(scene=scene.name, file=str(path), verdict="skip", description=scene.description)
+    refs = ReferenceCache(scene)
+    sc.reference = refs.get(rules)
+    oracle_names = backends.oracles_among(names)
+    for i, name in enumerate(oracle_names):
+        if progress:
+            progress(scene.name, name, i, len(oracle_names))
+        got = (rendered or {}).get(name)
+        sc.backends[name] = check_backend(scene, rules, name, refs, variants=variants, rendered=got)
+    sc.verdict = worst([b.verdict for b in sc.backends.values()])  # no oracle: skip, nothing was compared
+    return sc
+
+
+def run(
+    paths: list[Path],
+    names: list[str],
+    size: tuple[int, int] | None = None,
+    progress=None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    cache: Path | None = None,
+) -> CheckResult:
+    """Check every scene file against the backends. ``progress(i, scene, backend, j, n)``: scene i's
+    backend j of n is starting (in this process) or has finished (on workers).
+
+    ``workers`` > 1 or a Dask ``scheduler``: each (scene, oracle) is one job of minirt.jobs.batch, run on that
+    many local worker processes or on the cluster's workers; the job carries the scene file's text, so
+    workers need minirt and the renderers, not the files. The verdicts and figures are the same.
+    ``cache``: a folder of job results (minirt.jobs.cache) keyed by the scene's text and name, the size, the
+    oracle and the versions; a job it holds is not run again (jobs run one by one here then, without
+    POV-Ray's renders started ahead)."""
+    loaded = [_scene_and_rules(p, size) for p in paths]  # each file parsed once, for every use below
+    _fits_in_memory([s for s, _ in loaded], names, 0 if scheduler else workers if workers > 1 else 0)
+    if workers > 1 or scheduler is not None or cache is not None:
+        return _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache)
+    from minirt.diagnose import VariantCache
+
+    variants = VariantCache(VARIANT_CACHE_BYTES)
+    # POV-Ray runs as a separate process: its renders of every scene start now, one after the other on
+    # a thread of their own, and overlap the reference's, Mitsuba's and Embree's work in this process
+    # (the cores are otherwise idle while Python waits for POV-Ray). The same results, in less time.
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        rendered = [start_ahead(pool, names, *sr) for sr in loaded]
+        scenes = []
+        for i, (p, r, sr) in enumerate(zip(paths, rendered, loaded, strict=True)):
+            tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
+            scenes.append(check_scene(p, names, size, tick, variants, r, sr))
+    return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
+
+
+def _fits_in_memory(scenes: list[Scene], names, local_workers: int) -> None:
+    """Bad input before any work: a check this machine cannot hold (minirt.jobs.memory), as one line."""
+    from minirt.jobs import memory
+
+    pixels = [s.camera.width * s.camera.height for s in scenes]
+    oracles = backends.oracles_among(names)
+    big = max(scenes, key=lambda s: s.camera.width * s.camera.height)
+    what = f"{len(scenes)} scenes, the largest" if len(scenes) > 1 else "the scene"
+    memory.require(
+        backends.check_bytes(pixels, oracles, local_workers),
+        f"checking {what} at {big.camera.width}x{big.camera.height} against {len(oracles)} oracle(s)",
+        "check at a smaller --size, or fewer scenes at a time",
+    )
+
+
+@dataclass(frozen=True)
+class CheckJob:
+    """One (scene, oracle) check of ``run`` on a worker: the scene file's text and name, the size override."""
+
+    source: str
+    text: str
+    size: tuple[int, int] | None
+    backend: str
+
+
+def check_job(job: CheckJob) -> tuple[BackendCheck, RenderResult]:
+    """A job of ``_run_jobs``: the oracle's check and the reference at the scene's samples."""
+    _, rules, refs, bc = check_text(job.text, job.source, job.backend, job.size)
+    return bc, refs.get(rules)
+
+
+def check_cache(folder: Path, oracles: list[str]) -> Cache:
+    """The cache of ``run``'s jobs in ``folder``: results with arrays, so pickled (see minirt.jobs.cache)."""
+    from minirt.harness.backends import versions
+    from minirt.jobs.cache import Cache, digest, pickle_codec
+
+    v = versions(oracles)
+
+    def key(job: CheckJob) -> str:
+        return digest({"kind": "check", "source": job.source, "text": job.text, "size": job.size,
+                       "backend": job.backend, "minirt": v["minirt"], "drjit": v["drjit"],
+                       "oracle": v.get(job.backend, "")})  # fmt: skip
+
+    # an error may be passing (a dead worker, a crashed renderer): never stored, redone next time
+    return Cache(folder, key, pickle_codec, keep=lambda got: got[0].verdict != "error")
+
+
+def _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache: Path | None = None) -> CheckResult:
+    """``run``'s scene files as jobs; ``loaded``: their (scene, rules), parsed before any job starts."""
+    from minirt.jobs import batch as jobs
+
+    oracles = backends.oracles_among(names)
+    todo = [
+        CheckJob(str(p), Path(p).read_text(encoding="utf-8"), size, n) for p in paths for n in oracles
+    ]  # fmt: skip
+    index = {id(j): (k // max(len(oracles), 1), k % max(len(oracles), 1)) for k, j in enumerate(todo)}
+
+    def done(job: CheckJob, _result) -> None:
+        if progress:
+            i, j = index[id(job)]
+            progress(i, loaded[i][0].name, job.backend, j + 1, len(oracles))
+
+    def failed(job: CheckJob, message: str):
+        return BackendCheck(backend=job.backend, verdict="error", reason=message), None
+
+    store = None if cache is None else check_cache(cache, oracles)
+    got = jobs.run(check_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=store)
+    scenes = []
+    for i, (p, (scene, rules)) in enumerate(zip(paths, loaded, strict=True)):
+        sc = SceneCheck(scene=scene.name, file=str(p), verdict="skip", description=scene.description)
+        for j, name in enumerate(oracles):
+            bc, ref = got[i * len(oracles) + j]
+            sc.backends[name] = bc
+            sc.reference = sc.reference or ref
+        if sc.reference is None:  # no oracle (or every job died): the reference itself, here
+            sc.reference = ReferenceCache(scene).get(rules)
+        sc.verdict = worst([b.verdict for b in sc.backends.values()])  # no oracle: skip, nothing was compared
+        scenes.append(sc)
+    return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
