@@ -36,12 +36,7 @@ from minirt.oracles.povray.accuracy import (
     root_errors,
     start_decision,
 )
-from minirt.oracles.povray.buffers import (
-    color_frames,
-    decode_geometry,
-    encoding_ranges,
-    geometry_frames,
-)
+from minirt.oracles.povray.buffers import color_frames, decode_geometry, encoding_ranges, geometry_frames
 from minirt.oracles.povray.exporter import export, scene_to_pov
 from minirt.oracles.povray.rays import (
     MAX_DISTANCE,
