@@ -17,8 +17,9 @@ Each is a handful of float64 roundings: a root errs by a few ulps of max(|t|, |f
 compute exactly these operations in exactly this order (their results are compared bit for bit with
 the recorded ones); what they do with a miss differs, so ``on_miss`` says what sqrt(disc) is there.
 
-Oracles that model a renderer's own, less stable arithmetic (POV-Ray's textbook discriminant in
-oracles/povray/buffers.py, Mitsuba's viewing distance) keep their own forms on purpose.
+Two other root computations keep the textbook form b^2 - c on purpose, so they are not this helper:
+POV-Ray's encoding ranges (oracles/povray/buffers.py: the hits POV-Ray's own textbook arithmetic
+finds) and Mitsuba's viewing distance (oracles/mitsuba/exporter.py: a median for display only).
 """
 
 from __future__ import annotations

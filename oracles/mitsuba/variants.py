@@ -1,7 +1,8 @@
 """Which Mitsuba: the package (version PACKAGE_VERSION, imported once per process) and the first
 usable of VARIANTS -- ``llvm_ad_rgb``, or ``scalar_rgb`` when Dr.Jit's LLVM backend is unusable (a
 per-ray loop, correct but slow). The choice is process-wide (Mitsuba's variant is global state), kept
-in ``_state``; every render re-selects it in case another caller switched.
+in ``_state``; every render re-selects it in case another caller switched. To narrow the choice, set
+this module's VARIANTS (the package re-exports it, but only this one is read).
 """
 
 from __future__ import annotations
