@@ -1,7 +1,8 @@
 """Oracles: established renderers behind one interface (see oracles/base.py).
 
-Adding a renderer means one new module and one line in REGISTRY. Modules are imported lazily, so a
-missing renderer costs nothing until it is asked for.
+Adding a renderer means one new module -- or a subpackage, one job a file, when it grows (povray/,
+mitsuba/) -- and one line in REGISTRY. They are imported lazily, so a missing renderer costs nothing
+until it is asked for.
 """
 
 from __future__ import annotations

@@ -71,6 +71,7 @@ import numpy as np
 from minirt.model import camera
 from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth
 from minirt.model.result import RenderResult, geometry_from_flat
+from minirt.model.roots import ball_roots
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
 from minirt.oracles.base import Oracle
@@ -246,18 +247,9 @@ def scene_to_mesh(scene: Scene, subdivisions: int = DEFAULT_SUBDIVISIONS, far_fa
 
 
 def _ball_roots(ball: Ball, radius: float, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Both roots (near, far) of a ball of the given radius (stable forms; nan on a miss)."""
-    f = o - np.asarray(ball.center)
-    b = np.einsum("ij,ij->i", f, d)
-    h = np.linalg.norm(f - b[:, None] * d, axis=1)
-    disc = (radius - h) * (radius + h)
-    sq = np.sqrt(np.where(disc >= 0, disc, np.nan))
-    lf = np.linalg.norm(f, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q = -(b + np.copysign(sq, b))
-        c = (lf - radius) * (lf + radius)
-        r0 = np.where(q != 0, c / q, 0.0)
-    return np.fmin(r0, q), np.fmax(r0, q)
+    """Both roots (near, far) of a ball of the given radius (stable forms, minirt.model.roots; nan on a miss)."""
+    br = ball_roots(ball.center, radius, o, d, on_miss="nan")
+    return np.fmin(br.r0, br.q), np.fmax(br.r0, br.q)
 
 
 def ball_t_bound(ball: Ball, gap: float, o: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The JSON documents minirt writes, as pydantic models: the source of the shipped JSON Schemas.
 
-The writers build plain dicts (minirt.harness.compare, minirt.grading.grade, minirt.pages.report,
+The writers build plain dicts (minirt.harness.results, minirt.grading.grade, minirt.pages.report,
 minirt.sweep.run, minirt.reference.probe, the render sidecar in minirt.io.images) and minirt.io.jsonout
 writes them; these models describe the result, so a reader (or a test) can validate a file with any JSON
 Schema validator. Each model lists the keys a reader can rely on; open parts (a check's figures, a backend's

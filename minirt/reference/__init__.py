@@ -1,10 +1,15 @@
 """The reference tracer: the exercise's model (problem 13.1) evaluated with Dr.Jit, every rule
 switchable, and the tools built on it.
 
-- tracer: the Tracer façade and render(); accel: the shape table and the ball BVH; band: how close each
-  primary ray is to a decision rounding can flip (the silhouette and start bands); hazards: what in a
-  scene makes its image depend on scale or precision, said as warnings; probe: one pixel, traced step
-  by step by the tracer itself; backend: the tracer behind the Backend interface.
+- tracer: the Tracer façade and render(), split along the seams of pbrt's design: values (the scene's
+  values, unrolled into the kernel or gathered from tables, behind one protocol), shapes (Ball and Plane
+  intersection), interaction (hit point, normal, error bound, offsets), shading (the terms and shadow
+  rays), integrator (levels, reflection, combining), sampling (primary and supersampled rays) and film
+  (buffers and tiles);
+- accel: the shape table and the ball BVH; band: how close each primary ray is to a decision rounding
+  can flip (the silhouette and start bands); hazards: what in a scene makes its image depend on scale
+  or precision, said as warnings; probe: one pixel, traced step by step by the tracer itself; backend:
+  the tracer behind the Backend interface.
 
 May import: minirt.model, minirt.jit, minirt.io, minirt.jobs -- never the oracles, the harness, the
 pages or the CLI.

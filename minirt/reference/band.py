@@ -31,6 +31,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from minirt.model import camera
+from minirt.model.roots import ball_roots
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
 
@@ -111,21 +112,12 @@ def margins(
     st = sc if tie_scale is None else np.asarray(tie_scale, dtype=np.float64)
     for k, s in enumerate(scene.shapes):
         if isinstance(s, Ball):
-            f = o - np.asarray(s.center)
-            b = np.einsum("ij,ij->i", f, d)
-            g = f - b[:, None] * d
-            h = np.linalg.norm(g, axis=1)
+            br = ball_roots(s.center, s.radius, o, d)  # stable forms (minirt.model.roots)
+            h, disc, sq = br.h, br.disc, br.sq
             sil = np.minimum(sil, np.abs(h - s.radius) / s.radius / np.where(h < s.radius, si[k], sc[k]))
-            origin = np.minimum(origin, np.abs(np.linalg.norm(f, axis=1) - s.radius) / s.radius / so[k])
-            disc = (s.radius - h) * (s.radius + h)
-            sq = np.sqrt(np.maximum(disc, 0.0))
-            lf = np.linalg.norm(f, axis=1)
+            origin = np.minimum(origin, np.abs(br.lf - s.radius) / s.radius / so[k])
             # Both roots: the near one decides hit/miss, but either can be the closest (from inside).
-            with np.errstate(divide="ignore", invalid="ignore"):
-                q = -(b + np.copysign(sq, b))
-                c = (lf - s.radius) * (lf + s.radius)
-                r0, r1 = np.where(q != 0, c / q, 0.0), q
-            for r in (np.minimum(r0, r1), np.maximum(r0, r1)):
+            for r in (np.minimum(br.r0, br.q), np.maximum(br.r0, br.q)):
                 # |n·d| of a ball's hit is inf (not a plane); its cosine against the surface sqrt(disc) / r
                 nearest.push(np.where((disc >= 0) & (r > 0), r, np.inf), np.inf, sq / s.radius, k)
         else:
@@ -200,20 +192,11 @@ def start_band(
     out = np.zeros(o.shape[0], dtype=bool)
     for s in scene.shapes:
         if isinstance(s, Ball):
-            f = o - np.asarray(s.center)
-            b = np.einsum("ij,ij->i", f, d)
-            h = np.linalg.norm(f - b[:, None] * d, axis=1)
-            disc = (s.radius - h) * (s.radius + h)
-            sq = np.sqrt(np.maximum(disc, 0.0))
-            lf = np.linalg.norm(f, axis=1)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                q = -(b + np.copysign(sq, b))
-                c = (lf - s.radius) * (lf + s.radius)
-                roots = (np.where(q != 0, c / q, 0.0), q)
-            cos = sq / s.radius
-            for t in roots:
+            br = ball_roots(s.center, s.radius, o, d)  # stable forms (minirt.model.roots)
+            cos = br.sq / s.radius
+            for t in (br.r0, br.q):
                 tc = t * cos
-                out |= (disc >= 0) & (tc > -ball_err) & (tc < t_min * cos + ball_err)
+                out |= (br.disc >= 0) & (tc > -ball_err) & (tc < t_min * cos + ball_err)
         else:
             nn = np.asarray(s.normal)
             nd = d @ nn

@@ -1,6 +1,6 @@
 """The Mitsuba 3 oracle against the reference tracer (small images: 64 x 64 on every scene).
 
-Tolerances come from oracles/mitsuba.py (precision analysis next to the constants there):
+Tolerances come from oracles/mitsuba/ (precision analysis next to the constants, in accuracy.py):
 - hit masks may differ only inside the silhouette band, margin < BAND_K * band_eps (float32
   discriminant; eps = u32 max |f|^2 / r^2 over the balls, K = 16);
 - t: |dt| <= T_REL t + 16 u32 (|f| + r) + 4 u32 |f|^2 / (r sqrt(2 m)) on balls (m the silhouette
@@ -27,6 +27,8 @@ from minirt.model import camera
 from minirt.model.rules import resolve
 from minirt.model.scene import Ball, load_scene, parse_scene
 from minirt.oracles import mitsuba as om
+from minirt.oracles.mitsuba import exporter, rays, variants
+from minirt.oracles.mitsuba import oracle as mitsuba_oracle
 from minirt.reference import band, tracer
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -77,7 +79,7 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def test_available_and_version(oracle):
     assert oracle.version().startswith("mitsuba 3.9.1 (")
-    assert om._state["variant"] in om.VARIANTS
+    assert variants._state["variant"] in om.VARIANTS
 
 
 @pytest.mark.parametrize("path", SCENES, ids=lambda p: p.stem)
@@ -171,7 +173,7 @@ def test_every_plane_rectangle_covers_its_rays(oracle):
     """Growing the rectangles converged: a re-check finds no plane point a traced ray missed."""
     for path in SCENES:
         _, _, res, _ = _pair(oracle, path)
-        assert res.meta["plane_resizes"] < om._MAX_RESIZE, path.stem
+        assert res.meta["plane_resizes"] < rays._MAX_RESIZE, path.stem
 
 
 @pytest.mark.parametrize("name", ["exercise", "rules"])
@@ -237,7 +239,7 @@ def test_untrusted_names_never_reach_the_xml_unescaped(oracle, tmp_path):
     assert comments and all("--" not in c and not c.endswith("-") for c in comments)
     assert "<script" not in xml and "&lt;script&gt;" in comments[0]  # the name only escaped, in a comment
     (path,) = oracle.export(scene, rules, tmp_path)
-    mi = om._state["mi"]
+    mi = variants._state["mi"]
     ms = mi.load_file(str(path))
     img = np.asarray(mi.render(ms, spp=1))
     assert img.shape[:2] == (16, 16) and np.isfinite(img).all() and img.max() > 0
@@ -254,7 +256,7 @@ def test_import_failure_is_a_skip(monkeypatch):
     def boom():
         raise ImportError("No module named 'mitsuba'")
 
-    monkeypatch.setattr(om, "_load_mitsuba", boom)
+    monkeypatch.setattr(mitsuba_oracle, "_load_mitsuba", boom)  # where the oracle finds it
     o = om.MitsubaOracle()
     ok, why = o.available()
     assert not ok and "mitsuba" in why
@@ -264,7 +266,7 @@ def test_import_failure_is_a_skip(monkeypatch):
 
 
 def test_mitsuba_exception_is_an_error(oracle, monkeypatch):
-    mi = om._state["mi"]
+    mi = variants._state["mi"]
 
     def broken(*a, **k):
         raise RuntimeError("simulated parser failure\nsecond line")
@@ -289,8 +291,8 @@ def test_scalar_fallback_variant_renders(tmp_path):
     import sys
 
     code = (
-        "import numpy as np, minirt.oracles.mitsuba as om\n"
-        "om.VARIANTS = ('scalar_rgb',)\n"
+        "import numpy as np, minirt.oracles.mitsuba as om, minirt.oracles.mitsuba.variants as mv\n"
+        "mv.VARIANTS = ('scalar_rgb',)\n"
         "from minirt.model.scene import load_scene\nfrom minirt.model.rules import resolve\n"
         "from minirt.reference import tracer\n"
         "o = om.MitsubaOracle()\n"
@@ -317,10 +319,10 @@ def test_export_renders_visibly_in_mitsuba(oracle, name, tmp_path):
     d = om.viewing_distance(scene, rules)
     factor = math.pi * d**2
     assert f"times pi d^2 = {factor!r}" in xml and f"d = {d!r}" in xml  # the file says how it was scaled
-    assert f'<rgb name="intensity" value="{om._rgb(tuple(c * factor for c in scene.light.color))}"/>' in xml
+    assert f'<rgb name="intensity" value="{exporter._rgb(tuple(c * factor for c in scene.light.color))}"/>' in xml
     # the oracle's own scene (render, check) keeps the exercise's intensity
-    assert f'<rgb name="intensity" value="{om._rgb(scene.light.color)}"/>' in om.scene_to_xml(scene, rules)
-    mi = om._state["mi"]
+    assert f'<rgb name="intensity" value="{exporter._rgb(scene.light.color)}"/>' in om.scene_to_xml(scene, rules)
+    mi = variants._state["mi"]
     img = np.asarray(mi.render(mi.load_file(str(path)), spp=4))
     ref = tracer.render(scene, resolve(scene)).color
     ratio = float(img.mean() / ref.mean())

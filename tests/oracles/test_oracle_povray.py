@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
+import shutil
 import subprocess
 from dataclasses import replace
 from pathlib import Path
@@ -34,6 +36,7 @@ from minirt.model import rules as R
 from minirt.model.scene import Scene, load_scene, parse_scene
 from minirt.oracles import povray
 from minirt.oracles.povray import PovrayOracle
+from minirt.oracles.povray import oracle as povray_oracle
 from minirt.reference import band, tracer
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -310,7 +313,7 @@ def test_export_writes_a_runnable_command(tmp_path):
     rules = _rules(sc, {})
     files = povray.export(sc, rules, tmp_path)
     assert {f.name for f in files} == {"scene.pov", "render.sh", "README.txt"}
-    cmd = povray.shlex.join(povray.command(sc, 1, 1, 1, "png8"))
+    cmd = shlex.join(povray.command(sc, 1, 1, 1, "png8"))
     assert cmd in (tmp_path / "render.sh").read_text() and cmd in (tmp_path / "README.txt").read_text()
     subprocess.run(["sh", str(tmp_path / "render.sh")], check=True, capture_output=True, timeout=120)
     png = read_image_u8(tmp_path / "out.png")
@@ -320,7 +323,7 @@ def test_export_writes_a_runnable_command(tmp_path):
 
 def test_broken_scene_reports_povray_parse_error(monkeypatch):
     garbage = "#version 3.7;\nsphere { <0, 0, 4>, 0.5 pigmnt { rgb 1 } }\n"
-    monkeypatch.setattr(povray, "scene_to_pov", lambda *a, **k: garbage)
+    monkeypatch.setattr(povray_oracle, "scene_to_pov", lambda *a, **k: garbage)  # where the render finds it
     sc = _scene("exercise")
     res = ORACLE.render(sc, _rules(sc, {}))
     assert res.status == "error"
@@ -344,7 +347,7 @@ def test_missing_povray_is_a_skip(monkeypatch):
 
 
 def test_missing_povray_via_which(monkeypatch):
-    monkeypatch.setattr(povray.shutil, "which", lambda name: None)
+    monkeypatch.setattr(shutil, "which", lambda name: None)
     sc = _scene("matte")
     res = ORACLE.render(sc, _rules(sc, {}))
     assert res.status == "skip" and "povray not found" in res.reason

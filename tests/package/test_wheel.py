@@ -16,6 +16,7 @@ import subprocess
 import sys
 import sysconfig
 import tarfile
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -23,13 +24,29 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = sorted(p.name for p in (ROOT / "scenes").glob("*.toml"))
-ORACLES = sorted(p.name for p in (ROOT / "oracles").glob("*.py"))
+# every module of the oracles, subpackages included, as a path under oracles/ ("povray/oracle.py")
+ORACLES = sorted(p.relative_to(ROOT / "oracles").as_posix() for p in (ROOT / "oracles").rglob("*.py"))
 
 
 def run(*cmd: str | Path, cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     p = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True, env=env)
     assert p.returncode == 0, f"{' '.join(map(str, cmd))}: exit {p.returncode}\n{p.stdout}\n{p.stderr}"
     return p
+
+
+def test_every_package_is_listed():
+    """Every source folder that is a Python package is in pyproject.toml's packages list. setuptools
+    would still copy an unlisted one into the wheel, as data of its parent (with a warning that it
+    will stop doing so), so the wheel's contents alone do not catch a forgotten subpackage."""
+    with (ROOT / "pyproject.toml").open("rb") as f:
+        listed = set(tomllib.load(f)["tool"]["setuptools"]["packages"])
+    folders = {"minirt": ROOT / "minirt", "minirt.oracles": ROOT / "oracles", "minirt.scene_files": ROOT / "scenes"}
+    found = {
+        ".".join([name, *init.parent.relative_to(folder).parts])
+        for name, folder in folders.items()
+        for init in folder.rglob("__init__.py")
+    }
+    assert found - listed == set()
 
 
 @pytest.mark.slow
@@ -50,7 +67,7 @@ def check_contents(dist: Path) -> None:
     top = {n.split("/")[0] for n in names}
     assert len(top) == 2 and "minirt" in top and all(t == "minirt" or t.endswith(".dist-info") for t in top), top
     assert not any(n.startswith("oracles/") for n in names)
-    assert {n.split("/")[-1] for n in names if n.startswith("minirt/oracles/")} == set(ORACLES)
+    assert {n.removeprefix("minirt/oracles/") for n in names if n.startswith("minirt/oracles/")} == set(ORACLES)
     assert sorted(n.split("/")[-1] for n in names if n.startswith("minirt/scene_files/") and n.endswith(".toml")) == (
         SCENES
     )

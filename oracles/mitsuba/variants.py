@@ -1,0 +1,55 @@
+"""Which Mitsuba: the package (version PACKAGE_VERSION, imported once per process) and the first
+usable of VARIANTS -- ``llvm_ad_rgb``, or ``scalar_rgb`` when Dr.Jit's LLVM backend is unusable (a
+per-ray loop, correct but slow). The choice is process-wide (Mitsuba's variant is global state), kept
+in ``_state``; every render re-selects it in case another caller switched. To narrow the choice, set
+this module's VARIANTS (the package re-exports it, but only this one is read).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+BACKEND = "mitsuba"
+PACKAGE_VERSION = "3.9.1"
+VARIANTS = ("llvm_ad_rgb", "scalar_rgb")  # preferred first
+
+_state: dict[str, Any] = {}
+
+
+def _load_mitsuba() -> tuple[Any, str]:
+    """Import mitsuba and set the first usable variant; raises ImportError/RuntimeError with a reason."""
+    if "mi" in _state:
+        mi = _state["mi"]
+        if mi.variant() != _state["variant"]:
+            mi.set_variant(_state["variant"])
+        return mi, _state["variant"]
+    import mitsuba as mi
+
+    if getattr(mi, "__version__", "") != PACKAGE_VERSION:
+        raise RuntimeError(f"mitsuba {PACKAGE_VERSION} is required, found {getattr(mi, '__version__', '?')}")
+    problems = []
+    for variant in VARIANTS:
+        if variant not in mi.variants():
+            problems.append(f"{variant}: not built")
+            continue
+        if variant.startswith("llvm"):
+            from minirt.jit.engine import llvm_status
+
+            ok, why = llvm_status()
+            if not ok:
+                problems.append(f"{variant}: {why}")
+                continue
+        try:
+            mi.set_variant(variant)
+            mi.load_dict({"type": "scene"})  # smoke test: a kernel-free load
+        except Exception as e:  # a variant that cannot run is not fatal: try the next one
+            problems.append(f"{variant}: {type(e).__name__}: {e}")
+            continue
+        _state.update(mi=mi, variant=variant, problems=problems)
+        return mi, variant
+    raise RuntimeError("no usable Mitsuba variant (" + "; ".join(problems) + ")")
+
+
+def _one_line(e: BaseException) -> str:
+    text = f"{type(e).__name__}: {e}".strip()
+    return " ".join(text.split())[:300]
