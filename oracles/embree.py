@@ -317,6 +317,7 @@ class EmbreeOracle(Oracle):
     name: ClassVar[str] = "embree"
     shades: ClassVar[bool] = False
     display_name: ClassVar[str] = "Embree"
+    packages: ClassVar[tuple[str, ...]] = ("trimesh", "embreex")
     float32: ClassVar[bool] = True
     # a check keeps its buffers and figures (220 bytes a pixel); a render keeps 150 and runs with 50 (the
     # mesh's rays are cast in float32 arrays): measured with the others (minirt.jobs.memory)

@@ -49,7 +49,7 @@ def doctor() -> None:
     t = Table(title="libraries", title_justify="left")
     t.add_column("package")
     t.add_column("version")
-    for pkg in ("drjit", "mitsuba", "OpenImageIO", "trimesh", "embreex", "numpy", "colour-science", "flip-evaluator"):
+    for pkg in backends.packages():
         try:
             v = md.version(pkg)
         except md.PackageNotFoundError:

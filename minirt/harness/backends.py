@@ -222,3 +222,14 @@ def reference_result(results: Sequence[RenderResult]) -> RenderResult | None:
 def export_targets() -> dict[str, Backend]:
     """``minirt export --to NAME``: each backend that exports, by its export name (``export_as``)."""
     return {b.export_as: b for b in map(get, REGISTRY) if b.export_as}
+
+
+# What every check reads and writes with, whichever backends run: images, statistics, colour differences.
+SHARED_PACKAGES = ("OpenImageIO", "numpy", "colour-science", "flip-evaluator")
+
+
+def packages() -> list[str]:
+    """The Python distributions minirt renders and compares with (`minirt doctor`): each backend's own,
+    in registry order, then the shared ones. Reading them imports each backend's module, not its renderer."""
+    own = [p for name in REGISTRY for p in get(name).packages]
+    return list(dict.fromkeys([*own, *SHARED_PACKAGES]))

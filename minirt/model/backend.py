@@ -190,6 +190,7 @@ class Backend:
     check_kept: ClassVar[int] = 1400
     render_kept: ClassVar[int] = 220
     render_running: ClassVar[int] = 430
+    packages: ClassVar[tuple[str, ...]] = ()  # the Python distributions it renders with (`minirt doctor`)
     export_as: ClassVar[str | None] = None  # `minirt export --to NAME`; None: no export
     export_what: ClassVar[str] = ""  # what that export writes, for --help
     # rule name -> values this backend reproduces, preferred first. A rule not listed: any value.

@@ -24,6 +24,7 @@ class Reference(Backend):
     shades: ClassVar[bool] = True
     shading_model: ClassVar[str | None] = "exercise"
     reports_progress: ClassVar[bool] = True  # tile by tile
+    packages: ClassVar[tuple[str, ...]] = ("drjit",)
     # ``minirt check`` keeps the reference render for the report: 450 bytes a pixel; a render keeps 220 and
     # runs with 430 (Dr.Jit's working buffers); measured as the oracles' figures (minirt.jobs.memory)
     check_kept: ClassVar[int] = 450

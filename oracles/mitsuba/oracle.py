@@ -28,6 +28,7 @@ class MitsubaOracle(Oracle):
     name: ClassVar[str] = "mitsuba"
     shades: ClassVar[bool] = True
     display_name: ClassVar[str] = "Mitsuba"
+    packages: ClassVar[tuple[str, ...]] = ("mitsuba",)
     shading_model: ClassVar[str | None] = "physical"
     float32: ClassVar[bool] = True
     # a check keeps its render and figures (1,400 bytes a pixel); a render keeps 220 and runs with 430
