@@ -100,6 +100,20 @@ DEFECTS: dict[str, Defect] = {
 }  # fmt: skip
 
 
+def parse_families(spec: str) -> tuple[str, ...]:
+    """``--families``: all, or a comma list of the families' names (minirt.campaign.families)."""
+    from minirt.campaign.families import FAMILIES
+    from minirt.errors import MinirtError
+
+    fams = tuple(FAMILIES) if spec.strip().lower() == "all" else tuple(f.strip() for f in spec.split(",") if f.strip())
+    unknown = [f for f in fams if f not in FAMILIES]
+    if unknown or not fams:
+        raise MinirtError(
+            f"--families: unknown family {', '.join(unknown) or repr(spec)} (known: all, {', '.join(FAMILIES)})"
+        )
+    return fams
+
+
 def parse_defects(spec: str | None) -> tuple[str, ...]:
     """``--defects``: none (default), all, or a comma list of DEFECTS' names."""
     from minirt.errors import MinirtError
@@ -472,3 +486,25 @@ def write_evidence(c: Campaign, out: Path) -> list[Path]:
                 with atomic_path(out / name) as tmp:
                     tmp.write_bytes(data)
     return written
+
+
+def fuzz(
+    c: Campaign,
+    count: int,
+    out_dir: Path,
+    workers: int = 1,
+    scheduler: str | None = None,
+    use_cache: bool = True,
+    on_done: Callable[[Job, dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
+    """``minirt fuzz``: generate ``count`` scenes, run every (scene, oracle) job (cached in
+    ``out_dir/cache`` unless ``use_cache`` is false), write the evidence of what failed and
+    ``out_dir/fuzz.json``; return that document."""
+    from minirt.io.images import write_json
+
+    c.scenes = scenes(count, c.seed, c.families, c.size)
+    run(c, out_dir / "cache" if use_cache else None, workers=workers, scheduler=scheduler, on_done=on_done)
+    write_evidence(c, out_dir)
+    doc = summary(c)
+    write_json(out_dir / "fuzz.json", doc)
+    return doc

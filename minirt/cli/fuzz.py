@@ -24,7 +24,6 @@ from minirt.cli.options import (
     parse_size,
     pool,
 )
-from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
 
 FUZZ_HELP = "\n\n".join([
@@ -71,22 +70,11 @@ def fuzz(
 ) -> None:
     """An adversarial campaign (help text: FUZZ_HELP)."""  # fmt: skip
     from minirt.campaign import campaign
-    from minirt.campaign.families import FAMILIES
     from minirt.harness import backends
-    from minirt.io.images import write_json
     from minirt.jobs import batch as jobs
 
     wh = parse_size(size)
-    fams = (
-        tuple(FAMILIES)
-        if families.strip().lower() == "all"
-        else tuple(f.strip() for f in families.split(",") if f.strip())
-    )
-    unknown = [f for f in fams if f not in FAMILIES]
-    if unknown or not fams:
-        raise MinirtError(
-            f"--families: unknown family {', '.join(unknown) or repr(families)} (known: all, {', '.join(FAMILIES)})"
-        )
+    fams = campaign.parse_families(families)
     names = backends.parse_backends(backend)
     backends.require_oracle(names)
     names = backends.oracles_among(names)
@@ -96,8 +84,7 @@ def fuzz(
         output_file(Path(json_out), "--json")
     output_folder(out_dir)
     c = campaign.Campaign(seed=seed, families=fams, size=wh, backends=tuple(names), defects=kinds)
-    c.scenes = campaign.scenes(count, seed, fams, wh)
-    total = len(c.scenes) * len(names)
+    total = count * len(names)
     workers = workers or jobs.default_workers(total, per_worker=8)
     counts = dict.fromkeys(campaign.VERDICTS, 0)
     with progress_bar(not quiet) as bar:
@@ -114,10 +101,7 @@ def fuzz(
                 bar.update(task, description=terminal_text(f"fuzz {job.scene[:24]:<24} {counts['fail']} fail"))
                 bar.advance(task)
 
-        campaign.run(c, None if no_cache else out_dir / "cache", workers=workers, scheduler=scheduler, on_done=done)
-    campaign.write_evidence(c, out_dir)
-    doc = campaign.summary(c)
-    write_json(out_dir / "fuzz.json", doc)
+        doc = campaign.fuzz(c, count, out_dir, workers, scheduler, use_cache=not no_cache, on_done=done)
     if json_out is not None:
         emit_json(json_out, doc)
     v = doc["verdicts"]
