@@ -69,7 +69,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from minirt.model import camera
-from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth
+from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult, geometry_from_flat
 from minirt.model.roots import ball_roots
 from minirt.model.rules import Rules
@@ -341,9 +341,7 @@ class EmbreeOracle(Oracle):
 
     def geometry_tolerance(self, result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
         """This oracle's recorded precision as per-pixel tolerances, each with its derivation."""
-        h, w = ref.height, ref.width
-        p = result.meta.get("precision") or {}
-        m = measured.image(h, w)
+        h, w, p, m, _ = tolerance_inputs(result, ref, measured)
         tb = result.aux.get("t_bound", np.full((h, w), p["t_abs"]))
         t_abs = tb + p["eps32_abs"]
         # A depth tie is relative to the ray's nearest candidate hit in the scene (margins "near"), not to

@@ -10,33 +10,25 @@ from __future__ import annotations
 
 import numpy as np
 
-_MATERIALS = """
-[materials.red]
-ambient = [0.08, 0.0, 0.0]
-diffuse = [0.8, 0.1, 0.1]
-specular = [0.6, 0.6, 0.6]
-reflection = [0.2, 0.2, 0.2]
+from minirt.campaign.families import dump_toml
 
-[materials.green]
-ambient = [0.0, 0.08, 0.0]
-diffuse = [0.1, 0.7, 0.2]
-specular = [0.4, 0.4, 0.4]
-
-[materials.blue]
-ambient = [0.0, 0.0, 0.08]
-diffuse = [0.1, 0.2, 0.8]
-specular = [0.8, 0.8, 0.8]
-reflection = [0.5, 0.5, 0.5]
-
-[materials.grey]
-ambient = [0.02, 0.02, 0.02]
-diffuse = [0.5, 0.5, 0.5]
-
-[materials.floor]
-ambient = [0.02, 0.02, 0.02]
-diffuse = [0.3, 0.3, 0.3]
-reflection = [0.5, 0.5, 0.5]
-"""
+_MATERIALS = {
+    "red": {
+        "ambient": [0.08, 0.0, 0.0],
+        "diffuse": [0.8, 0.1, 0.1],
+        "specular": [0.6, 0.6, 0.6],
+        "reflection": [0.2, 0.2, 0.2],
+    },
+    "green": {"ambient": [0.0, 0.08, 0.0], "diffuse": [0.1, 0.7, 0.2], "specular": [0.4, 0.4, 0.4]},
+    "blue": {
+        "ambient": [0.0, 0.0, 0.08],
+        "diffuse": [0.1, 0.2, 0.8],
+        "specular": [0.8, 0.8, 0.8],
+        "reflection": [0.5, 0.5, 0.5],
+    },
+    "grey": {"ambient": [0.02, 0.02, 0.02], "diffuse": [0.5, 0.5, 0.5]},
+    "floor": {"ambient": [0.02, 0.02, 0.02], "diffuse": [0.3, 0.3, 0.3], "reflection": [0.5, 0.5, 0.5]},
+}
 
 
 def balls_scene(
@@ -53,34 +45,18 @@ def balls_scene(
     radius = rng.uniform(0.25, 0.6, n)
     names = ("red", "green", "blue", "grey")
     mats = rng.integers(0, len(names), n)
-    lines = [
-        "[scene]",
-        f'name = "balls_{n}_{seed}"',
-        f'description = "{n} random balls (seed {seed}) over a mirror floor"',
-        "",
-        "[camera]",
-        f"distance = {1.0 / k + 1.0!r}",
-        f"width = {width}",
-        f"height = {height}",
-        "",
-        "[light]",
-        f"position = [{-3.0 * k!r}, {6.0 * k!r}, {-2.0 * k!r}]",
-        "",
-        "[render]",
-        "background = [0.05, 0.05, 0.15]",
-        f"max_depth = {max_depth}",
-        _MATERIALS,
+    # one table a paragraph, written as the fuzzer writes its scenes (floats with repr: they read back bit for bit)
+    tables = [
+        {"scene": {"name": f"balls_{n}_{seed}", "description": f"{n} random balls (seed {seed}) over a mirror floor"}},
+        {"camera": {"distance": 1.0 / k + 1.0, "width": width, "height": height}},
+        {"light": {"position": [-3.0 * k, 6.0 * k, -2.0 * k]}},
+        {"render": {"background": [0.05, 0.05, 0.15], "max_depth": max_depth}},
+        *({"materials": {name: m}} for name, m in _MATERIALS.items()),
     ]
     for c, r, m in zip(center, radius, mats, strict=True):
-        lines += [
-            "[[shapes]]",
-            'type = "ball"',
-            f"center = [{float(c[0])!r}, {float(c[1])!r}, {float(c[2])!r}]",
-            f"radius = {float(r)!r}",
-            f'material = "{names[m]}"',
-            "",
-        ]
+        ball = {"type": "ball", "center": [float(x) for x in c], "radius": float(r), "material": names[m]}
+        tables.append({"shapes": [ball]})
     if floor:
-        lines += ["[[shapes]]", 'type = "plane"', "normal = [0.0, 1.0, 0.0]", f"distance = {-half * 0.6 - 0.6!r}"]
-        lines += ['material = "floor"', ""]
-    return "\n".join(lines)
+        plane = {"type": "plane", "normal": [0.0, 1.0, 0.0], "distance": -half * 0.6 - 0.6, "material": "floor"}
+        tables.append({"shapes": [plane]})
+    return "\n".join(dump_toml(t) for t in tables)

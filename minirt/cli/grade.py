@@ -14,6 +14,7 @@ import typer
 
 from minirt.cli.console import MAX_MESSAGE, emit_json, err, out, progress_bar
 from minirt.cli.options import (
+    GradeCacheOpt,
     GradeWorkersOpt,
     JsonOpt,
     ProfileOpt,
@@ -67,15 +68,7 @@ def grade(
             "and the same paths.",
         ),
     ] = None,
-    cache: Annotated[
-        Path | None,
-        typer.Option(
-            "--cache",
-            metavar="DIR",
-            help="With --class: keep each image's grade in DIR by content hash (image bytes, scene, rules, "
-            "versions); a rerun grades only new or changed images.",
-        ),
-    ] = None,
+    cache: GradeCacheOpt = None,
     profile: ProfileOpt = None,
     rule: RuleOpt = None,
     quiet: QuietOpt = False,

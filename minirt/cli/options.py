@@ -77,14 +77,25 @@ SchedulerOpt = Annotated[
         help="Run the jobs on a running Dask cluster (tcp://host:8786); its workers need minirt and the renderers.",
     ),
 ]  # fmt: skip
-CacheOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--cache", metavar="DIR",
-        help="Keep each (scene, oracle) check's result in DIR by content hash (scene text, size, oracle, "
-        "versions); a rerun checks only what changed.",
-    ),
-]  # fmt: skip
+
+
+def _cache_opt(help_: str) -> Any:
+    """``--cache DIR`` (results kept by content hash), what is kept and what the hash covers said by each command."""
+    return Annotated[Path | None, typer.Option("--cache", metavar="DIR", help=help_)]
+
+
+CacheOpt = _cache_opt(
+    "Keep each (scene, oracle) check's result in DIR by content hash (scene text, size, oracle, versions); a rerun "
+    "checks only what changed."
+)
+GradeCacheOpt = _cache_opt(
+    "With --class: keep each image's grade in DIR by content hash (image bytes, scene, rules, versions); a rerun "
+    "grades only new or changed images."
+)
+SweepCacheOpt = _cache_opt(
+    "Keep each backend's series in DIR by content hash (scene text, rules, size, knobs, versions, machine); a rerun "
+    "renders only what changed."
+)
 JsonOpt = Annotated[
     str | None,
     typer.Option(

@@ -18,6 +18,7 @@ from minirt.cli.options import (
     RuleOpt,
     SceneArg,
     SchedulerOpt,
+    SweepCacheOpt,
     SweepWorkersOpt,
     load,
     output_folder,
@@ -56,15 +57,7 @@ def sweep(
     rule: RuleOpt = None,
     workers: SweepWorkersOpt = None,
     scheduler: SchedulerOpt = None,
-    cache: Annotated[
-        Path | None,
-        typer.Option(
-            "--cache",
-            metavar="DIR",
-            help="Keep each backend's series in DIR by content hash (scene text, rules, size, knobs, versions, "
-            "machine); a rerun renders only what changed.",
-        ),
-    ] = None,
+    cache: SweepCacheOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
     """What accuracy costs in time (help text: SWEEP_HELP, paragraphs Rich wraps to the terminal)."""

@@ -36,6 +36,12 @@ def _corner() -> str:
     return "pixel corners ((x/W − 0.5, −y/H + 0.5, 0), the exercise's loop)"
 
 
+def _two_ways(value: Any, yours: str, here: str) -> Callable[[Any, Any], str]:
+    """A two-valued rule's sentence: ``yours`` where the image's setting is ``value`` (the exercise's is the
+    other one), ``here`` where the image has the other one and the scene asks for ``value``."""
+    return lambda v, ex: yours if v == value else here
+
+
 # One sentence per rule and value, in the words of the exercise: "yours" is the image's setting.
 SENTENCES: dict[str, Callable[[Any, Any], str]] = {
     "background": lambda yours, ex: (
@@ -51,24 +57,24 @@ SENTENCES: dict[str, Callable[[Any, Any], str]] = {
             "none": "here the background is never added.",
         }[ex]
     ),
-    "near_root_only": lambda yours, ex: (
+    "near_root_only": _two_ways(
+        False,
         "you take the far root of a ball when the near one is behind the ray, so you see balls from inside; "
         "the exercise takes only the smaller root, provided it is not negative (Appendix 2), so a ball is "
-        "invisible from inside."
-        if not yours
-        else "you take only the near root of a ball, so a ball is invisible from inside; here the far root counts too."
+        "invisible from inside.",
+        "you take only the near root of a ball, so a ball is invisible from inside; here the far root counts too.",
     ),
-    "shadow_range": lambda yours, ex: (
+    "shadow_range": _two_ways(
+        "to-light",
         "your shadow rays are blocked only by shapes before the light; the exercise's pseudo-code counts "
-        "any intersection of the shadow ray, even beyond the light."
-        if yours == "to-light"
-        else "any shape on your shadow ray blocks it, even beyond the light; here only shapes before the light do."
+        "any intersection of the shadow ray, even beyond the light.",
+        "any shape on your shadow ray blocks it, even beyond the light; here only shapes before the light do.",
     ),
-    "two_sided": lambda yours, ex: (
+    "two_sided": _two_ways(
+        True,
         "you turn every normal to face the incoming ray; the exercise uses a plane's normal as given, so a "
-        "plane seen from behind is lit from its front side's view."
-        if yours
-        else "you use a plane's normal as given; here normals are turned to face the ray."
+        "plane seen from behind is lit from its front side's view.",
+        "you use a plane's normal as given; here normals are turned to face the ray.",
     ),
     "clamp": lambda yours, ex: (
         {
@@ -86,22 +92,22 @@ SENTENCES: dict[str, Callable[[Any, Any], str]] = {
         f"your secondary rays start {_offset_words(yours)}; the exercise's hint moves them "
         f"{_offset_words(ex)} to avoid hitting their own surface."
     ),
-    "offset_along": lambda yours, ex: (
+    "offset_along": _two_ways(
+        "ray",
         "you move the start of shadow and reflected rays along their own direction; the exercise's hint moves "
-        "it along the surface normal."
-        if yours == "ray"
-        else "you move the start of secondary rays along the normal; here they move along their own direction."
+        "it along the surface normal.",
+        "you move the start of secondary rays along the normal; here they move along their own direction.",
     ),
-    "ray_origin": lambda yours, ex: (
+    "ray_origin": _two_ways(
+        "camera",
         "your primary rays start at the camera; the exercise's start on the image plane z = 0 (Ray(planePoint, "
-        "planePoint − camera)), so shapes between the camera and the image plane are not seen."
-        if yours == "camera"
-        else "your primary rays start on the image plane; here they start at the camera."
+        "planePoint − camera)), so shapes between the camera and the image plane are not seen.",
+        "your primary rays start on the image plane; here they start at the camera.",
     ),
-    "pixel_sample": lambda yours, ex: (
-        "your primary rays go through pixel centres; the exercise samples " + _corner() + "."
-        if yours == "center"
-        else "your primary rays go through pixel corners; here they go through pixel centres."
+    "pixel_sample": _two_ways(
+        "center",
+        "your primary rays go through pixel centres; the exercise samples " + _corner() + ".",
+        "your primary rays go through pixel corners; here they go through pixel centres.",
     ),
     "specular_exponent": lambda yours, ex: f"your highlight is (r·s)^{yours}; the exercise's is (r·s)^{ex}.",
     "pixel_shift": lambda yours, ex: (
@@ -115,22 +121,22 @@ SENTENCES: dict[str, Callable[[Any, Any], str]] = {
         f"you {'store the colour linearly' if yours == 'linear' else f'apply {_gamma_words(yours)} before writing'}"
         f"; the exercise {'writes it linearly, without gamma' if ex == 'linear' else f'applies {_gamma_words(ex)}'}."
     ),
-    "rows": lambda yours, ex: (
+    "rows": _two_ways(
+        "bottom-up",
         "your image is upside down: rows are stored bottom-up (a BMP's native order) while the exercise's "
-        "bitmap(x, y) has y = 0 at the top."
-        if yours == "bottom-up"
-        else "your rows are stored top-down; here bottom-up."
+        "bitmap(x, y) has y = 0 at the top.",
+        "your rows are stored top-down; here bottom-up.",
     ),
-    "channels": lambda yours, ex: (
+    "channels": _two_ways(
+        "bgr",
         "your red and blue channels are swapped (BGR order, as a BMP stores pixels); "
-        "the exercise's colours are R, G, B."
-        if yours == "bgr"
-        else "your channels are R, G, B; here B, G, R."
+        "the exercise's colours are R, G, B.",
+        "your channels are R, G, B; here B, G, R.",
     ),
-    "transpose": lambda yours, ex: (
-        "your image is transposed: x and y are swapped (bitmap(y, x) instead of bitmap(x, y))."
-        if yours
-        else "your image is not transposed; here it is."
+    "transpose": _two_ways(
+        True,
+        "your image is transposed: x and y are swapped (bitmap(y, x) instead of bitmap(x, y)).",
+        "your image is not transposed; here it is.",
     ),
 }
 

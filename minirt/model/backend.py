@@ -94,13 +94,20 @@ def farthest_hit(p: dict) -> float:
     return p.get("max_distance", math.inf) * (1 - 1e-6) - p.get("max_distance_lift", 0.0)
 
 
+def tolerance_inputs(
+    result: RenderResult, ref: RenderResult, measured: Margins
+) -> tuple[int, int, dict[str, Any], dict[str, np.ndarray], np.ndarray]:
+    """What every ``geometry_tolerance`` starts from: the image's height and width, the precision the backend
+    recorded (``result.meta["precision"]``, {} if none), the measured margins as (H, W) images, and the
+    reference's t (0 where it misses)."""
+    h, w = ref.height, ref.width
+    return h, w, result.meta.get("precision") or {}, measured.image(h, w), np.where(ref.hit, ref.t, 0.0)
+
+
 def generic_tolerance(result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
     """The tolerance of a backend that records only generic keys in ``meta["precision"]`` (``band_eps``,
     ``t_rel``, ``t_abs``, ``normal_deg``), or a result no registered backend made (a test's)."""
-    h, w = ref.height, ref.width
-    p = result.meta.get("precision") or {}
-    m = measured.image(h, w)
-    t_ref = np.where(ref.hit, ref.t, 0.0)
+    h, w, p, m, t_ref = tolerance_inputs(result, ref, measured)
     eps = p.get("band_eps", 1e-6)
     band = m["margin"] < eps
     t_abs = p.get("t_rel", 1e-6) * t_ref + p.get("t_abs", 0.0)

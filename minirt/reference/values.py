@@ -51,29 +51,15 @@ class Types:
     def of(cls, precision: str) -> Types:
         from drjit import llvm
 
-        if precision == "f64":
-            return cls(
-                llvm.Float64,
-                llvm.UInt32,
-                llvm.Int32,
-                llvm.Bool,
-                llvm.Array3f64,
-                llvm.UInt64,
-                np.float64,
-                2.0**-53,
-            )
-        if precision == "f32":
-            return cls(
-                llvm.Float,
-                llvm.UInt32,
-                llvm.Int32,
-                llvm.Bool,
-                llvm.Array3f,
-                llvm.UInt32,
-                np.float32,
-                2.0**-24,
-            )
-        raise ValueError(f"unknown precision {precision!r} (f64 or f32)")
+        # what differs between the two: the float, its 3-vector, the unsigned integer of its bits, NumPy's dtype, u
+        own = {
+            "f64": (llvm.Float64, llvm.Array3f64, llvm.UInt64, np.float64, 2.0**-53),
+            "f32": (llvm.Float, llvm.Array3f, llvm.UInt32, np.float32, 2.0**-24),
+        }
+        if precision not in own:
+            raise ValueError(f"unknown precision {precision!r} (f64 or f32)")
+        Float, Array3, Bits, np_dtype, u = own[precision]
+        return cls(Float, llvm.UInt32, llvm.Int32, llvm.Bool, Array3, Bits, np_dtype, u)
 
     def zero3(self) -> Any:
         """(0, 0, 0) as a 3-vector of literals."""

@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth
+from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
@@ -83,10 +83,7 @@ class MitsubaOracle(Oracle):
 
     def geometry_tolerance(self, result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
         """This oracle's recorded precision as per-pixel tolerances, each with its derivation."""
-        h, w = ref.height, ref.width
-        p = result.meta.get("precision") or {}
-        m = measured.image(h, w)
-        t_ref = np.where(ref.hit, ref.t, 0.0)
+        h, w, p, m, t_ref = tolerance_inputs(result, ref, measured)
         ties = None
         eps = p["band_k"] * p["band_eps"]
         plane_abs = max([pl.get("abs_error", 0.0) for pl in result.meta.get("planes", {}).values()] or [0.0])

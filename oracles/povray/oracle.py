@@ -20,22 +20,21 @@ import numpy as np
 from minirt.errors import MinirtError
 from minirt.io.images import read_image, read_image_u8
 from minirt.jobs import processes
-from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, farthest_hit
+from minirt.model.backend import (
+    GeometryTolerance,
+    Margins,
+    Series,
+    Setting,
+    Truth,
+    farthest_hit,
+    tolerance_inputs,
+)
 from minirt.model.effects import effects
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
 from minirt.oracles.base import Oracle
-from minirt.oracles.povray.accuracy import (
-    band_inside_scales,
-    band_origin_scales,
-    band_scales,
-    band_threshold,
-    origin_lift,
-    precision,
-    root_errors,
-    start_decision,
-)
+from minirt.oracles.povray import accuracy
 from minirt.oracles.povray.buffers import color_frames, decode_geometry, encoding_ranges, geometry_frames
 from minirt.oracles.povray.exporter import export, scene_to_pov
 from minirt.oracles.povray.rays import (
@@ -115,10 +114,7 @@ class PovrayOracle(Oracle):
 
     def geometry_tolerance(self, result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
         """This oracle's recorded precision as per-pixel tolerances, each with its derivation."""
-        h, w = ref.height, ref.width
-        p = result.meta.get("precision") or {}
-        m = measured.image(h, w)
-        t_ref = np.where(ref.hit, ref.t, 0.0)
+        h, w, p, m, t_ref = tolerance_inputs(result, ref, measured)
         ties = None
         eps = p["band_threshold"]
         # its minimum distance along the harness's rays and its position error there (oracles.povray.start_decision)
@@ -325,21 +321,23 @@ class PovrayOracle(Oracle):
         timings["total"] = time.perf_counter() - t_start
         meta.update(passes=passes, commands=[p["command"] for p in passes], timings=timings)
         if gframes or geometry or samples > 1:  # geometry asked for (even with no shapes), or the exercise's samples
-            meta["precision"] = precision(scene, ranges or [None] * len(scene.shapes), mesh, mesh_reach(scene, rules))
-            inside = band_inside_scales(scene, rules, samples)
-            root = root_errors(scene, rules)
+            meta["precision"] = accuracy.precision(
+                scene, ranges or [None] * len(scene.shapes), mesh, mesh_reach(scene, rules)
+            )
+            inside = accuracy.band_inside_scales(scene, rules, samples)
+            root = accuracy.root_errors(scene, rules)
             meta["precision"].update(
-                band_threshold=band_threshold(scene, rules, samples, inside),
-                band_scale=band_scales(scene, rules, samples),
-                band_origin_scale=band_origin_scales(scene, rules, samples),
+                band_threshold=accuracy.band_threshold(scene, rules, samples, inside),
+                band_scale=accuracy.band_scales(scene, rules, samples),
+                band_origin_scale=accuracy.band_origin_scales(scene, rules, samples),
                 band_inside_scale=inside,
                 root_err=root,
                 root_normal_err=[
                     e / s.radius if isinstance(s, Ball) else 0.0 for e, s in zip(root, scene.shapes, strict=True)
                 ],
                 max_distance=MAX_DISTANCE,
-                max_distance_lift=0.0 if mesh else origin_lift(scene, rules),
-                **start_decision(scene, rules, mesh),
+                max_distance_lift=0.0 if mesh else accuracy.origin_lift(scene, rules),
+                **accuracy.start_decision(scene, rules, mesh),
             )
         if gframes:
             meta["encoding_ranges"] = ranges
@@ -408,22 +406,23 @@ class PovrayOracle(Oracle):
                     f"povray {m} exercise samples")
             for m in k["samples"]
         )  # fmt: skip
-        ref = "reference"  # the converged answers are the reference tracer's
+
+        def against_reference(knob: str, settings: tuple[Setting, ...], under: Rules, truth: str, cost: str,
+                              theory: str) -> Series:  # fmt: skip
+            """One knob's series under the rules ``under``, against the converged answer: the reference
+            tracer's at n spp under the same rules."""
+            return Series(self.name, knob, settings, under,
+                          Truth(f"reference/{n}spp/{truth}", "reference", f64, samples=n, rules=under,
+                                describe={"precision": "f64", "spp": n}),
+                          "color", metric="rmse", cost=cost, theory=theory,
+                          knobs={f"povray_{knob}": k[knob], "converged_reference_spp": n},
+                          seconds=self._sweep_seconds)  # fmt: skip
+
         return [
-            Series(self.name, "antialias", antialias, centre,
-                   Truth(f"reference/{n}spp/povray-rules", ref, f64, samples=n, rules=centre,
-                         describe={"precision": "f64", "spp": n}),
-                   "color", metric="rmse", cost="rays per pixel (R^2 + 1)",
-                   theory="~(R^2+1)^-0.75 (jittered grid, edges) down to a floor (centre-weighted filter)",
-                   knobs={"povray_antialias": k["antialias"], "converged_reference_spp": n},
-                   seconds=self._sweep_seconds),
-            Series(self.name, "samples", samples, corner,
-                   Truth(f"reference/{n}spp/povray-rules-corner", ref, f64, samples=n, rules=corner,
-                         describe={"precision": "f64", "spp": n}),
-                   "color", metric="rmse", cost="rays per pixel",
-                   theory="as reference/spp: the same stratified samples, at POV-Ray's cost per ray",
-                   knobs={"povray_samples": k["samples"], "converged_reference_spp": n},
-                   seconds=self._sweep_seconds),
+            against_reference("antialias", antialias, centre, "povray-rules", "rays per pixel (R^2 + 1)",
+                              "~(R^2+1)^-0.75 (jittered grid, edges) down to a floor (centre-weighted filter)"),
+            against_reference("samples", samples, corner, "povray-rules-corner", "rays per pixel",
+                              "as reference/spp: the same stratified samples, at POV-Ray's cost per ray"),
         ]  # fmt: skip
 
     @classmethod

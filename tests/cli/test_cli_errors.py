@@ -8,29 +8,10 @@ from pathlib import Path
 
 import pytest
 from support.inproc import minirt
+from support.scenes import ball, plane, scene_text, write_scene
 
-GOOD = """
-[camera]
-distance = 2.0
-width = 8
-height = 8
-[light]
-position = [10.0, 10.0, -1.0]
-[render]
-max_depth = 1
-[materials.m]
-diffuse = [0.5, 0.5, 0.5]
-[[shapes]]
-type = "ball"
-center = [0.0, 0.0, 4.0]
-radius = 0.5
-material = "m"
-[[shapes]]
-type = "plane"
-normal = [0.0, 1.0, 0.0]
-distance = -1.0
-material = "m"
-"""
+# A good scene file (8x8, a ball over a floor, tests/support/scenes.py): each case edits one line of its text.
+GOOD = scene_text(ball((0.0, 0.0, 4.0), 0.5), plane((0.0, 1.0, 0.0), -1.0), size=8, render={"max_depth": 1})
 
 CASES = [
     ("unknown key", ("[camera]\n", "[camera]\nzoom = 2\n"), "camera.zoom: unknown key"),
@@ -94,8 +75,7 @@ def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
 def test_bad_scene(tmp_path, what, edit, message):
     old, new = edit
     assert old in GOOD
-    path = tmp_path / "x.toml"
-    path.write_text(GOOD.replace(old, new, 1))
+    path = write_scene(tmp_path, "x", GOOD.replace(old, new, 1))
     out = tmp_path / "out"
     p = run("render", str(path), "--out", str(out))
     assert p.returncode == 2, p.stderr
@@ -107,15 +87,13 @@ def test_bad_scene(tmp_path, what, edit, message):
 
 
 def test_toml_syntax_error_names_line(tmp_path):
-    path = tmp_path / "x.toml"
-    path.write_text(GOOD.replace("width = 8", "width = = 8"))
+    path = write_scene(tmp_path, "x", GOOD.replace("width = 8", "width = = 8"))
     p = run("render", str(path))
     assert "line 4" in p.stderr
 
 
 def test_good_scene_renders(tmp_path):
-    path = tmp_path / "x.toml"
-    path.write_text(GOOD)
+    path = write_scene(tmp_path, "x", GOOD)
     p = run("render", str(path), "--out", str(tmp_path / "out"))
     assert p.returncode == 0, p.stderr
     assert sorted(f.name for f in (tmp_path / "out").iterdir()) == [
@@ -233,8 +211,7 @@ def test_a_closed_stream_does_not_change_the_status(tmp_path, closed, good):
     import shlex
     import sys
 
-    scene = tmp_path / "s.toml"
-    scene.write_text(GOOD if good else GOOD.replace("distance = 2.0", 'distance = "x"'))
+    scene = write_scene(tmp_path, "s", GOOD if good else GOOD.replace("distance = 2.0", 'distance = "x"'))
     cmd = f"exec {shlex.quote(sys.executable)} -m minirt render {shlex.quote(str(scene))} --out out {closed}"
     p = subprocess.run(["sh", "-c", cmd], cwd=tmp_path, timeout=120)
     assert p.returncode == (0 if good else 2)

@@ -16,7 +16,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from support.browser import run_browser
+from support.browser import assert_all_images_loaded, console, loaded_page, screenshot
 
 from minirt.grading import classroom
 from minirt.grading import grade as grading
@@ -217,20 +217,11 @@ def test_class_index(klass):
 
 def check_in_browser(index: Path, tmp: Path, html: str) -> None:
     url = index.resolve().as_uri()
-    dom = run_browser(tmp, "--dump-dom", url)
-    assert dom.returncode == 0, dom.stderr[-2000:]
-    body = re.search(r"<body\b[^>]*\bdata-ready=[^>]*>", dom.stdout)
-    assert body, dom.stdout[:2000]
-    attrs = dict(re.findall(r'([\w-]+)="([^"]*)"', body.group(0)))
-    loaded, total = map(int, attrs["data-images-loaded"].split("/"))
-    assert total == len(re.findall(r"<img\b", html)) and loaded == total, attrs
+    dom, attrs = loaded_page(tmp, url, "data-ready")
+    assert_all_images_loaded(attrs, html)
     assert attrs["data-errors"] == "0" and attrs["data-csp-violations"] == "0", attrs
-    console = [ln for ln in dom.stderr.splitlines() if ":CONSOLE" in ln]
-    assert not console, console
-    shot = tmp / "shot.png"
-    r = run_browser(tmp, f"--screenshot={shot}", "--window-size=1100,1400", url)
-    assert r.returncode == 0 and shot.is_file(), r.stderr[-2000:]
-    px = read_image_u8(shot)[..., :3]
+    assert not console(dom), console(dom)
+    px = screenshot(tmp, url, 1100, 1400)
     colours = np.unique(px.reshape(-1, 3), axis=0)
     assert len(colours) > 100 and px.std() > 10 and (px > 245).all(-1).mean() < 0.5, (len(colours), px.std())
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from support.evidence import dump_check
+from support.scenes import SHINY, ball, plane, scene_text, write_scene
 
 from minirt.harness.run import check_scene
 from minirt.oracles import names as oracle_names
@@ -44,49 +45,38 @@ def test_every_rule_an_oracle_cannot_follow_is_attributed():
 
 
 # Degenerate but valid scenes: every oracle must PASS on them, not crash or cry wolf.
-_EDGE_MATERIAL = """
-[light]
-position = [2.0, 3.0, -1.0]
-[render]
-background = [0.1, 0.2, 0.3]
-[materials.m]
-ambient = [0.1, 0.1, 0.1]
-diffuse = [0.6, 0.5, 0.4]
-specular = [0.3, 0.3, 0.3]
-reflection = [0.2, 0.2, 0.2]
-"""
-_BALL = '[[shapes]]\ntype = "ball"\ncenter = [0.0, 0.0, 3.0]\nradius = 1.0\nmaterial = "m"\n'
-_FLOOR = '[[shapes]]\ntype = "plane"\nnormal = [0.0, 1.0, 0.0]\ndistance = -1.0\nmaterial = "m"\n'
+def _edge_scene(size: str, shapes: str) -> str:
+    """WIDTHxHEIGHT pixels, one shiny material "m" (tests/support/scenes.py)."""
+    w, h = size.split("x")
+    return scene_text(
+        shapes,
+        size=(int(w), int(h)),
+        light=(2.0, 3.0, -1.0),
+        render={"background": (0.1, 0.2, 0.3)},
+        materials={"m": SHINY},
+    )
+
+
+_BALL = ball((0.0, 0.0, 3.0), 1.0)
+_FLOOR = plane((0.0, 1.0, 0.0), -1.0)
 EDGE_SCENES = {
     "no_shapes": ("32x32", ""),
     "one_pixel": ("1x1", _BALL),
     "wide_strip": ("40x3", _BALL + _FLOOR),
     # a ball around the camera position: POV-Ray needs its mesh camera, the near root is behind every ray
-    "ball_at_camera": ("24x24", _BALL + _BALL.replace("0.0, 0.0, 3.0", "0.0, 0.0, -2.0").replace("1.0", "0.5")),
-    "plane_through_camera": ("24x24", _FLOOR.replace("0.0, 1.0, 0.0", "1.0, 0.0, 0.0").replace("-1.0", "0.0")),
+    "ball_at_camera": ("24x24", _BALL + ball((0.0, 0.0, -2.0), 0.5)),
+    "plane_through_camera": ("24x24", plane((1.0, 0.0, 0.0), 0.0)),
     # Found by fuzzing random scenes through every oracle:
     # two planes of one material: Mitsuba's loader merged them into one shape without an id
-    "two_planes_one_material": (
-        "24x24",
-        _FLOOR + _FLOOR.replace("0.0, 1.0, 0.0", "1.0, 0.0, 0.0").replace("-1.0", "-1.5"),
-    ),
+    "two_planes_one_material": ("24x24", _FLOOR + plane((1.0, 0.0, 0.0), -1.5)),
     # a plane seen almost edge-on (|n·d| down to 4e-4): t is conditioned by 1/|n·d| in every oracle
-    "grazing_plane": (
-        "24x24",
-        _BALL + _FLOOR.replace("0.0, 1.0, 0.0", "-0.696, 0.666, -0.031").replace("-1.0", "-0.197"),
-    ),
+    "grazing_plane": ("24x24", _BALL + plane((-0.696, 0.666, -0.031), -0.197)),
     # a plane through the image plane: a line of rays starts exactly on it (t = 0, a miss under t > 0);
     # Mitsuba's and Embree's float32 put a hit at t ~ 1e-7, POV-Ray's mesh camera drops hits within 1e-4
     # (all three FAILed before the start band, minirt.reference.band.start_band)
-    "plane_through_image_plane": (
-        "48x48",
-        _BALL + _FLOOR.replace("0.0, 1.0, 0.0", "0.3, 0.7, -0.5").replace("-1.0", "0.0"),
-    ),
+    "plane_through_image_plane": ("48x48", _BALL + plane((0.3, 0.7, -0.5), 0.0)),
     # a big ball crossing the image plane, rays near its silhouette: Mitsuba's float32 discriminant
-    "ball_across_image_plane": (
-        "24x24",
-        _BALL.replace("0.0, 0.0, 3.0", "-0.994, 1.429, 0.359").replace("radius = 1.0", "radius = 1.386"),
-    ),
+    "ball_across_image_plane": ("24x24", ball((-0.994, 1.429, 0.359), 1.386)),
 }
 
 
@@ -94,9 +84,7 @@ EDGE_SCENES = {
 @pytest.mark.parametrize("name", sorted(EDGE_SCENES))
 def test_edge_scene_against_every_oracle(name, tmp_path):
     size, shapes = EDGE_SCENES[name]
-    w, h = size.split("x")
-    path = tmp_path / f"{name}.toml"
-    path.write_text(f"[camera]\ndistance = 2.0\nwidth = {w}\nheight = {h}\n{_EDGE_MATERIAL}{shapes}")
+    path = write_scene(tmp_path, name, _edge_scene(size, shapes))
     sc = check_scene(path, ["reference", *oracle_names()])
     bad = {n: f"{b.verdict} {b.reason}" for n, b in sc.backends.items() if b.verdict != "pass"}
     assert not bad, bad
@@ -171,7 +159,7 @@ def test_shadow_decisions_within_the_oracles_position_error_are_not_judged():
 
 
 # Checks that could not fail, formerly reported as PASS: now an inconclusive WARN, with the figures.
-PLANET = _BALL + _BALL.replace("0.0, 0.0, 3.0", "0.0, -100000001.0, 0.0").replace("1.0\n", "100000000.0\n")
+PLANET = _BALL + ball((0.0, -100000001.0, 0.0), 100000000.0)
 
 
 @pytest.mark.slow
@@ -181,8 +169,7 @@ def test_a_planet_sized_ground_is_inconclusive_for_the_float32_oracles(tmp_path)
     nowhere, inconclusive. POV-Ray decides it in double precision, and its band is per shape: the camera
     starts 1 above the ground, 1e-8 of its radius, against its origin test's 2^-53 |f|^2 / r^2 -- so
     POV-Ray judges nearly every pixel, and agrees."""
-    path = tmp_path / "planet.toml"
-    path.write_text(f"[camera]\ndistance = 2.0\nwidth = 24\nheight = 24\n{_EDGE_MATERIAL}{PLANET}")
+    path = write_scene(tmp_path, "planet", _edge_scene("24x24", PLANET))
     sc = check_scene(path, ["reference", *oracle_names()])
     for name, b in sc.backends.items():
         fig = b.checks["geometry"].figures["inconclusive"]

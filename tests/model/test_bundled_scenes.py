@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 from support.inproc import minirt
+from support.scenes import ball, scene_text
 
 from minirt.io.images import read_image_u8
 from minirt.model import bundled as scenes
@@ -16,23 +17,7 @@ from minirt.model import bundled as scenes
 ROOT = Path(__file__).resolve().parents[2]
 NAMES = sorted(p.stem for p in (ROOT / "scenes").glob("*.toml"))
 
-SMALL = """
-[camera]
-distance = 2.0
-width = 8
-height = 6
-[light]
-position = [10.0, 10.0, -1.0]
-[render]
-max_depth = 1
-[materials.m]
-diffuse = [0.5, 0.5, 0.5]
-[[shapes]]
-type = "ball"
-center = [0.0, 0.0, 4.0]
-radius = 0.5
-material = "m"
-"""
+SMALL = scene_text(ball((0.0, 0.0, 4.0), 0.5), size=(8, 6), render={"max_depth": 1})
 
 
 def run(cwd: Path, *args: str) -> subprocess.CompletedProcess:

@@ -18,6 +18,7 @@ import drjit as dr
 import numpy as np
 import pytest
 from support.plain import Plain
+from support.scenes import ball, material, scene_text
 from support.versus_plain import SIZE, _compare
 
 from minirt.cli.options import parse_rules as _parse_rules
@@ -188,19 +189,7 @@ def test_zero_shift_is_the_default_bit_for_bit():
 
 
 # ---- the 2014 edition --------------------------------------------------------------------------
-SCENE_B = """
-[camera]
-distance = 3.0
-[light]
-position = [10.0, 10.0, -1.0]
-[materials.m]
-diffuse = [1.0, 1.0, 1.0]
-[[shapes]]
-type = "ball"
-center = [0.0, 0.0, 0.0]
-radius = 1.0
-material = "m"
-"""
+SCENE_B = scene_text(ball((0.0, 0.0, 0.0), 1.0), distance=3.0, materials={"m": material(1.0)})
 
 
 @pytest.mark.parametrize("precision", ["f64", "f32"])
@@ -512,26 +501,13 @@ def test_runtime_subset_rays_same_bits(precision):
 # ---------------------------------------------------------------------------------------------
 # near_root_only with the error-bound offset: back faces shadow themselves
 
-_BACK_FACE = """
-[camera]
-distance = 2.0
-width = 24
-height = 24
-[light]
-position = [0.0, 0.0, 12.0]
-[render]
-background = [0.1, 0.2, 0.3]
-max_depth = 0
-[materials.m]
-ambient = [0.1, 0.1, 0.1]
-diffuse = [0.7, 0.6, 0.5]
-specular = [0.5, 0.5, 0.5]
-[[shapes]]
-type = "ball"
-center = [0.3, 0.0, 3.0]
-radius = 1.0
-material = "m"
-"""
+_BACK_FACE = scene_text(
+    ball((0.3, 0.0, 3.0), 1.0),
+    size=24,
+    light=(0.0, 0.0, 12.0),
+    render={"background": (0.1, 0.2, 0.3), "max_depth": 0},
+    materials={"m": material((0.7, 0.6, 0.5), ambient=0.1, specular=0.5)},
+)
 
 
 @pytest.mark.parametrize("big", [False, True], ids=["unrolled", "bvh"])
@@ -543,10 +519,7 @@ def test_near_root_only_with_the_error_bound_offset_keeps_back_face_self_shadows
     under the exercise's numeric offset along the normal and as without near_root_only."""
     text = _BACK_FACE
     if big:  # from 16 shapes on the tracer goes through the shape table and the BVH: far, unseen balls
-        text += "".join(
-            f'[[shapes]]\ntype = "ball"\ncenter = [{40.0 + 3 * k}, 40.0, -20.0]\nradius = 0.5\nmaterial = "m"\n'
-            for k in range(16)
-        )
+        text += "".join(ball((40.0 + 3 * k, 40.0, -20.0), 0.5) for k in range(16))
     scene = parse_scene(text)
     base = replace(PROFILES["exercise"], offset="error-bound")
     assert base.near_root_only is True and base.clamp is False

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.scenes import ball, material, plane, scene_text
 
 from minirt import oracles
 from minirt.io.images import read_image_u8
@@ -54,35 +55,14 @@ CASES = [(p.stem, p.stem, {}) for p in sorted((ROOT / "scenes").glob("*.toml"))]
     ("near-ball", None, {}),  # a ball between camera and image plane: the mesh camera
 ]
 
-NEAR_BALL = """
-[camera]
-distance = 2.0
-[light]
-position = [3.0, 4.0, -3.0]
-[render]
-background = [0.1, 0.1, 0.2]
-max_depth = 2
-[materials.m]
-ambient = [0.1, 0.05, 0.0]
-diffuse = [0.5, 0.6, 0.7]
-specular = [0.4, 0.4, 0.4]
-reflection = [0.3, 0.3, 0.3]
-[[shapes]]
-type = "ball"
-center = [0.1, 0.0, -0.6]
-radius = 0.15
-material = "m"
-[[shapes]]
-type = "ball"
-center = [0.0, 0.0, 4.0]
-radius = 1.0
-material = "m"
-[[shapes]]
-type = "plane"
-normal = [0.0, 1.0, 0.0]
-distance = -1.0
-material = "m"
-"""
+NEAR_BALL = scene_text(
+    ball((0.1, 0.0, -0.6), 0.15),
+    ball((0.0, 0.0, 4.0), 1.0),
+    plane((0.0, 1.0, 0.0), -1.0),
+    light=(3.0, 4.0, -3.0),
+    render={"background": (0.1, 0.1, 0.2), "max_depth": 2},
+    materials={"m": material((0.5, 0.6, 0.7), ambient=(0.1, 0.05, 0.0), specular=0.4, reflection=0.3)},
+)
 
 
 def _scene(stem: str | None) -> Scene:
@@ -272,16 +252,7 @@ KEYWORDS = {
     "declare", povray.MESH_NAME, "mesh2", "vertex_vectors", "face_indices", "mesh_camera", "mesh",  # mesh camera
 }  # fmt: skip
 # A ball between camera and image plane: the same hostile names through the mesh-camera exporter.
-HOSTILE_NEAR = (
-    HOSTILE
-    + """
-[[shapes]]
-type = "ball"
-center = [0.0, 0.0, -0.5]
-radius = 0.05
-material = "#declare\\n/*"
-"""
-)
+HOSTILE_NEAR = HOSTILE + "\n" + ball((0.0, 0.0, -0.5), 0.05, "#declare\n/*")
 
 
 @pytest.mark.parametrize("text", [HOSTILE, HOSTILE_NEAR], ids=["pinhole", "mesh-camera"])
@@ -427,16 +398,12 @@ def test_samples_option_is_checked():
 
 def _hidden_then_shown(hidden: int) -> Scene:
     """``hidden`` tiny balls far behind the camera, then five visible ones (the last ids)."""
-    behind = "".join(
-        f'[[shapes]]\ntype = "ball"\ncenter = [{0.01 * k!r}, 0.0, -50.0]\nradius = 0.001\nmaterial = "m"\n'
-        for k in range(hidden)
-    )
+    behind = "".join(ball((0.01 * k, 0.0, -50.0), 0.001) for k in range(hidden))
     shown = "".join(
-        f'[[shapes]]\ntype = "ball"\ncenter = [{x!r}, {y!r}, 4.0]\nradius = 0.6\nmaterial = "m"\n'
-        for x, y in ((-1.0, -0.6), (0.0, -0.6), (1.0, -0.6), (-0.5, 0.6), (0.5, 0.6))
+        ball((x, y, 4.0), 0.6) for x, y in ((-1.0, -0.6), (0.0, -0.6), (1.0, -0.6), (-0.5, 0.6), (0.5, 0.6))
     )
-    head = "[camera]\ndistance = 2.0\nwidth = 24\nheight = 24\n[light]\nposition = [3.0, 4.0, -3.0]\n"
-    return parse_scene(head + "[materials.m]\ndiffuse = [0.6, 0.5, 0.4]\n" + behind + shown)
+    m = {"m": material((0.6, 0.5, 0.4))}
+    return parse_scene(scene_text(behind, shown, size=24, light=(3.0, 4.0, -3.0), materials=m))
 
 
 def test_ids_of_more_shapes_than_one_half_float_channel_holds():

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from support.browser import run_browser
+from support.browser import assert_all_images_loaded, console, loaded_page, screenshot
 
 from minirt.harness.geometry import check_geometry
 from minirt.harness.results import BackendCheck, CheckResult, SceneCheck, worst
@@ -232,25 +232,15 @@ def test_sweep_view_tolerates_missing_keys(tmp_path):
 def test_in_a_browser(built, tmp_path):
     url = built.index.resolve().as_uri()
     # 1. The DOM after the load event: the page's own script writes its self-check on <body>.
-    dom = run_browser(tmp_path, "--dump-dom", url)
-    assert dom.returncode == 0, dom.stderr[-2000:]
-    body = re.search(r"<body\b[^>]*\bdata-verdict=[^>]*>", dom.stdout)
-    assert body, dom.stdout[:2000]
-    attrs = dict(re.findall(r'([\w-]+)="([^"]*)"', body.group(0)))
-    assert attrs.get("data-ready") == "1", body.group(0)
-    loaded, total = map(int, attrs["data-images-loaded"].split("/"))
-    assert total == len(re.findall(r"<img\b", built.html)) and loaded == total, attrs
+    dom, attrs = loaded_page(tmp_path, url, "data-verdict")
+    assert attrs.get("data-ready") == "1", attrs
+    assert_all_images_loaded(attrs, built.html)
     assert attrs["data-errors"] == "0" and attrs["data-alerts"] == "0" and attrs["data-csp-violations"] == "0", attrs
     assert len(re.findall(r"<script\b", dom.stdout, re.I)) == 1  # nothing injected
     assert ESCAPED in dom.stdout  # shown as text
-    # Chromium logs every console message (errors, CSP refusals) as "CONSOLE" on stderr.
-    console = [ln for ln in dom.stderr.splitlines() if ":CONSOLE" in ln]
-    assert not console, console
+    assert not console(dom), console(dom)  # errors and CSP refusals
     # 2. A screenshot: not blank.
-    shot = tmp_path / "shot.png"
-    r = run_browser(tmp_path, f"--screenshot={shot}", "--window-size=1280,2000", url)
-    assert r.returncode == 0 and shot.is_file(), r.stderr[-2000:]
-    px = read_image_u8(shot)[..., :3]
+    px = screenshot(tmp_path, url, 1280, 2000)
     assert px.shape[:2] == (2000, 1280)
     colours = np.unique(px.reshape(-1, 3), axis=0)
     white = (px > 245).all(-1).mean()

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.scenes import ball, material, plane, scene_text
 
 from minirt.harness.run import check_scene
 from minirt.model import camera
@@ -21,31 +22,14 @@ from minirt.reference import band
 
 SCENES = Path(__file__).parents[1] / "scenes"
 
-_TWO = """
-[camera]
-distance = 2.0
-width = 32
-height = 32
-[light]
-position = [2.0, 3.0, -1.0]
-[materials.m]
-diffuse = [0.6, 0.5, 0.4]
-[[shapes]]
-type = "ball"
-center = [-0.6, 0.0, 4.0]
-radius = 1.0
-material = "m"
-[[shapes]]
-type = "ball"
-center = [0.8, 0.2, 4.5]
-radius = 1.2
-material = "m"
-[[shapes]]
-type = "plane"
-normal = [0.0, 1.0, 0.0]
-distance = -1.0
-material = "m"
-"""
+_TWO = scene_text(
+    ball((-0.6, 0.0, 4.0), 1.0),
+    ball((0.8, 0.2, 4.5), 1.2),
+    plane((0.0, 1.0, 0.0), -1.0),
+    size=32,
+    light=(2.0, 3.0, -1.0),
+    materials={"m": material((0.6, 0.5, 0.4))},
+)
 
 
 def _rays(sc):
@@ -187,11 +171,7 @@ def _one_ball(distance: float, radius: float):
     from minirt.oracles import mitsuba
 
     c = np.array([0.6, 0.0, 0.8]) * distance
-    sc = parse_scene(
-        "[camera]\ndistance = 1.0\n[light]\nposition = [0.0, 5.0, 0.0]\n[materials.m]\ndiffuse = [0.5, 0.5, 0.5]\n"
-        f'[[shapes]]\ntype = "ball"\ncenter = [{float(c[0])!r}, {float(c[1])!r}, {float(c[2])!r}]\n'
-        f'radius = {radius!r}\nmaterial = "m"\n'
-    )
+    sc = parse_scene(scene_text(ball(c, radius), distance=1.0, light=(0.0, 5.0, 0.0)))
     return c, mitsuba.band_scales(sc, np.zeros((1, 3)))
 
 

@@ -29,6 +29,7 @@ from decimal import Decimal, localcontext
 import drjit as dr
 import numpy as np
 import pytest
+from support.scenes import ball, material, plane, scene_text
 
 from minirt.errors import MinirtError, SceneError
 from minirt.model import camera
@@ -40,55 +41,34 @@ EPS = {"f64": float(np.finfo(np.float64).eps), "f32": float(np.finfo(np.float32)
 NP = {"f64": np.float64, "f32": np.float32}
 K_MAX = 10.0
 PRECISIONS = ["f64", "f32"]
+Vec = tuple[float, float, float]
 
 
 # ---------------------------------------------------------------------------------------------
 # helpers
 
 
+_MATERIALS = {
+    "m": material((0.7, 0.6, 0.5), ambient=0.1, specular=0.5, reflection=0.2),
+    "other": material((0.2, 0.9, 0.1), ambient=(0.0, 0.3, 0.0)),
+}
+
+
 def make_scene(
     shapes: str,
-    light: str = "[0.0, 5.0, 0.0]",
+    light: Vec = (0.0, 5.0, 0.0),
     distance: float = 2.0,
     size: int = 16,
     profile: str = "exercise",
     max_depth: int = 2,
-    light_color: str = "[1.0, 1.0, 1.0]",
+    light_color: Vec = (1.0, 1.0, 1.0),
 ) -> Scene:
-    return parse_scene(
-        f"""
-[camera]
-distance = {distance!r}
-width = {size}
-height = {size}
-[light]
-position = {light}
-color = {light_color}
-[render]
-background = [0.1, 0.2, 0.3]
-profile = "{profile}"
-max_depth = {max_depth}
-[materials.m]
-ambient = [0.1, 0.1, 0.1]
-diffuse = [0.7, 0.6, 0.5]
-specular = [0.5, 0.5, 0.5]
-reflection = [0.2, 0.2, 0.2]
-[materials.other]
-ambient = [0.0, 0.3, 0.0]
-diffuse = [0.2, 0.9, 0.1]
-{shapes}
-"""
+    """``shapes`` (``ball``, ``plane``) in a size x size image, with two materials, "m" and "other"."""
+    render = {"background": (0.1, 0.2, 0.3), "profile": profile, "max_depth": max_depth}
+    text = scene_text(
+        shapes, distance=distance, size=size, light=light, color=light_color, render=render, materials=_MATERIALS
     )
-
-
-def ball(center, radius, material: str = "m") -> str:
-    c = ", ".join(repr(float(x)) for x in center)
-    return f'[[shapes]]\ntype = "ball"\ncenter = [{c}]\nradius = {float(radius)!r}\nmaterial = "{material}"\n'
-
-
-def plane(normal, distance, material: str = "m") -> str:
-    n = ", ".join(repr(float(x)) for x in normal)
-    return f'[[shapes]]\ntype = "plane"\nnormal = [{n}]\ndistance = {float(distance)!r}\nmaterial = "{material}"\n'
+    return parse_scene(text)
 
 
 def trace(scene: Scene, rules: Rules, o, d, precision: str = "f64", record: bool = False):
@@ -221,7 +201,7 @@ def test_huge_ball_ground_t(precision):
 
 def ground_scene(profile: str, size: int = 32) -> Scene:
     # ground: r = 1e6, top at y = -1 (camera 1 above the ground... image plane from y = -0.5 to 0.5)
-    return make_scene(ball((0.0, -1e6 - 1.0, 4.0), 1e6), light="[0.0, 100.0, 4.0]", size=size, profile=profile)
+    return make_scene(ball((0.0, -1e6 - 1.0, 4.0), 1e6), light=(0.0, 100.0, 4.0), size=size, profile=profile)
 
 
 def lit_fraction_of_ground(scene: Scene, rules: Rules, precision: str) -> tuple[float, int]:
@@ -267,7 +247,7 @@ def test_tangent_and_grazing_rays(profile, precision):
     """Rays exactly tangent to a ball and within a few ulps of tangent, rays grazing a plane: no NaN in
     t or colour, each ray decided (hit with finite t > 0, or miss with t = inf)."""
     shapes = ball((0.0, 0.0, 0.0), 1.0) + plane((0.0, 1.0, 0.0), -1.0)
-    sc = make_scene(shapes, light="[3.0, 4.0, -5.0]", profile=profile)
+    sc = make_scene(shapes, light=(3.0, 4.0, -5.0), profile=profile)
     one = 1.0
     ys = [one, np.nextafter(one, 2), np.nextafter(one, 0), 1 + 1e-12, 1 - 1e-12, 1 + 1e-7, 1 - 1e-7]
     o = [[0.0, y, -3.0] for y in ys] + [[x, 0.0, -3.0] for x in ys]
@@ -299,7 +279,7 @@ def test_camera_inside_ball(precision):
     Exercise: only the near root counts, so the enclosing ball is invisible (every pixel misses).
     Conventional: every pixel sees the inside, and every inside point faces the light, so all are lit
     (no acne on a concave surface: the offset goes to the side the shadow ray leaves to)."""
-    sc = make_scene(ball((0.0, 0.0, -1.0), 5.0), light="[0.5, 1.0, 1.0]", size=24)
+    sc = make_scene(ball((0.0, 0.0, -1.0), 5.0), light=(0.5, 1.0, 1.0), size=24)
     ex = Tracer(sc, PROFILES["exercise"], precision=precision).render()
     assert not ex.hit.any() and np.isfinite(ex.color).all()
     cv = Tracer(sc, PROFILES["conventional"], precision=precision).render()
@@ -311,7 +291,7 @@ def test_camera_inside_ball(precision):
 def test_camera_at_ball_centre(precision):
     """Rays starting exactly at a ball's centre (rule ray_origin = "camera", ball centred on the camera):
     f = 0, b = 0, disc = r^2. Exercise: miss (near root -r < 0). Conventional: t = r for every ray."""
-    sc = make_scene(ball((0.0, 0.0, -2.0), 3.0), light="[0.5, 1.0, -1.0]", size=16)
+    sc = make_scene(ball((0.0, 0.0, -2.0), 3.0), light=(0.5, 1.0, -1.0), size=16)
     for profile in PROFILES:
         rules = replace(PROFILES[profile], ray_origin="camera")
         res = Tracer(sc, rules, precision=precision).render()
@@ -362,7 +342,7 @@ def test_ray_parallel_to_plane(precision):
     """Rays parallel to a tilted plane (n·d rounds to 0 or to a tiny non-zero number), and a ray lying in
     the plane (0/0): a miss or a far hit, never a NaN, in t or in the shaded colour."""
     n = unit([1.0, 1.0, 1.0])[0]
-    sc = make_scene(plane(n, 1.0), light="[5.0, 5.0, 5.0]")
+    sc = make_scene(plane(n, 1.0), light=(5.0, 5.0, 5.0))
     along = unit([[1.0, -1.0, 0.0], [1.0, 0.0, -1.0], [0.0, 1.0, -1.0], [1.0, 1.0, -2.0]])
     o = np.concatenate([np.zeros((4, 3)), np.tile(n * 1.0, (4, 1))])  # 4 off the plane, 4 on it
     d = np.concatenate([along, along])
@@ -398,7 +378,7 @@ def test_coincident_surfaces_tie_break(precision):
         + plane((0.0, -1.0, 0.0), 1.0, "m")
     )
     for profile in PROFILES:
-        sc = make_scene(shapes, light="[3.0, 5.0, 0.0]", size=32, profile=profile)
+        sc = make_scene(shapes, light=(3.0, 5.0, 0.0), size=32, profile=profile)
         a = Tracer(sc, PROFILES[profile], precision=precision).render()
         b = Tracer(sc, PROFILES[profile], precision=precision).render()
         assert set(np.unique(a.shape_id).tolist()) <= {-1, 0, 2}
@@ -555,7 +535,7 @@ def test_light_on_surface(profile, precision):
     """The light exactly on a surface (on the floor plane and on top of a ball), seen from the camera:
     no NaN anywhere in the image (the centre ray hits neither light position exactly)."""
     shapes = ball((0.3, 0.0, 4.0), 0.5) + plane((0.0, 1.0, 0.0), -1.0)
-    for light in ("[0.7, -1.0, 3.0]", "[0.3, 0.5, 4.0]"):
+    for light in ((0.7, -1.0, 3.0), (0.3, 0.5, 4.0)):
         sc = make_scene(shapes, light=light, size=32, profile=profile)
         res = Tracer(sc, PROFILES[profile], precision=precision).render()
         assert np.isfinite(res.color).all()
@@ -568,8 +548,8 @@ def test_light_exactly_at_a_hit_point(profile, precision):
     has o = (0, 0, 0), d = (0, 0, 1) exactly): the image must not contain a NaN. (Was a bug: the light
     direction was 0/0; that point is now unlit.)"""
     for shapes, light in (
-        (plane((0.0, 0.0, -1.0), -3.0), "[0.0, 0.0, 3.0]"),
-        (ball((0.0, 0.0, 4.0), 0.5), "[0.0, 0.0, 3.5]"),
+        (plane((0.0, 0.0, -1.0), -3.0), (0.0, 0.0, 3.0)),
+        (ball((0.0, 0.0, 4.0), 0.5), (0.0, 0.0, 3.5)),
     ):
         sc = make_scene(shapes, light=light, profile=profile)
         res = Tracer(sc, PROFILES[profile], precision=precision).render()
@@ -623,27 +603,21 @@ def test_invalid_camera_light_rejected(what):
 
 
 def _scene_text(shapes: str) -> str:
-    return f"""
-[camera]
-distance = 2.0
-width = 16
-height = 16
-[light]
-position = [0.0, 5.0, 0.0]
-color = [1.0, 1.0, 1.0]
-[render]
-background = [0.1, 0.2, 0.3]
-[materials.m]
-diffuse = [0.7, 0.6, 0.5]
-{shapes}
-"""
+    return scene_text(
+        shapes,
+        size=16,
+        light=(0.0, 5.0, 0.0),
+        color=(1.0, 1.0, 1.0),
+        render={"background": (0.1, 0.2, 0.3)},
+        materials={"m": material((0.7, 0.6, 0.5))},
+    )
 
 
 # ---------------------------------------------------------------------------------------------
 # extreme but valid scenes: never a NaN, never a crash
 
 
-def _render_centre(shapes: str, profile: str, precision: str, light: str = "[0.0, 5.0, 0.0]", **kw):
+def _render_centre(shapes: str, profile: str, precision: str, light: Vec = (0.0, 5.0, 0.0), **kw):
     sc = make_scene(shapes, light=light, profile=profile, **kw)
     return Tracer(sc, PROFILES[profile], precision=precision).render()
 
@@ -702,7 +676,7 @@ def test_huge_light_colour_no_nan(precision):
     """Light colour 1e300 (valid: colours have no upper bound): float64 stays finite; float32 overflows to
     inf (1e300 is not a float32), which is expected, but never to NaN (inf * 0 would be)."""
     for profile in PROFILES:
-        res = _render_centre(ball((0.0, 0.0, 4.0), 0.5), profile, precision, light_color="[1e300, 1e300, 1e300]")
+        res = _render_centre(ball((0.0, 0.0, 4.0), 0.5), profile, precision, light_color=(1e300, 1e300, 1e300))
         assert not np.isnan(res.color).any()
         if precision == "f64":
             assert np.isfinite(res.color).all()
@@ -741,7 +715,7 @@ def test_light_far_away():
     """The light at (0, 1e99, 0): float64 renders it without a NaN; float32 cannot hold it and refuses
     with a message (was a bug: NaN colours)."""
     for profile in PROFILES:
-        res = _render_centre(ball((0.0, 0.0, 4.0), 0.5), profile, "f64", light="[0.0, 1e99, 0.0]")
+        res = _render_centre(ball((0.0, 0.0, 4.0), 0.5), profile, "f64", light=(0.0, 1e99, 0.0))
         assert np.isfinite(res.color).all()
         with pytest.raises(MinirtError, match="beyond float32's safe range"):
-            _render_centre(ball((0.0, 0.0, 4.0), 0.5), profile, "f32", light="[0.0, 1e99, 0.0]")
+            _render_centre(ball((0.0, 0.0, 4.0), 0.5), profile, "f32", light=(0.0, 1e99, 0.0))

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from support import inproc
+from support.scenes import ball, material, plane, scene_text, write_scene
 
 from minirt.model.rules import resolve
 from minirt.model.scene import Ball, Plane, parse_scene
@@ -20,41 +21,26 @@ from minirt.reference.tracer import render
 
 ROOT = Path(__file__).resolve().parents[2]
 
-_HEAD = """
-[camera]
-distance = 2.0
-width = 16
-height = 16
-[light]
-position = [0.0, 0.0, -1.0]
-[render]
-max_depth = 0
-[materials.m]
-ambient = [0.1, 0.1, 0.1]
-diffuse = [0.7, 0.6, 0.5]
-"""
-_WALL = '[[shapes]]\ntype = "plane"\nnormal = [0.0, 0.0, 1.0]\ndistance = 3.0\nmaterial = "m"\n'
+
+_MATTE = material((0.7, 0.6, 0.5), ambient=0.1)
+
+
+def _scene(*shapes: str, light=(0.0, 0.0, -1.0)) -> str:
+    """16x16, no reflections, one matte material "m"."""
+    return scene_text(*shapes, size=16, light=light, render={"max_depth": 0}, materials={"m": _MATTE})
+
+
+_WALL = plane((0.0, 0.0, 1.0), 3.0)
 # The exercise's normals are as given: this wall's points away from the camera, so the 1e-6 offset goes
 # behind it, across a second plane 5e-7 behind (a near contact); 0.1 behind, nothing is jumped.
-DECAL = _HEAD + _WALL + _WALL.replace("3.0", "3.0000005")
-APART = _HEAD + _WALL + _WALL.replace("3.0", "3.1")
-_BALL = '[[shapes]]\ntype = "ball"\ncenter = [0.0, 0.0, 3.0]\nradius = 1.0\nmaterial = "m"\n'
+DECAL = _scene(_WALL, plane((0.0, 0.0, 1.0), 3.0000005))
+APART = _scene(_WALL, plane((0.0, 0.0, 1.0), 3.1))
 # A ground of radius 1e8 under y = -1: float32 rounds its centre's -1e8 - 1 to -1e8 (the ground's top to y = 0)
-PLANET = (
-    _HEAD.replace("[0.0, 0.0, -1.0]", "[2.0, 3.0, -1.0]")
-    + _BALL
-    + _BALL.replace("0.0, 0.0, 3.0", "0.0, -100000001.0, 0.0").replace("1.0\n", "100000000.0\n")
-)
+PLANET = _scene(ball((0.0, 0.0, 3.0), 1.0), ball((0.0, -100000001.0, 0.0), 100000000.0), light=(2.0, 3.0, -1.0))
 
 
 def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return inproc.minirt(*args, cwd=cwd)  # in this process: the command's exit status and streams
-
-
-def _write(tmp_path: Path, name: str, text: str) -> Path:
-    p = tmp_path / f"{name}.toml"
-    p.write_text(text)
-    return p
 
 
 def warnings(stderr: str) -> list[str]:
@@ -92,7 +78,7 @@ def test_float32_names_the_key_it_cannot_hold():
 
 
 def test_render_and_check_warn_one_line_each(tmp_path):
-    decal, planet = _write(tmp_path, "decal", DECAL), _write(tmp_path, "planet", PLANET)
+    decal, planet = write_scene(tmp_path, "decal", DECAL), write_scene(tmp_path, "planet", PLANET)
     r = minirt("render", str(decal), "--out", str(tmp_path / "r1"), "-q", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert warnings(r.stderr) == [
@@ -116,7 +102,7 @@ def test_render_and_check_warn_one_line_each(tmp_path):
 
 
 def test_probe_explains_the_offset_at_a_pixel(tmp_path):
-    decal = _write(tmp_path, "decal", DECAL)
+    decal = write_scene(tmp_path, "decal", DECAL)
     r = minirt("probe", str(decal), "8", "8", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert "offset 1e-06 along the normal: the shadow ray's origin jumps over shape 1's surface, 5e-07" in r.stdout

@@ -9,26 +9,23 @@ import math
 import drjit as dr
 import numpy as np
 import pytest
+from support.scenes import ball, material, plane, scene_text
 
 from minirt.model.rules import PROFILES
 from minirt.model.scene import parse_scene
 from minirt.reference.tracer import Tracer
 
-SCENE = """
-[camera]
-distance = 3.0
-[light]
-position = [10.0, 10.0, -1.0]
-[materials.m]
-diffuse = [1.0, 1.0, 1.0]
-{shapes}
-"""
-BALL = '[[shapes]]\ntype = "ball"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n'
-PLANE = '[[shapes]]\ntype = "plane"\nnormal = [0.0, 0.0, -1.0]\ndistance = -2.0\nmaterial = "m"\n'
+BALL = ball((0.0, 0.0, 0.0), 1.0)
+PLANE = plane((0.0, 0.0, -1.0), -2.0)
+
+
+def _scene_text(shapes: str) -> str:
+    """The problem set's scene (b): the camera 3 from the image plane, one white material."""
+    return scene_text(shapes, distance=3.0, materials={"m": material(1.0)})
 
 
 def _trace(shapes: str, o, d, profile="exercise", precision="f64"):
-    scene = parse_scene(SCENE.format(shapes=shapes))
+    scene = parse_scene(_scene_text(shapes))
     tr = Tracer(scene, PROFILES[profile], precision=precision)
     o = np.atleast_2d(np.array(o, dtype=float))
     d = np.atleast_2d(np.array(d, dtype=float))
@@ -117,7 +114,7 @@ def test_shadow_predicate_decides_as_the_distance(near_root_only, precision):
 
     rng = np.random.default_rng(7)
     rules = dataclasses.replace(PROFILES["exercise"], near_root_only=near_root_only)
-    scene = parse_scene(SCENE.format(shapes=BALL.replace("radius = 1.0", "radius = 0.75")))
+    scene = parse_scene(_scene_text(BALL.replace("radius = 1.0", "radius = 0.75")))
     tr = Tracer(scene, rules, precision=precision)
     ball = scene.shapes[0]
     dirs = rng.normal(size=(4000, 3))

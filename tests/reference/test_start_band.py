@@ -13,6 +13,7 @@ import copy
 
 import numpy as np
 import pytest
+from support.scenes import SHINY, ball, plane, scene_text, write_scene
 
 from minirt.harness import backends
 from minirt.harness.geometry import check_geometry
@@ -21,35 +22,21 @@ from minirt.model.rules import resolve
 from minirt.model.scene import parse_scene
 from minirt.reference import band
 
-_SCENE = """
-[camera]
-distance = 2.0
-width = {size}
-height = {size}
-[light]
-position = [2.0, 3.0, -1.0]
-[render]
-background = [0.1, 0.2, 0.3]
-[materials.m]
-ambient = [0.1, 0.1, 0.1]
-diffuse = [0.6, 0.5, 0.4]
-specular = [0.3, 0.3, 0.3]
-reflection = [0.2, 0.2, 0.2]
-[[shapes]]
-type = "ball"
-center = [0.0, 0.0, 3.0]
-radius = 1.0
-material = "m"
-[[shapes]]
-type = "plane"
-normal = {normal}
-distance = {distance}
-material = "m"
-"""
+
+def _text(normal=(0.0, 1.0, -1.0), distance=0.0, size=24) -> str:
+    """A ball and a plane (by default y = z, through the image plane's row y = 0), size x size pixels."""
+    return scene_text(
+        ball((0.0, 0.0, 3.0), 1.0),
+        plane(normal, distance),
+        size=size,
+        light=(2.0, 3.0, -1.0),
+        render={"background": (0.1, 0.2, 0.3)},
+        materials={"m": SHINY},
+    )
 
 
-def _scene(normal="[0.0, 1.0, -1.0]", distance="0.0", size=24):
-    return parse_scene(_SCENE.format(normal=normal, distance=distance, size=size))
+def _scene(**kw):
+    return parse_scene(_text(**kw))
 
 
 def _rays(origins, directions):
@@ -80,19 +67,18 @@ def test_a_minimum_distance_bands_hits_nearer_than_it_and_around_it():
 
 
 def test_a_ray_starting_on_a_ball_is_in_the_band():
-    sc = _scene(distance="-50.0")  # the plane out of the way
+    sc = _scene(distance=-50.0)  # the plane out of the way
     o, d = _rays([[0.0, 0.0, 2.0], [0.0, 0.0, 1.9]], [[0.3, 0.1, 1.0]] * 2)  # on the ball; 0.1 inside
     got = band.start_band(sc, o, d, t_min=0.0, ball_err=1e-6)
     assert got.tolist() == [True, False]
 
 
-DIAGONAL = {"normal": "[0.3, 0.7, -0.5]", "distance": "0.0", "size": 48}  # all three oracles failed on main
+DIAGONAL = {"normal": (0.3, 0.7, -0.5), "distance": 0.0, "size": 48}  # all three oracles failed on main
 
 
 @pytest.fixture(scope="module")
 def diagonal(tmp_path_factory):
-    path = tmp_path_factory.mktemp("start") / "plane_through_image_plane.toml"
-    path.write_text(_SCENE.format(**DIAGONAL))
+    path = write_scene(tmp_path_factory.mktemp("start"), "plane_through_image_plane", _text(**DIAGONAL))
     return check_scene(path, ["reference", "mitsuba", "povray", "embree"])
 
 
@@ -118,7 +104,7 @@ def test_a_mask_defect_next_to_the_start_band_still_fails(diagonal, name):
     bad = copy.deepcopy(b.result)
     bad.hit[y, x] = not bad.hit[y, x]
     bad.shape_id[y, x] = -1 if not bad.hit[y, x] else 0
-    sc = parse_scene(_SCENE.format(**DIAGONAL))
+    sc = parse_scene(_text(**DIAGONAL))
     followed = backends.rules_for(name, resolve(sc))
     geom = check_geometry(sc, followed, b.reference, bad)
     assert geom.verdict == "fail"

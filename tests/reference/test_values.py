@@ -12,49 +12,27 @@ from dataclasses import replace
 import drjit as dr
 import numpy as np
 import pytest
+from support.scenes import ball, material, plane, scene_text
 
 from minirt.model.rules import PROFILES
 from minirt.model.scene import parse_scene
 from minirt.reference.accel import ShapeTable
 from minirt.reference.values import Tabled, Types, Unrolled, Values
 
-SCENE = """
-[camera]
-distance = 2.5
-[light]
-position = [3.0, 4.0, -2.0]
-color = [0.9, 0.8, 0.7]
-[render]
-background = [0.1, 0.2, 0.3]
-[materials.a]
-ambient = [0.1, 0.0, 0.2]
-diffuse = [0.7, 0.3, 0.1]
-specular = [0.5, 0.5, 0.5]
-reflection = [0.2, 0.1, 0.0]
-[materials.b]
-diffuse = [0.2, 0.9, 0.4]
-reflection = [0.3, 0.3, 0.3]
-[[shapes]]
-type = "ball"
-center = [0.3, -0.2, 1.7]
-radius = 0.7
-material = "a"
-[[shapes]]
-type = "plane"
-normal = [0.0, 1.0, 0.0]
-distance = -1.25
-material = "b"
-[[shapes]]
-type = "ball"
-center = [-1.1, 0.4, 3.1]
-radius = 1.3
-material = "b"
-[[shapes]]
-type = "plane"
-normal = [0.0, 0.0, -1.0]
-distance = -9.0
-material = "a"
-"""
+SCENE = scene_text(
+    ball((0.3, -0.2, 1.7), 0.7, "a"),
+    plane((0.0, 1.0, 0.0), -1.25, "b"),
+    ball((-1.1, 0.4, 3.1), 1.3, "b"),
+    plane((0.0, 0.0, -1.0), -9.0, "a"),
+    distance=2.5,
+    light=(3.0, 4.0, -2.0),
+    color=(0.9, 0.8, 0.7),
+    render={"background": (0.1, 0.2, 0.3)},
+    materials={
+        "a": material((0.7, 0.3, 0.1), ambient=(0.1, 0.0, 0.2), specular=0.5, reflection=(0.2, 0.1, 0.0)),
+        "b": material((0.2, 0.9, 0.4), reflection=0.3),
+    },
+)
 
 
 def _bits(x, n: int) -> bytes:
