@@ -260,7 +260,7 @@ class CyclesOracle(Oracle):
         t_job = time.perf_counter() - t0
         said = run.run_job(job, folder, float(opts.get("timeout") or default_timeout(scene, 1)))
         t0 = time.perf_counter()
-        ch = run.read_exr(folder / "render.exr", w, h)
+        ch = run.read_exr(folder / "render.exr", w, h, cs.canvas(scene))
         o, d = camera.primary_rays(scene, rules)
 
         def vec(name: str, keys: str = "XYZ") -> np.ndarray:
@@ -274,7 +274,7 @@ class CyclesOracle(Oracle):
         t = np.linalg.norm(p - o, axis=1)  # along the reference's ray, from its origin
         geom = geometry_from_flat(w, h, sid, t, p, n)
         if len(job["renders"]) > 1:
-            ch_color = run.read_exr(folder / "color.exr", w, h)
+            ch_color = run.read_exr(folder / "color.exr", w, h, cs.canvas(scene))
             color = np.stack([ch_color[f"Combined.{k}"] for k in "RGB"], axis=-1).astype(np.float64)
         else:
             color = vec("Combined", "RGB").reshape(h, w, 3)
@@ -348,11 +348,16 @@ class CyclesOracle(Oracle):
         if variance and spp > VARIANCE_MAX_SPP:
             raise ValueError(f"per-sample variance renders each sample on its own: spp at most {VARIANCE_MAX_SPP}")
         quads = cs.quads(scene, rules)
-        world = scene.background if rules.background == "on-miss" else (0.0, 0.0, 0.0)
+        # Direct light only: no bounce, and a black world -- even without a bounce Cycles follows the ray a
+        # mirror lobe samples, to meet what emits there, and a world the background colour would shine in
+        # every mirror as direct light (fuzz start_27_0: 100 times the diffuse term on its mirror plane).
+        world = scene.background if rules.background == "on-miss" and not direct else (0.0, 0.0, 0.0)
         job = cs.job(scene, rules, quads, spp=spp, bounces=0 if direct else None, world=world)
         job["seed"] = opts["seed"]
         job["threads"] = opts.get("threads")
-        job["passes"] = ["object_index"] if variance else []
+        # Cycles writes its data passes (the object index) for sample 0 alone: coverage is the alpha of a
+        # transparent film instead (1 where the camera ray hit, 0 where it missed; misses are never compared)
+        job["transparent"] = variance
         if variance:
             job["renders"] = [{"sample_offset": i, "samples": 1, "exr": str(folder / f"s{i}.exr")} for i in range(spp)]
         else:
@@ -365,16 +370,16 @@ class CyclesOracle(Oracle):
             square = np.zeros((h, w, 3))
             covered = np.zeros((h, w))
             for r in job["renders"]:
-                ch = run.read_exr(Path(r["exr"]), w, h)
+                ch = run.read_exr(Path(r["exr"]), w, h, cs.canvas(scene))
                 c = np.stack([ch[f"Combined.{k}"] for k in "RGB"], axis=-1).astype(np.float64)
                 total += c
                 square += c * c
-                covered += ch["Object Index.X"] > 0.5
+                covered += ch["Combined.A"]
             color = total / spp
             aux["variance"] = np.maximum(square / spp - color * color, 0.0)
             aux["coverage"] = covered / spp
         else:
-            ch = run.read_exr(folder / "render.exr", w, h)
+            ch = run.read_exr(folder / "render.exr", w, h, cs.canvas(scene))
             color = np.stack([ch[f"Combined.{k}"] for k in "RGB"], axis=-1).astype(np.float64)
         extra = {
             "spp": spp,

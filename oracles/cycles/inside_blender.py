@@ -18,8 +18,9 @@ the camera's principal point and chosen the light's power -- so this side only b
 - the world: a Background of the given colour that lights nothing (its importance sampling off, and
   invisible to diffuse rays): it is what a camera or mirror ray that leaves the scene sees.
 
-Every render is one sample per pixel from Cycles' own sequence (``sample_offset`` picks which), the box
-filter, no denoising, no adaptive sampling, a fixed seed: the same job gives the same bytes.
+Every render takes a run of Cycles' own sample sequence (``sample_offset`` and a count: one sample
+alone, or the first n), the box filter, no denoising, no adaptive sampling, a fixed seed: the same job
+gives the same bytes.
 
 Output: one multilayer EXR per entry of ``job["renders"]`` (float32, lossless; an entry may give its own
 world colour, its samples and which of Cycles' samples it starts at), and a line of JSON on standard
@@ -97,7 +98,7 @@ def build(job: dict) -> bpy.types.Scene:
     r.pixel_aspect_x, r.pixel_aspect_y = job["pixel_aspect"]
     r.use_compositing = False
     r.use_sequencer = False
-    r.film_transparent = False
+    r.film_transparent = bool(job.get("transparent"))  # a camera ray that misses: alpha 0 (and black)
     if job.get("threads"):
         r.threads_mode, r.threads = "FIXED", int(job["threads"])
     # linear output: the EXR holds Cycles' radiance as it is
@@ -206,8 +207,12 @@ def main(path: str) -> None:
     background = sc.world.node_tree.nodes["Background"].inputs["Color"]
     for render in job["renders"]:
         background.default_value = (*render.get("world", job["world"]), 1.0)
+        # samples [offset, offset + n) of Cycles' sequence (a subset of one: that sample alone)
+        n = int(render.get("samples", job["samples"]))
+        sc.cycles.use_sample_subset = True
         sc.cycles.sample_offset = int(render["sample_offset"])
-        sc.cycles.samples = int(render.get("samples", job["samples"]))
+        sc.cycles.sample_subset_length = n
+        sc.cycles.samples = int(render["sample_offset"]) + n
         t0 = time.perf_counter()
         bpy.ops.render.render()
         timings["render"] += time.perf_counter() - t0

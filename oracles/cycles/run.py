@@ -29,7 +29,7 @@ BPY_VERSION = "5.0.1"  # the version the conventions and tolerances were measure
 ENV = "MINIRT_BLENDER_PYTHON"
 INSTALL_HINT = (
     f"Blender's Python module is not installed: python3 -m venv .venv/blender && .venv/blender/bin/pip install "
-    f"bpy=={BPY_VERSION} (about 1 GB; `make setup` does it), or set {ENV} to a Python that has bpy {BPY_VERSION}"
+    f"bpy=={BPY_VERSION} (about 1 GB), or set {ENV} to a Python that has bpy {BPY_VERSION}"
 )
 MARK = "minirt-cycles "  # the child's line of JSON on standard output starts with this
 
@@ -40,8 +40,8 @@ class CyclesError(Exception):
 
 def blender_python() -> Path | None:
     """The Python to run Blender with: $MINIRT_BLENDER_PYTHON if set; else the set-up's environment
-    ``blender`` inside minirt's own (``sys.prefix``/blender, made by `make setup`); else minirt's own Python
-    when ``bpy`` is importable there (a Blender-bundled Python, or an environment with NumPy < 2)."""
+    ``blender`` inside minirt's own (``sys.prefix``/blender: .venv/blender, README: Set-up); else minirt's
+    own Python when ``bpy`` is importable there (a Blender-bundled Python, or an environment with NumPy < 2)."""
     given = os.environ.get(ENV)
     if given:
         return Path(given)
@@ -125,9 +125,11 @@ def run_job(job: dict[str, Any], folder: Path, timeout: float) -> dict[str, Any]
     return {**said, "wall": wall}
 
 
-def read_exr(path: Path, width: int, height: int) -> dict[str, np.ndarray]:
+def read_exr(path: Path, width: int, height: int, canvas: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
     """Every channel of a multilayer EXR Blender wrote (one part per pass), by name without the view
-    layer's prefix ("Position.X", "Combined.R", ...), float32 (H, W), top row first."""
+    layer's prefix ("Position.X", "Combined.R", ...), float32 (H, W), top row first. ``canvas``: the size
+    Blender rendered, when larger than the image (its top-left corner: minirt.oracles.cycles.scene.canvas)."""
+    cw, ch = canvas or (width, height)
     import OpenImageIO as oiio
 
     inp = oiio.ImageInput.open(str(path))
@@ -138,12 +140,12 @@ def read_exr(path: Path, width: int, height: int) -> dict[str, np.ndarray]:
         part = 0
         while inp.seek_subimage(part, 0):
             spec = inp.spec()
-            if (spec.width, spec.height) != (width, height):
-                raise CyclesError(f"Blender wrote {path.name} at {spec.width}x{spec.height}, not {width}x{height}")
+            if (spec.width, spec.height) != (cw, ch):
+                raise CyclesError(f"Blender wrote {path.name} at {spec.width}x{spec.height}, not {cw}x{ch}")
             data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
             if data is None:
                 raise CyclesError(f"Blender wrote a truncated {path.name} ({' '.join(inp.geterror().split())[:200]})")
-            a = np.asarray(data).reshape(height, width, spec.nchannels)
+            a = np.asarray(data).reshape(ch, cw, spec.nchannels)[:height, :width]
             for c, name in enumerate(spec.channelnames):
                 out[name.split(".", 1)[1] if name.count(".") >= 2 else name] = a[..., c]
             part += 1

@@ -277,24 +277,38 @@ def camera_job(scene: Scene, rules: Rules, spp: int = 1) -> dict[str, Any]:
     pixel_shift alone.
     """
     w, h, dist = scene.camera.width, scene.camera.height, scene.camera.distance
-    sensor = max(1.0, 1.0 / dist)  # Blender's lens and sensor are at least 1 mm
+    cw, ch = canvas(scene)
+    # the frame is cw/w image planes wide: tan(fov/2) = 0.5 (cw/w) / d; Blender's lens and sensor are >= 1 mm
+    sensor = max(1.0, cw / (w * dist))
     dx, dy = rules.pixel_shift
     if spp == 1:
         u = 0.0 if rules.pixel_sample == "corner" else 0.5
         sx, sy = u - 0.5 - FILTER_CENTRE_BIAS + dx, 0.5 - u - FILTER_CENTRE_BIAS - dy
     else:
         sx, sy = dx, -dy
+    # a canvas larger than the image keeps the image in its top-left corner
+    sx, sy = sx + (cw - w) / 2, sy - (ch - h) / 2
     near = dist if rules.ray_origin == "image-plane" else max(CLIP_START_MIN, 1e-7 * dist)
     return {
         "location": to_blender(scene.camera.position),
         "sensor_width": sensor,
-        "lens": sensor * dist,
-        # shift in units of the image plane's width, one pixel 1/W of it; vertically one pixel is 1/H of
-        # the same unit (the image plane is square)
-        "shift": [sx / w, sy / h],
+        "lens": sensor * dist * w / cw,
+        # shift in units of the frame's width (cw pixels, cw/w of the image plane); a pixel is 1/w of the
+        # image plane wide and 1/h tall (the image plane is square): w/(h cw) of the unit
+        "shift": [sx / cw, sy * w / (h * cw)],
         "clip_start": near,
         "clip_end": CLIP_END,
     }
+
+
+# Blender renders at least 4 pixels a side: a smaller image is the top-left corner of a 4-pixel canvas
+# with the same pixels (the camera's field and shift widened to match), cropped after reading.
+MIN_SIDE = 4
+
+
+def canvas(scene: Scene) -> tuple[int, int]:
+    """The size Blender renders: the image's, at least MIN_SIDE a side."""
+    return max(scene.camera.width, MIN_SIDE), max(scene.camera.height, MIN_SIDE)
 
 
 def pixel_aspect(scene: Scene) -> list[float]:
@@ -383,8 +397,8 @@ def job(
             planes.append({"name": f"shape{k}", "index": k + 1, "material": of_shape[k], "corners": corners})
     return {
         "name": scene.name,
-        "width": scene.camera.width,
-        "height": scene.camera.height,
+        "width": canvas(scene)[0],
+        "height": canvas(scene)[1],
         "pixel_aspect": pixel_aspect(scene),
         "samples": spp,
         "seed": 0,
