@@ -23,7 +23,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = sorted(p.name for p in (ROOT / "scenes").glob("*.toml"))
-ORACLES = sorted(p.name for p in (ROOT / "oracles").glob("*.py"))
+# every module of the oracles, subpackages included (oracles/cycles/), as paths inside the package
+ORACLES = sorted(p.relative_to(ROOT / "oracles").as_posix() for p in (ROOT / "oracles").rglob("*.py"))
 
 
 def run(*cmd: str | Path, cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
@@ -50,7 +51,7 @@ def check_contents(dist: Path) -> None:
     top = {n.split("/")[0] for n in names}
     assert len(top) == 2 and "minirt" in top and all(t == "minirt" or t.endswith(".dist-info") for t in top), top
     assert not any(n.startswith("oracles/") for n in names)
-    assert {n.split("/")[-1] for n in names if n.startswith("minirt/oracles/")} == set(ORACLES)
+    assert {n.removeprefix("minirt/oracles/") for n in names if n.startswith("minirt/oracles/")} == set(ORACLES)
     assert sorted(n.split("/")[-1] for n in names if n.startswith("minirt/scene_files/") and n.endswith(".toml")) == (
         SCENES
     )
