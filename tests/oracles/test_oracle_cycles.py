@@ -27,7 +27,7 @@ import pytest
 from minirt.harness import compare as harness
 from minirt.model import camera
 from minirt.model.rules import resolve
-from minirt.model.scene import Ball, load_scene
+from minirt.model.scene import Ball, load_scene, parse_scene
 from minirt.oracles import get
 from minirt.oracles.cycles import CyclesOracle, run
 from minirt.oracles.cycles import precision as pr
@@ -213,6 +213,26 @@ def test_export_is_a_blend_file_a_student_can_render(oracle, tmp_path):
     rgb = np.stack([img[f"Combined.{c}"] for c in "RGB"], axis=-1)
     ratio = float(rgb.mean() / tracer.render(scene, resolve(scene)).color.mean())
     assert 0.3 < ratio < 3.0, ratio
+
+
+NASTY = 'x"\'<!-- --> ]]> <script>alert(1)</script> &amp; #include "/etc/passwd" -\n--'
+
+
+def test_untrusted_names_stay_names(oracle, tmp_path):
+    """A scene and material named with quotes, markup and paths: the job carries them as JSON strings,
+    Blender as datablock names, and the export's file name is a safe stem inside --out."""
+    name = NASTY.replace("\n", " ")
+    quoted = '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    text = (ROOT / "scenes" / "exercise.toml").read_text()
+    text = text.replace('name = "exercise"', f"name = {quoted}")
+    text = text.replace("materials.red]", f"materials.{quoted}]").replace('"red"', quoted)
+    scene = parse_scene(text, "nasty.toml").with_overrides(width=8, height=8)
+    rules = oracle.adapt(resolve(scene))
+    res = oracle.render(scene, rules)
+    assert res.ok, res.reason
+    (path,) = oracle.export(scene, rules, tmp_path / "out")
+    assert path.parent == tmp_path / "out" and path.suffix == ".blend" and "/" not in path.stem
+    assert cs.materials_job(scene)[0][0]["name"] == name
 
 
 def test_sweep_is_samples_against_its_own_converged_render(oracle):
