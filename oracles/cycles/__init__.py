@@ -291,6 +291,7 @@ class CyclesOracle(Oracle):
         e_o = pr.origin_error(scene.camera.distance, o)
         aux = {
             "t_silhouette_bound": pr.silhouette_t_bound(scene, o, d, sid).reshape(h, w),
+            "hit_cos": pr.hit_cos(scene, o, d, sid).reshape(h, w),
             "light_distance": r,
             "diffuse_to_exercise": to_ex,
             "diffuse_exercise": diffuse_x,
@@ -320,14 +321,15 @@ class CyclesOracle(Oracle):
                 "min_distance": 0.0 if rules.ray_origin == "image-plane" else cam["clip_start"] / corner_cos,
                 "why": (
                     "float32 camera rays (direction within dir_err of the reference's, origin within origin_err), "
-                    "float32 sphere roots (t_rel, and near a silhouette the discriminant's error: aux "
-                    "t_silhouette_bound), quads interpolating float32 corners (meta planes abs_error); each "
-                    "shape's band from its discriminant error and the ray's displacement (oracles/cycles/"
-                    "precision.py)"
+                    "Embree's float32 sphere points in their stable form (t_rel; near a silhouette the error of "
+                    "r^2 - |perp|^2, u32 (4|f| + |C| + r) r: aux t_silhouette_bound), quads interpolating float32 "
+                    "corners (meta planes abs_error); each shape's band from its intersector's error and the "
+                    "ray's displacement (oracles/cycles/precision.py)"
                 ),
             },
             "aux": {
                 "t_silhouette_bound": "the margin-dependent part of the t error bound on balls",
+                "hit_cos": "|cos| of the incidence on the shape hit, on the exact ray (1 on a miss)",
                 "light_distance": "r: from Cycles' hit point to the light (0 on a miss)",
                 "diffuse_to_exercise": "pi r^2: terms.diffuse * pi r^2 = n.s dc lc (radiant intensity lc)",
                 "diffuse_exercise": "terms.diffuse * pi r^2: the exercise's diffuse term",
@@ -423,26 +425,28 @@ class CyclesOracle(Oracle):
         band = band | starts
         # t: the float32 root (t_rel t), the quad's interpolation (its abs_error, and along a plane's ray by
         # 1/|n·d|), the ray's displacement e_o + dir_err t met at the incidence's cosine, the hit point's
-        # float32 rounding (8 u32 (|o| + t)) and, near a ball's silhouette, the discriminant's error.
+        # float32 rounding (8 u32 (|o| + t)) and, near a ball's silhouette, the intersector's error. The
+        # cosine is that of the shape hit (aux hit_cos), not of the nearest candidate (margins' hit_cos).
+        cos = np.maximum(result.aux.get("hit_cos", m["hit_cos"]), 1e-300)
         with np.errstate(divide="ignore", invalid="ignore"):
             t_abs = (
                 p["t_rel"] * t_ref
                 + plane_abs
-                + plane_abs / m["hit_nd"]
-                + (e_o + dir_err * t_ref) / np.maximum(m["hit_cos"], 1e-300)
+                + (plane_abs + e_o + dir_err * t_ref) / cos
                 + 8 * pr.U32 * (m["origin_norm"] + t_ref)
                 + result.aux.get("t_silhouette_bound", 0.0)
             )
-        nb = pr.ball_normal_bound(p["radius"], t_ref, ref.shape_id, e_o, m["hit_cos"], m["origin_norm"])
+        nb = pr.ball_normal_bound(p["radius"], t_ref, ref.shape_id, e_o, cos, m["origin_norm"])
         nd = np.degrees(np.minimum(nb, math.pi)) + p["normal_floor_deg"]
         why = {
             "band": f"margin < each shape's own band (at most band_k*band_eps = {eps:.3g}): the float32 "
-            "discriminant's error (exact in the margin) and the camera ray's displacement (origin_err + "
+            "intersector's error (exact in the margin) and the camera ray's displacement (origin_err + "
             f"dir_err |f|)/r; or a candidate within {plane_normal:.3g} + origin_err + 4 u32 |o| of the near "
             "clip (a quad's float32 plane, Cycles' ray origin)",
-            "t": f"t_rel*t + abs + abs/|n·d| + (origin_err + dir_err*t)/cos + 8 u32 (|o| + t) = {p['t_rel']:.3g}*t "
-            f"+ quad abs_error (<= {float(plane_abs.max()):.3g}) ... + ({e_o:.3g} + {dir_err:.3g}*t)/cos; + per pixel "
-            "4 u32 |f|^2/(r sqrt(2m)) near a ball's silhouette (aux t_silhouette_bound)",
+            "t": f"t_rel*t + abs + (abs + origin_err + dir_err*t)/cos + 8 u32 (|o| + t) = {p['t_rel']:.3g}*t "
+            f"+ quad abs_error (<= {float(plane_abs.max()):.3g}) + (abs + {e_o:.3g} + {dir_err:.3g}*t)/cos, cos the "
+            "incidence on the shape hit (aux hit_cos: |n·d| on a plane); + per pixel "
+            "4 u32 (4|f| + |C| + r)/sqrt(2m) near a ball's silhouette (aux t_silhouette_bound)",
             "normal": f"{p['normal_floor_deg']} deg (float32 normals) + on balls the hit point's displacement "
             "over r: ((origin_err + dir_err*t)/cos + 8 u32 (|o| + t))/r",
         }

@@ -190,7 +190,10 @@ def quads(scene: Scene, rules: Rules) -> dict[int, Quad]:
     can meet on the plane -- as Mitsuba's rectangles are sized (oracles/mitsuba), with the same reasons:
 
     - the primary rays: the hits, with the infinite plane, of the rays through the corners of every pixel
-      square (every camera ray of a pixel, its one sample or its box filter's, lies between those);
+      square, and of the rules' own ray of every pixel (Cycles' one sample), stretched along a grazing ray
+      by its float32 direction's reach. (A pixel straddling the plane's horizon holds rays meeting it
+      arbitrarily far: the samples of a many-sample render there may run past the quad. The statistical
+      comparison leaves such edge pixels out.);
     - the shadow segments from a primary hit P to the light L: where one crosses plane B it does so at a
       point of B between the projections of P and L onto B (projection is affine and the crossing a
       convex combination of P and L), so B's box holds the projections of the light and of every hit:
@@ -208,10 +211,21 @@ def quads(scene: Scene, rules: Rules) -> dict[int, Quad]:
         return planes
     size = scene_size(scene)
     o, d = pixel_corner_rays(scene, rules)
+    o1, d1 = camera.primary_rays(scene, rules)
     hits = {}
     for k, qd in planes.items():
         t = qd.hits(o, d)
         hits[k] = o + np.where(np.isfinite(t), t, np.nan)[:, None] * d
+        # The rules' own rays, Cycles' one sample each: a pixel whose upper corners pass above a plane's
+        # horizon holds rays that meet the plane beyond every corner's hit (fuzz contact_3_14: the
+        # sample at t = 161, the farthest corner hit ~100). A grazing ray's hit also moves along it by
+        # t DIR_ERR / |n·d| with Cycles' float32 direction (DIR_ERR <= 32 u32, minirt.oracles.cycles.
+        # precision): include it that far, 4 times over (Mitsuba's rectangles do the same).
+        t1 = qd.hits(o1, d1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spread = 4 * 32 * U32 / np.abs(d1 @ qd.n)
+        far = np.where(np.isfinite(t1), t1 * (1 + np.where(spread < 1, spread, 0.0)), np.nan)
+        hits[k] = np.concatenate([hits[k], o1 + far[:, None] * d1])
     extra = [np.asarray(scene.light.position, dtype=np.float64), np.asarray(scene.camera.position, dtype=np.float64)]
     for s in scene.shapes:
         if isinstance(s, Ball):
