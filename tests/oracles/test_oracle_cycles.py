@@ -2,9 +2,9 @@
 
 What "agree" means here (oracles/cycles/precision.py derives every bound):
 - geometry, per pixel, through the harness's own check with Cycles' tolerance: hit masks and shape ids
-  agree outside each shape's band (the float32 discriminant and the camera ray's displacement), t within
-  t_rel t + the quads' abs_error + (origin_err + dir_err t)/cos, normals within the float32 floor plus
-  the hit point's displacement over r -- and the check judges the scene (not inconclusive);
+  agree outside each shape's band (the float32 intersector and the camera ray's displacement), t within
+  t_rel t + the quads' abs_error + (abs_error + origin_err + dir_err t)/cos, normals within the float32
+  floor plus the hit point's displacement over r -- and the check judges the scene (not inconclusive);
 - shading: Cycles' diffuse term times pi r^2 is the exercise's n.s dc lc within the harness's diffuse_rel;
 - Cycles' camera rays go through the rules' points (corner, centre, shift, non-square pixels): the ray
   implied by each hit point is within dir_err plus the hit point's own rounding of the reference's;
