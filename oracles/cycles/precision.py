@@ -29,8 +29,9 @@ reference's, each bounded here:
 So each ball's band (the margin within which hit/miss may flip) is its own: the decision's relative
 error eps above and the ray's displacement (e_o + DIR_ERR |f|) / r, |f| the farthest ray origin's
 distance from the centre plus the radius, with BAND_K of safety; a plane's is u32 + DIR_ERR (a grazing
-decision turns with the direction). Measured (the fuzz campaign's far and f32 families, balls up to 1e8
-away): no hit/miss disagreement outside that band.
+decision turns with the direction). Measured: `minirt fuzz -b cycles --size 24x24`, seeds 1 to 4 (364
+scenes of every family, balls up to 1e8 away): no FAIL; with --defects all (seed 1), every injected
+defect that changes a pixel the check judges is caught.
 """
 
 from __future__ import annotations
