@@ -18,6 +18,10 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	# Blender as a Python module (Cycles, the fourth oracle; ~1 GB) in an environment of its own: bpy 5.0.1
+	# needs NumPy < 2, minirt's OpenImageIO and colour-science NumPy >= 2 (README: Install)
+	$(PYTHON) -m venv $(VENV)/blender
+	$(VENV)/blender/bin/python -m pip install --quiet bpy==5.0.1
 	@touch $(STAMP)
 
 # The main job: every backend on the exercise scene, the comparison report of all bundled scenes, then

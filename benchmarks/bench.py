@@ -24,8 +24,8 @@ Sections (JSON keys; the Markdown on stdout follows the same order):
   runs share one directory primed by a first run. Python's own files are in the OS page cache either way.
 - ``memory``: ``resource.getrusage(RUSAGE_SELF).ru_maxrss`` of a child process after imports and after
   rendering three_balls at 1024x1024 float64.
-- ``oracles``: each oracle (Mitsuba, POV-Ray, Embree) on exercise and three_balls at 256^2 and 512^2:
-  wall time, the part outside set-up (from each result's ``meta["timings"]``, keys listed per row),
+- ``oracles``: each oracle (Mitsuba, POV-Ray, Embree, Cycles) on exercise, three_balls and rules at
+  256^2 and 512^2: wall time, the part outside set-up (from each result's ``meta["timings"]``, keys listed per row),
   Mpixel/s, and the ratio to the reference tracer's wall time on the same scene, size and rules (the
   reference renders under the oracle's adapted rules). A missing or failing backend is a SKIP/ERROR
   row with its reason, never a crash. One warm-up call per oracle first (imports, Mitsuba's JIT).
@@ -82,6 +82,9 @@ ORACLE_WORK_KEYS: dict[str, tuple[str, ...]] = {
     "povray": ("parse", "trace"),  # POV-Ray's own statistics, summed over its passes; start-up excluded
     "mitsuba": ("render",),  # Mitsuba's intersection/shading calls; scene loading is "setup"
     "embree": ("cast",),  # Embree's ray queries; tessellation and BVH build excluded
+    # Cycles' bpy.ops.render.render calls inside Blender; Blender's start-up, the scene's build there, the
+    # child process and reading its EXR excluded
+    "cycles": ("render",),
 }
 
 

@@ -15,6 +15,7 @@ REGISTRY: dict[str, str] = {
     "mitsuba": "minirt.oracles.mitsuba:MitsubaOracle",
     "povray": "minirt.oracles.povray:PovrayOracle",
     "embree": "minirt.oracles.embree:EmbreeOracle",
+    "cycles": "minirt.oracles.cycles:CyclesOracle",
 }
 
 

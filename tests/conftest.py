@@ -25,7 +25,7 @@ SHARED_FIXTURE_MODULES = frozenset(
     for m in (
         "package/test_bench", "harness/test_check_diagnosis", "diagnose/test_diagnose", "campaign/test_fuzz",
         "cli/test_grade_cli", "grading/test_grade_page", "harness/test_harness", "io/test_json_documents",
-        "jobs/test_memory", "oracles/test_oracle_mitsuba", "oracles/test_oracle_povray",
+        "jobs/test_memory", "oracles/test_oracle_mitsuba", "oracles/test_oracle_povray", "oracles/test_oracle_cycles",
         "reference/test_probe_image", "pages/test_report", "reference/test_start_band", "sweep/test_sweep",
     )
 )  # fmt: skip

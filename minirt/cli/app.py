@@ -31,7 +31,8 @@ except ImportError:  # pragma: no cover
 
 app = typer.Typer(
     name="minirt",
-    help="A reference ray tracer for ETH Informatik I problem 13.1, checked against Mitsuba 3, POV-Ray and Embree.",
+    help="A reference ray tracer for ETH Informatik I problem 13.1, checked against Mitsuba 3, POV-Ray, Embree "
+    "and Cycles.",
     add_completion=False,
     no_args_is_help=True,
     pretty_exceptions_enable=False,

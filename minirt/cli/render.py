@@ -185,7 +185,8 @@ def export(
         typer.Option(
             "--to",
             metavar="RENDERER",
-            help="An oracle's export: mitsuba (XML scene), povray (.pov + command), mesh (glTF); a name it does not "
+            help="An oracle's export: mitsuba (XML scene), povray (.pov + command), mesh (glTF), blender (.blend); "
+            "a name it does not "
             "know lists the known ones.",
         ),
     ],

@@ -34,7 +34,7 @@ SWEEP_HELP = "\n\n".join([
     "The same lines open sweep.md and are in sweep.json (\"answer\").",
     "Knobs: the reference in float32/float64 and at 1-256 samples; Mitsuba at 1-1024 spp; POV-Ray with "
     "antialiasing off, +A0.0 +R1..4, and the exercise's own 1-16 samples (mesh camera); Embree at icosphere "
-    "subdivision 0-7.",
+    "subdivision 0-7; Cycles at 1-256 spp.",
     "Each setting is rendered once untimed (JIT compilation, caches), then --repeats times. Writes sweep.csv, "
     "sweep.md, sweep.json and log-log plots (colour and t error on separate axes) with the Pareto front and "
     "fitted slopes. At the default 256x256 the sweep takes about three minutes on two cores.",

@@ -116,7 +116,7 @@ def test_good_scene_renders(tmp_path):
         (["render", "scenes/exercise.toml", "--width", "100000"], "--width 100000: must be between 1 and 16384"),
         (["render", "scenes/exercise.toml", "--samples", "100000000"], "--samples 100000000: must be between 1 and"),
         (["render", "scenes/exercise.toml", "--precision", "f16"], "Invalid value"),
-        (["export", "scenes/exercise.toml", "--to", "blender"], "unknown target 'blender'"),
+        (["export", "scenes/exercise.toml", "--to", "maya"], "unknown target 'maya'"),
         (["frobnicate"], "No such command"),
     ],
 )
@@ -169,7 +169,7 @@ def test_the_reference_alone_has_nothing_to_compare_with(command, tmp_path):
             "-q", cwd=Path(__file__).resolve().parents[2])  # fmt: skip
     assert p.returncode == 2 and p.stderr.strip().splitlines() == [
         "minirt: error: --backend reference: no oracle to compare with (give one or more of mitsuba, povray, "
-        "embree, or all)"
+        "embree, cycles, or all)"
     ], p.stderr
     assert not (tmp_path / "o").exists()
 

@@ -1,0 +1,154 @@
+"""Running Blender: which Python has ``bpy``, its version, one job in a child process, its EXRs read back.
+
+Cycles runs in a child process, never in minirt's own: ``bpy`` 5.0.1 requires NumPy < 2 while minirt's
+OpenImageIO 3.2 and colour-science 0.4.7 require NumPy >= 2, so ``bpy`` cannot even be installed beside
+them (pip downgrades NumPy and breaks both); and it bundles its own OpenImageIO, USD and OpenEXR, which
+would share one process with minirt's. So Blender lives in a Python environment of its own (the set-up's
+``.venv/blender``; see ``blender_python``), and a render is ``PYTHON inside_blender.py JOB.json`` through
+minirt.jobs.processes.run: a time-out, the process group killed with minirt, its temporary folder
+removed. Being a process of its own also lets a check run it beside the other backends.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from minirt.jobs import processes
+
+SCRIPT = Path(__file__).with_name("inside_blender.py")
+BPY_VERSION = "5.0.1"  # the version the conventions and tolerances were measured with (module docstring)
+ENV = "MINIRT_BLENDER_PYTHON"
+INSTALL_HINT = (
+    f"Blender's Python module is not installed: python3 -m venv .venv/blender && .venv/blender/bin/pip install "
+    f"bpy=={BPY_VERSION} (about 1 GB), or set {ENV} to a Python that has bpy {BPY_VERSION}"
+)
+MARK = "minirt-cycles "  # the child's line of JSON on standard output starts with this
+
+
+class CyclesError(Exception):
+    """Blender failed; the message is one line."""
+
+
+def blender_python() -> Path | None:
+    """The Python to run Blender with: $MINIRT_BLENDER_PYTHON if set; else the set-up's environment
+    ``blender`` inside minirt's own (``sys.prefix``/blender: .venv/blender, README: Set-up); else minirt's
+    own Python when ``bpy`` is importable there (a Blender-bundled Python, or an environment with NumPy < 2)."""
+    given = os.environ.get(ENV)
+    if given:
+        return Path(given)
+    for sub in ("bin/python", "Scripts/python.exe"):
+        p = Path(sys.prefix) / "blender" / sub
+        if p.is_file():
+            return p
+    import importlib.util
+
+    return Path(sys.executable) if importlib.util.find_spec("bpy") is not None else None
+
+
+def _one_line(text: str) -> str:
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if "Error" in ln or "error" in ln]
+    return " ".join((errors[-1] if errors else lines[-1] if lines else "no output").split())[:300]
+
+
+@functools.lru_cache(maxsize=8)
+def _version(exe: str, mtime_ns: int, size: int) -> str | RuntimeError:
+    """Blender's version string from ``exe inside_blender.py --version``, once per process and executable
+    (each call imports bpy: ~0.4 s); a failure is cached too (returned, not raised)."""
+    try:
+        p = processes.run([exe, str(SCRIPT), "--version"], timeout=120)
+    except subprocess.TimeoutExpired:
+        return RuntimeError(f"'{exe}' did not import bpy in 120 s")
+    except OSError as e:
+        return RuntimeError(f"cannot run '{exe}': {e.strerror or e}")
+    said = _said(p.stdout)
+    if p.returncode != 0 or said is None:
+        return RuntimeError(f"'{exe}' cannot import bpy: {_one_line(p.stderr + p.stdout)}")
+    return str(said["blender"])
+
+
+def version() -> str:
+    """Blender's version ("5.0.1"), or raises with a one-line reason (not installed, not runnable)."""
+    exe = blender_python()
+    if exe is None:
+        raise FileNotFoundError(INSTALL_HINT)
+    try:
+        st = os.stat(exe)
+    except OSError as e:
+        raise FileNotFoundError(f"{ENV} or .venv/blender names {exe}, which cannot be read: {e.strerror}") from None
+    v = _version(str(exe), st.st_mtime_ns, st.st_size)
+    if isinstance(v, Exception):
+        raise v
+    if v != BPY_VERSION:
+        raise RuntimeError(f"bpy {BPY_VERSION} is required, {exe} has Blender {v}")
+    return v
+
+
+def _said(stdout: str) -> dict[str, Any] | None:
+    for line in reversed(stdout.splitlines()):
+        if line.startswith(MARK):
+            try:
+                return json.loads(line[len(MARK) :])
+            except ValueError:
+                return None
+    return None
+
+
+def run_job(job: dict[str, Any], folder: Path, timeout: float) -> dict[str, Any]:
+    """Run one job in Blender (``folder``: where its files go); Blender's own report (version, timings)
+    plus the wall time. Raises CyclesError with one line when Blender fails, crashes or times out."""
+    exe = blender_python()
+    if exe is None:
+        raise FileNotFoundError(INSTALL_HINT)
+    path = folder / "job.json"
+    path.write_text(json.dumps(job), encoding="utf-8")
+    t0 = time.perf_counter()
+    try:
+        p = processes.run([str(exe), str(SCRIPT), str(path)], cwd=folder, timeout=timeout)  # dies with minirt
+    except subprocess.TimeoutExpired:
+        raise CyclesError(f"Blender timed out after {timeout:g} s") from None
+    wall = time.perf_counter() - t0
+    if p.returncode < 0:
+        raise CyclesError(f"Blender crashed (signal {-p.returncode}): {_one_line(p.stderr + p.stdout)}")
+    said = _said(p.stdout)
+    if p.returncode != 0 or said is None:
+        raise CyclesError(f"Blender failed: {_one_line(p.stderr + p.stdout)}")
+    return {**said, "wall": wall}
+
+
+def read_exr(path: Path, width: int, height: int, canvas: tuple[int, int] | None = None) -> dict[str, np.ndarray]:
+    """Every channel of a multilayer EXR Blender wrote (one part per pass), by name without the view
+    layer's prefix ("Position.X", "Combined.R", ...), float32 (H, W), top row first. ``canvas``: the size
+    Blender rendered, when larger than the image (its top-left corner: minirt.oracles.cycles.scene.canvas)."""
+    cw, ch = canvas or (width, height)
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise CyclesError(f"Blender wrote no readable {path.name} ({' '.join(oiio.geterror().split())[:200]})")
+    out: dict[str, np.ndarray] = {}
+    try:
+        part = 0
+        while inp.seek_subimage(part, 0):
+            spec = inp.spec()
+            if (spec.width, spec.height) != (cw, ch):
+                raise CyclesError(f"Blender wrote {path.name} at {spec.width}x{spec.height}, not {cw}x{ch}")
+            data = inp.read_image(part, 0, 0, spec.nchannels, oiio.FLOAT)
+            if data is None:
+                raise CyclesError(f"Blender wrote a truncated {path.name} ({' '.join(inp.geterror().split())[:200]})")
+            a = np.asarray(data).reshape(ch, cw, spec.nchannels)[:height, :width]
+            for c, name in enumerate(spec.channelnames):
+                out[name.split(".", 1)[1] if name.count(".") >= 2 else name] = a[..., c]
+            part += 1
+    finally:
+        inp.close()
+    return out
