@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from minirt.harness import compare as harness
+from minirt.harness.results import CheckResult, SceneCheck, worst
+from minirt.harness.run import check_scene
 from minirt.model import camera
 from minirt.model.rules import resolve
 from minirt.model.scene import Ball, load_scene, parse_scene
@@ -53,12 +54,12 @@ def _scene(name: str, w: int = SIZE, h: int | None = None):
     return load_scene(ROOT / "scenes" / f"{name}.toml").with_overrides(width=w, height=h or w, samples=1)
 
 
-_checked: dict[str, harness.SceneCheck] = {}
+_checked: dict[str, SceneCheck] = {}
 
 
-def _check(path: Path) -> harness.SceneCheck:
+def _check(path: Path) -> SceneCheck:
     if path.stem not in _checked:
-        _checked[path.stem] = harness.check_scene(path, ["cycles"], (SIZE, SIZE))
+        _checked[path.stem] = check_scene(path, ["cycles"], (SIZE, SIZE))
     return _checked[path.stem]
 
 
@@ -175,7 +176,7 @@ def test_a_forced_disagreement_fails():
     res = get("cycles").render(bigger, rules)
     assert res.ok, res.reason
     res.meta["precision"]["radius"][0] = ball.radius  # the tolerance of the scene it is compared with
-    sc = harness.check_scene(path, ["cycles"], (32, 32), rendered={"cycles": res})
+    sc = check_scene(path, ["cycles"], (32, 32), rendered={"cycles": res})
     b = sc.backends["cycles"]
     assert b.verdict == "fail" and "geometry" in b.reason, b.reason
     f = b.checks["geometry"].figures
@@ -280,11 +281,11 @@ def test_a_crashing_blender_is_an_error_and_the_others_finish(monkeypatch, tmp_p
     monkeypatch.setenv(run.ENV, str(fake))
     monkeypatch.setenv("FAKE_MODE", mode)
     assert CyclesOracle().available() == (True, "Blender 5.0.1 (Cycles, CPU)")
-    sc = harness.check_scene(ROOT / "scenes" / "exercise.toml", ["cycles", "embree"], (16, 16))
+    sc = check_scene(ROOT / "scenes" / "exercise.toml", ["cycles", "embree"], (16, 16))
     b = sc.backends["cycles"]
     assert b.verdict == "error" and words in b.reason and "\n" not in b.reason, b.reason
     assert sc.backends["embree"].verdict == "pass"
-    assert harness.CheckResult(harness.worst([sc.verdict]), [sc]).exit_code() == 2
+    assert CheckResult(worst([sc.verdict]), [sc]).exit_code() == 2
 
 
 def test_a_hanging_blender_times_out(monkeypatch, tmp_path):
