@@ -58,7 +58,8 @@ def assert_scene_passes(
         for name, b in s.backends.items():
             if b.verdict in PASSING or (b.verdict == "skip" and allow_skip):
                 continue
-            line = f"{s.scene} ({s.file}) with {name}: {b.verdict.upper()}"
+            where = s.scene if s.file == s.scene else f"{s.scene} ({s.file})"  # a bundled scene: its name
+            line = f"{where} with {name}: {b.verdict.upper()}"
             if b.reason:
                 line += f": {b.reason}"
             failed = [f"{k}: {c.reason}" if c.reason else k for k, c in b.checks.items() if c.verdict == "fail"]

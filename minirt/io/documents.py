@@ -101,7 +101,7 @@ class BackendCheck(_Open):
 
 class SceneCheck(_Open):
     scene: str
-    file: str
+    file: str = Field(description="The scene file as given; a bundled scene by its name (exercise).")
     verdict: CheckVerdict
     description: str = ""
     reason: str = ""
