@@ -48,11 +48,16 @@ def assert_scene_passes(
     """Check the scene(s) against the backends (``"all"``: every oracle) and raise AssertionError unless
     every scene passes with every backend (WARN counts as a pass; SKIP, a backend that could not run or
     does not apply, only with ``allow_skip``). ``size``: render at (width, height) or ``"WxH"`` instead
-    of each scene's own size; small sizes keep a test suite fast. Returns the CheckResult."""
+    of each scene's own size; small sizes keep a test suite fast. Returns the CheckResult. Bad input (a
+    scene that does not load, an unknown backend) raises MinirtError with its message, from this call:
+    no frames inside minirt."""
     __tracebackhide__ = True  # pytest: the failure points at the caller's line
     import minirt
 
-    result = minirt.check(scene, backends, size=parse_size(size))
+    try:
+        result = minirt.check(scene, backends, size=parse_size(size))
+    except MinirtError as e:  # bad input (a missing scene, an unknown backend): its one line, raised here --
+        raise type(e)(*e.lines) from None  # pytest shows the caller's line, no traceback into minirt
     problems: list[str] = []
     for s in result.scenes:
         for name, b in s.backends.items():
