@@ -68,19 +68,52 @@ def minirt_check(request: pytest.FixtureRequest) -> Callable[..., Any]:
     return check
 
 
-def pytest_collect_file(file_path: Path, parent: pytest.Collector) -> pytest.Collector | None:
-    if file_path.suffix != ".toml":
-        return None
-    patterns = parent.config.getini("minirt_scenes")
-    if not patterns:
-        return None
+def _wanted(file_path: Path, config: pytest.Config) -> bool:
+    """Whether ini minirt_scenes names the file (a .toml file under the rootdir)."""
+    patterns = config.getini("minirt_scenes")
+    if file_path.suffix != ".toml" or not patterns:
+        return False
     try:
-        rel = file_path.relative_to(parent.config.rootpath)
+        rel = file_path.relative_to(config.rootpath)
     except ValueError:
-        return None
-    if any(rel.match(p) for p in patterns):  # PurePath.match: "scenes/*.toml" matches from the right
+        return False
+    return any(rel.match(p) for p in patterns)  # PurePath.match: "scenes/*.toml" matches from the right
+
+
+def pytest_collect_file(file_path: Path, parent: pytest.Collector) -> pytest.Collector | None:
+    if _wanted(file_path, parent.config):
         return SceneFile.from_parent(parent, path=file_path)
     return None
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_make_collect_report(collector: pytest.Collector):
+    """A folder's scene files that pytest itself passes over -- it collects only what is a file or a folder
+    once links are followed, so a broken symbolic link, a FIFO or a device named ``*.toml`` would vanish
+    from the run without a word -- are collected too: each is a test that fails with what is wrong."""
+    report = yield
+    if isinstance(collector, pytest.Directory) and report.passed and collector.config.getini("minirt_scenes"):
+        report.result.extend(SceneFile.from_parent(collector, path=p) for p in _passed_over(collector))
+    return report
+
+
+def _passed_over(folder: pytest.Directory) -> list[Path]:
+    """The entries of ``folder`` that minirt_scenes names but that are neither a file nor a folder (links
+    followed): what pytest's own collection skips."""
+    import os
+
+    out = []
+    try:
+        with os.scandir(folder.path) as entries:
+            for e in sorted(entries, key=lambda e: e.name):
+                path = Path(e.path)
+                if e.is_file() or e.is_dir() or not _wanted(path, folder.config):
+                    continue
+                if not folder.ihook.pytest_ignore_collect(collection_path=path, config=folder.config):
+                    out.append(path)
+    except OSError:
+        pass  # a folder that cannot be listed: pytest's own collection says so
+    return out
 
 
 class SceneFile(pytest.File):

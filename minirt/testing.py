@@ -48,17 +48,23 @@ def assert_scene_passes(
     """Check the scene(s) against the backends (``"all"``: every oracle) and raise AssertionError unless
     every scene passes with every backend (WARN counts as a pass; SKIP, a backend that could not run or
     does not apply, only with ``allow_skip``). ``size``: render at (width, height) or ``"WxH"`` instead
-    of each scene's own size; small sizes keep a test suite fast. Returns the CheckResult."""
+    of each scene's own size; small sizes keep a test suite fast. Returns the CheckResult. Bad input (a
+    scene that does not load, an unknown backend) raises MinirtError with its message, from this call:
+    no frames inside minirt."""
     __tracebackhide__ = True  # pytest: the failure points at the caller's line
     import minirt
 
-    result = minirt.check(scene, backends, size=parse_size(size))
+    try:
+        result = minirt.check(scene, backends, size=parse_size(size))
+    except MinirtError as e:  # bad input (a missing scene, an unknown backend): its one line, raised here --
+        raise type(e)(*e.lines) from None  # pytest shows the caller's line, no traceback into minirt
     problems: list[str] = []
     for s in result.scenes:
         for name, b in s.backends.items():
             if b.verdict in PASSING or (b.verdict == "skip" and allow_skip):
                 continue
-            line = f"{s.scene} ({s.file}) with {name}: {b.verdict.upper()}"
+            where = s.scene if s.file == s.scene else f"{s.scene} ({s.file})"  # a bundled scene: its name
+            line = f"{where} with {name}: {b.verdict.upper()}"
             if b.reason:
                 line += f": {b.reason}"
             failed = [f"{k}: {c.reason}" if c.reason else k for k, c in b.checks.items() if c.verdict == "fail"]

@@ -24,8 +24,9 @@ SHARED_FIXTURE_MODULES = frozenset(
     f"tests/{m}.py"
     for m in (
         "package/test_bench", "harness/test_check_diagnosis", "diagnose/test_diagnose", "campaign/test_fuzz",
-        "cli/test_grade_cli", "grading/test_grade_page", "harness/test_harness", "io/test_json_documents",
-        "jobs/test_memory", "oracles/test_oracle_mitsuba", "oracles/test_oracle_povray", "oracles/test_oracle_cycles",
+        "cli/test_grade_cli", "grading/test_class_hostile", "grading/test_grade_page", "harness/test_harness",
+        "harness/test_geometry", "harness/test_shading", "io/test_json_documents", "jobs/test_memory",
+        "oracles/test_oracle_mitsuba", "oracles/test_oracle_povray", "oracles/test_oracle_cycles",
         "reference/test_probe_image", "pages/test_report", "reference/test_start_band", "sweep/test_sweep",
     )
 )  # fmt: skip

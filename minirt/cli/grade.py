@@ -50,7 +50,11 @@ def grade(
     class_dir: Annotated[
         Path | None,
         typer.Option(
-            "--class", metavar="DIR", help="Grade a whole class: DIR/<student>/<scene stem>.png (any supported type)."
+            "--class",
+            metavar="DIR",
+            help="Grade a whole class: DIR/<student>/<scene stem>.png (any supported type). Untrusted: no "
+            "symbolic link in it is followed (a linked folder or image is an error row); hidden folders are "
+            "skipped and listed.",
         ),
     ] = None,
     scenes_dir: Annotated[
@@ -160,6 +164,7 @@ def _grade_class(
     from minirt.grading import classroom
 
     people, files = classroom.find_class(class_dir, scenes_dir)
+    skipped = classroom.skipped_entries(class_dir)
     if json_out not in (None, "-"):
         output_file(Path(json_out), "--json")
     output_folder(out_dir)
@@ -183,7 +188,7 @@ def _grade_class(
 
         graded = classroom.grade_folder(
             people, loaded, out_dir, workers=workers, scheduler=scheduler, cache=cache, quiet=quiet,
-            on_start=start, on_done=done,
+            on_start=start, on_done=done, skipped=skipped,
         )  # fmt: skip
     summary = graded.summary
     if json_out is not None:
@@ -195,3 +200,15 @@ def _grade_class(
         + (f" ({graded.cached} of {graded.total} from the cache)" if graded.cached is not None else "")
         + f"; wrote {terminal_text(graded.index)}"
     )
+    _print_skipped(skipped)
+
+
+SKIPPED_SHOWN = 10  # entries of a class folder named on the terminal; grades.json and the page list them all
+
+
+def _print_skipped(skipped) -> None:
+    """One line per entry of the class folder that was not graded (hidden, not a folder), the first few."""
+    for k in skipped[:SKIPPED_SHOWN]:
+        err.print(f"skipped {terminal_text(k.folder, 80)}: {terminal_text(k.reason)}")
+    if len(skipped) > SKIPPED_SHOWN:
+        err.print(f"skipped {len(skipped) - SKIPPED_SHOWN} more (grades.json lists them all)")

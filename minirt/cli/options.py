@@ -170,7 +170,21 @@ def output_folder(path: Path, option: str = "--out") -> Path:
 
 
 def output_file(path: Path | None, option: str) -> None:
-    if path is not None:
-        if path.is_dir():
-            raise MinirtError(f"{option} {path}: is a folder, expected a file name")
-        output_folder(path.parent if str(path.parent) else Path("."), option)
+    """Check an output file's path before any work -- not a folder, its folder there and writable or
+    possible to make -- without making anything: a run rejected later (a bad scene, a missing image)
+    leaves no empty folder behind. The file's folder is made when the file is written."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise MinirtError(f"{option} {path}: is a folder, expected a file name")
+    folder = path.parent
+    there = folder
+    while not os.path.lexists(there) and there != there.parent:  # the nearest part of the path that exists
+        there = there.parent
+    if not there.is_dir():
+        raise MinirtError(f"{option} {folder}: cannot create the folder ({there} is not a folder)")
+    if not os.access(there, os.W_OK | os.X_OK):
+        what = (
+            "the folder is not writable" if there == folder else f"cannot create the folder ({there} is not writable)"
+        )
+        raise MinirtError(f"{option} {folder}: {what}")

@@ -8,7 +8,9 @@ Sits above the grade of one image (minirt.grading.grade) and its page (minirt.gr
 from __future__ import annotations
 
 import hashlib
+import os
 import re
+import stat
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,23 +27,127 @@ if TYPE_CHECKING:
     from minirt.jobs.cache import Cache
 from minirt.grading.grade import DIFFERS, ERROR, MATCH, ClassRow, grade_image, sentence
 
+# A class folder is untrusted: a student writes what is in their folder. Nothing in it is followed out of it:
+# a student folder or an image that is a symbolic link is a row with verdict "error" (a link to another
+# student's image, or to the staff's reference, would otherwise be graded -- and its picture published);
+# only regular files are read. Hidden entries (".git", ".hidden") and entries that are not folders are
+# listed as skipped, with the reason, in grades.json and on the class page (grades.csv keeps one row per
+# student and scene).
+HIDDEN = "hidden (its name starts with a dot)"
+
+
+@dataclass(frozen=True)
+class Skipped:
+    """An entry of the class folder that is not a student: its name and why it was not graded."""
+
+    folder: str
+    reason: str
+
+    def as_dict(self) -> dict[str, str]:
+        return {"folder": self.folder, "reason": self.reason}
+
+
+def _link_reason(path: Path, what: str) -> str:
+    from minirt.io.untrusted import printable
+
+    try:
+        target = f" to {printable(os.readlink(path), 200)}"
+    except OSError:
+        target = ""
+    return f"{what} is a symbolic link{target}; links are not followed (only what is in the class folder is graded)"
+
 
 def find_image(folder: Path, stem: str) -> Path | None:
-    """The student's image of scene ``stem``: any supported extension (the first in a fixed order)."""
+    """The student's image of scene ``stem``: any supported extension (the first in a fixed order) --
+    whatever is there under that name, not followed if a link (``image_problem`` says what is wrong)."""
     for ext in STUDENT_EXTENSIONS:
         for cand in (folder / f"{stem}{ext}", folder / f"{stem}{ext.upper()}"):
-            if cand.is_file():
+            if os.path.lexists(cand):
                 return cand
     return None
 
 
-def students(class_dir: Path) -> list[Path]:
+def image_problem(img: Path) -> str | None:
+    """Why the file ``img`` of a student's folder is not read (a link, not a regular file), or None."""
+    try:
+        st = img.lstat()
+    except OSError as e:
+        return f"{img.name}: cannot read ({e.strerror or e})"
+    if stat.S_ISLNK(st.st_mode):
+        return _link_reason(img, img.name)
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO, a device or a socket"
+        return f"{img.name} is not a regular file ({kind})"
+    try:
+        str(img).encode("utf-8")
+    except UnicodeEncodeError:  # bytes that are not UTF-8 in a name: OpenImageIO cannot open the path
+        return "the image's path is not UTF-8 text, which the image reader needs (rename the folder or file)"
+    return None
+
+
+def folder_problem(student: Path) -> str | None:
+    """Why a student's folder is not looked into (a symbolic link, or not listable), or None."""
+    if student.is_symlink():
+        return _link_reason(student, "the student folder")
+    try:
+        with os.scandir(student):  # opened, not read: a folder of a million files costs nothing here
+            pass
+    except OSError as e:
+        return f"cannot list the student folder ({e.strerror or e})"
+    return None
+
+
+def survey(class_dir: Path) -> tuple[list[Path], list[Skipped]]:
+    """The class folder's entries: its student folders (sorted; a symbolic link among them is a student,
+    graded as an error row, never followed) and what was skipped (hidden entries, entries that are not
+    folders), sorted by name."""
     if not class_dir.is_dir():
         raise MinirtError(f"--class {class_dir}: no such folder")
-    found = sorted(p for p in class_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+    try:
+        with os.scandir(class_dir) as listing:
+            entries = sorted(listing, key=lambda e: e.name)
+    except OSError as e:
+        raise MinirtError(f"--class {class_dir}: cannot list the folder ({e.strerror or e})") from None
+    found: list[Path] = []
+    skipped: list[Skipped] = []
+    for e in entries:
+        try:
+            is_dir, is_link = e.is_dir(follow_symlinks=False), e.is_symlink()
+        except OSError:
+            is_dir = is_link = False
+        if e.name.startswith("."):
+            if is_dir or is_link:
+                skipped.append(Skipped(e.name, HIDDEN))
+        elif is_dir or is_link:
+            found.append(Path(e.path))
+        else:
+            skipped.append(Skipped(e.name, "not a folder (a student's images are in DIR/<student>/)"))
+    return found, skipped
+
+
+def students(class_dir: Path) -> list[Path]:
+    """The student folders of the class folder (``survey``); none is bad input."""
+    found, _ = survey(class_dir)
     if not found:
         raise MinirtError(f"--class {class_dir}: no student folders inside (expected DIR/<student>/<scene>.png)")
     return found
+
+
+def skipped_entries(class_dir: Path) -> list[Skipped]:
+    """What the class folder holds besides its students (``survey``): for grades.json and the class page."""
+    return survey(class_dir)[1]
+
+
+def _names(student: Path) -> set[str]:
+    """The stems of the files in a student's folder (links included, not followed: a linked image is an
+    error row), none when the folder itself is a link or cannot be listed."""
+    if folder_problem(student) is not None:
+        return set()
+    try:
+        with os.scandir(student) as entries:
+            return {Path(e.name).stem for e in entries if not e.is_dir(follow_symlinks=False)}
+    except OSError:
+        return set()  # gone or unreadable since: its rows say so
 
 
 def find_class(class_dir: Path, scenes_dir: Path | None = None) -> tuple[list[Path], list[Path]]:
@@ -54,7 +160,7 @@ def find_class(class_dir: Path, scenes_dir: Path | None = None) -> tuple[list[Pa
     if not folder.is_dir():
         raise MinirtError(f"--scenes {folder}: no such folder")
     files = sorted(folder.glob("*.toml"))
-    submitted = {p.stem for s in people for p in s.iterdir() if p.is_file()}
+    submitted = set().union(*(_names(s) for s in people))
     files = [f for f in files if f.stem in submitted]
     if not files:
         raise MinirtError(f"--class {class_dir}: no image is named after a scene in {folder} (e.g. exercise.png)")
@@ -63,13 +169,23 @@ def find_class(class_dir: Path, scenes_dir: Path | None = None) -> tuple[list[Pa
 
 def grade_one_row(student: Path, scene: Scene, scene_file: str, rules: Rules, cache: dg.VariantCache) -> ClassRow:
     stem = Path(scene_file).stem
+
+    def error(reason: str) -> ClassRow:
+        return ClassRow(student.name, stem, ERROR, {}, None, None, reason=reason)
+
+    problem = folder_problem(student)
+    if problem is not None:
+        return error(problem)
     img = find_image(student, stem)
     if img is None:
-        return ClassRow(student.name, stem, ERROR, {}, None, None, reason=f"no image {stem}.png (or .bmp, .ppm, …)")
+        return error(f"no image {stem}.png (or .bmp, .ppm, …)")
+    problem = image_problem(img)
+    if problem is not None:
+        return error(problem)
     try:
         g = grade_image(scene, scene_file, img, rules, cache)
     except MinirtError as e:
-        return ClassRow(student.name, stem, ERROR, {}, None, None, reason=str(e).splitlines()[0])
+        return error(str(e).splitlines()[0])
     d = g.diagnosis
     said = {n: sentence(n, getattr(d.best, n), getattr(d.given, n)) for n in d.changed}
     return ClassRow(
@@ -216,6 +332,7 @@ def grade_folder(
     quiet: bool = True,
     on_start: Callable[[int, int], None] | None = None,
     on_done: Callable[[ClassJob, ClassRow], None] | None = None,
+    skipped: list[Skipped] | None = None,
 ) -> ClassGrades:
     """Grade every student's image of every scene (``scenes``: (file, scene, rules)) and write the class's
     files into ``out_dir`` (a folder that exists): a page per image, index.html, grades.csv, grades.json.
@@ -224,7 +341,8 @@ def grade_folder(
     each process's render cache is sized to this machine's memory (a class that cannot fit is refused).
     ``cache``: a folder keeping each image's row by content hash (``class_cache``). ``on_start(total,
     workers)`` once the work is sized, ``on_done(job, row)`` as each image is graded (a progress bar);
-    ``quiet``: no progress of the pages written after the jobs."""
+    ``quiet``: no progress of the pages written after the jobs. ``skipped``: the class folder's entries that
+    are not students (``skipped_entries``), listed in grades.json and on the class page."""
     from minirt.grading.page import write_class_page
     from minirt.io.images import write_json
     from minirt.jobs import batch as jobs
@@ -247,7 +365,7 @@ def grade_folder(
         people, scenes, out_dir, workers=workers, scheduler=scheduler, on_done=on_done, cache=store,
         cache_bytes=budget,
     )  # fmt: skip
-    summary = class_dict(rows, [Path(f).stem for f, _, _ in scenes])
+    summary = class_dict(rows, [Path(f).stem for f, _, _ in scenes], skipped)
     index = write_class_page(rows, summary, out_dir, quiet=quiet)
     summary["grades"] = [r.as_dict() for r in rows]  # with the pages' links
     write_csv(out_dir / "grades.csv", rows)
@@ -257,10 +375,12 @@ def grade_folder(
 
 def _image_digest(student: Path, scene_file: str) -> str:
     img = find_image(student, Path(scene_file).stem)
-    if img is None:
-        return ""
-    try:
-        return hashlib.sha256(img.read_bytes()).hexdigest()
+    if img is None or folder_problem(student) or image_problem(img):
+        return ""  # an error row, never cached
+    try:  # streamed, and never through a link swapped in since
+        fd = os.open(img, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        with os.fdopen(fd, "rb") as f:
+            return hashlib.file_digest(f, "sha256").hexdigest()
     except OSError:
         return ""  # graded (and reported) as unreadable
 
@@ -284,7 +404,9 @@ def common_mistakes(rows: list[ClassRow]) -> list[dict[str, Any]]:
     return sorted(out, key=lambda m: (-m["students"], -m["images"], m["rule"], m["value"]))
 
 
-def class_dict(rows: list[ClassRow], scenes: list[str]) -> dict[str, Any]:
+def class_dict(rows: list[ClassRow], scenes: list[str], skipped: list[Skipped] | None = None) -> dict[str, Any]:
+    """grades.json's content: the students, scenes, counts, common mistakes, one row per student and scene,
+    and the class folder's entries that were skipped (``survey``), each with its reason."""
     counts: dict[str, int] = {MATCH: 0, DIFFERS: 0, ERROR: 0}
     for r in rows:
         counts[r.verdict] += 1
@@ -294,25 +416,28 @@ def class_dict(rows: list[ClassRow], scenes: list[str]) -> dict[str, Any]:
         "verdicts": counts,
         "common_mistakes": common_mistakes(rows),
         "grades": [r.as_dict() for r in rows],
+        "skipped": [k.as_dict() for k in skipped or []],
     }
 
 
 def write_csv(path: Path, rows: list[ClassRow]) -> None:
+    """grades.csv: one row per student and scene. Every cell is untrusted text made safe for a spreadsheet
+    (minirt.io.untrusted.csv_cell: control characters as escapes, a would-be formula given a leading ``'``)."""
     import csv
     import io
 
     from minirt.io.atomic import atomic_path
+    from minirt.io.untrusted import csv_cell
 
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["student", "scene", "verdict", "rules", "mismatch_pixels", "as_given_pixels", "reason"])
     for r in rows:
         rules = " ".join(f"{k}={v}" for k, v in sorted(r.rules.items()))
-        w.writerow(
-            [r.student, r.scene, r.verdict, rules, _blank(r.mismatch_pixels), _blank(r.as_given_pixels), r.reason]
-        )
+        cells = [r.student, r.scene, r.verdict, rules, _blank(r.mismatch_pixels), _blank(r.as_given_pixels), r.reason]
+        w.writerow([csv_cell(c) for c in cells])
     with atomic_path(path) as tmp:
-        tmp.write_text(buf.getvalue())
+        tmp.write_text(buf.getvalue(), encoding="utf-8")
 
 
 def _blank(v: int | None) -> str:

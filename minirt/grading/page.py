@@ -12,7 +12,8 @@ class table (students x scenes) with the most common mistakes in ``DIR/index.htm
 Like minirt.pages.report (the parts both share are in minirt.pages.assets): the pages open from disk
 and load nothing from the network (a Content Security Policy allows images from the page's folder,
 inline styles, and only the page's own script, by hash); every string from a scene, an image's path or
-a student's folder is escaped by Jinja2's autoescape; file names are made from a sanitised stem and
+a student's folder is text (its control characters written as escapes, minirt.io.untrusted.page_text, then
+Jinja2's autoescape); file names are made from a sanitised stem and
 fixed words only; every file is written atomically; and the same grade writes the same bytes (no
 dates, no timings).
 
@@ -338,7 +339,8 @@ def write_row_page(row: ClassRow, out_dir: Path, stem: str) -> None:
 def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: bool = True) -> Path:
     """Write a page per graded row that has none yet into ``out_dir/pages/`` (setting ``row.page`` to its
     link; a class graded by ``classroom.grade_class`` arrives with its pages written) and the class table
-    ``out_dir/index.html``; return the index's path."""
+    ``out_dir/index.html``, with the class folder's entries that were skipped (``summary["skipped"]``) and
+    why; return the index's path."""
     out_dir = Path(out_dir)
     (out_dir / "pages").mkdir(parents=True, exist_ok=True)
     stems = page_stems((r.student, r.scene) for r in rows)
@@ -378,6 +380,7 @@ def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: 
         vclass=VERDICT_CLASS,
         mistakes=_mistake_views(rows, summary.get("common_mistakes") or []),
         total=len(rows),
+        skipped=[(str(k.get("folder", "")), str(k.get("reason", ""))) for k in summary.get("skipped") or []],
     )
     return index
 

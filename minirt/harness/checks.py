@@ -83,7 +83,7 @@ def hazard_warnings(result: CheckResult, names: Sequence[str], size: tuple[int, 
 
     out: list[tuple[str, str]] = []
     for sc in result.scenes:
-        scene, rules = harness._scene_and_rules(sc.file, size)
+        scene, rules = harness._scene_and_rules(sc.path or sc.file, size)
         f32 = [n for n in sc.backends if n in names and backends.get(n).is_float32({})]
         out += [(scene.name, line) for line in hazards.scene_warnings(scene, rules, sc.reference, "f64", f32)]
     return out

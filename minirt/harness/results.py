@@ -155,12 +155,13 @@ class BackendCheck:
 @dataclass
 class SceneCheck:
     scene: str
-    file: str
+    file: str  # as the user gave it; a bundled scene by its name (minirt.harness.run.scene_label)
     verdict: str
     backends: dict[str, BackendCheck] = field(default_factory=dict)
     reference: RenderResult | None = None
     description: str = ""
     reason: str = ""
+    path: str = ""  # where it was read from (for this run only: not in the document); "": ``file``
 
     def as_dict(self) -> dict[str, Any]:
         d = {"scene": self.scene, "file": self.file, "verdict": self.verdict, "description": self.description}

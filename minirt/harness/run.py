@@ -24,6 +24,16 @@ if TYPE_CHECKING:
     from minirt.jobs.cache import Cache
 
 
+def scene_label(path: str | Path) -> str:
+    """How a check's results name its scene file: as given, except a bundled scene (found by its name, or
+    one of every bundled scene by default), named by its name, ``exercise`` -- not by where minirt happens
+    to be installed, so the same check writes the same document on every machine."""
+    from minirt.model.bundled import BUNDLED
+
+    p = Path(path)
+    return p.stem if p.is_absolute() and p.suffix == ".toml" and p.parent == BUNDLED else str(path)
+
+
 def _scene_and_rules(path: str | Path, size: tuple[int, int] | None) -> tuple[Scene, Rules]:
     scene = load_scene(path)
     if size:
@@ -52,7 +62,7 @@ def check_scene(
             started = start_ahead(pool, names, scene, rules)
             if started:
                 return check_scene(path, names, size, progress, variants, started, (scene, rules))
-    sc = SceneCheck(scene=scene.name, file=str(path), verdict="skip", description=scene.description)
+    sc = SceneCheck(scene.name, scene_label(path), "skip", description=scene.description, path=str(path))
     refs = ReferenceCache(scene)
     sc.reference = refs.get(rules)
     oracle_names = backends.oracles_among(names)
@@ -171,7 +181,7 @@ def _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache: P
     got = jobs.run(check_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=store)
     scenes = []
     for i, (p, (scene, rules)) in enumerate(zip(paths, loaded, strict=True)):
-        sc = SceneCheck(scene=scene.name, file=str(p), verdict="skip", description=scene.description)
+        sc = SceneCheck(scene.name, scene_label(p), "skip", description=scene.description, path=str(p))
         for j, name in enumerate(oracles):
             bc, ref = got[i * len(oracles) + j]
             sc.backends[name] = bc

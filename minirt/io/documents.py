@@ -101,7 +101,7 @@ class BackendCheck(_Open):
 
 class SceneCheck(_Open):
     scene: str
-    file: str
+    file: str = Field(description="The scene file as given; a bundled scene by its name (exercise).")
     verdict: CheckVerdict
     description: str = ""
     reason: str = ""
@@ -199,6 +199,11 @@ class Mistake(_Open):
     differing_images: int
 
 
+class SkippedEntry(_Open):
+    folder: str = Field(description="The entry's name in the class folder, exactly.")
+    reason: str = Field(description="Why it was not graded: hidden (its name starts with a dot), not a folder.")
+
+
 class ClassDocument(_Document):
     """``minirt grade --class DIR``'s grades.json (and its --json): one row per student and scene."""
 
@@ -207,6 +212,9 @@ class ClassDocument(_Document):
     verdicts: dict[GradeVerdict, int]
     common_mistakes: list[Mistake]
     grades: list[ClassRow]
+    skipped: list[SkippedEntry] = Field(
+        default_factory=list, description="Entries of the class folder that are not students, and why."
+    )
 
 
 # ---------------------------------------------------------------------------------------------

@@ -3,11 +3,15 @@ text for a terminal or a file name.
 
 A scene's name, a student's folder or POV-Ray's error message can hold anything: Rich markup
 (``x[/]``, ``[link=file:///etc/passwd]``), escape sequences that retitle or clear a terminal, NUL,
-bidirectional overrides, path separators, ``..``. Two functions, and nobody else prints or names files
-from such text:
+bidirectional overrides, path separators, ``..``, a spreadsheet formula (``=HYPERLINK(...)``). These
+functions, and nobody else, turn such text into text for a terminal, a page, a CSV cell or a file name:
 
 - :func:`terminal_text` -- for the console (Rich markup): control and format characters written as
   ``\\x1b`` / ``\\u202e`` escapes, markup escaped, very long text cut (with the count of what was cut).
+- :func:`page_text` -- for an HTML page (every string a page template shows, before Jinja2's
+  autoescape): the same escapes, newlines kept (a description's lines), nothing cut.
+- :func:`csv_cell` -- for a CSV cell: the same escapes, and a cell a spreadsheet would evaluate as a
+  formula neutralised by OWASP's rule (a leading ``'``).
 - :func:`file_stem` -- for a file name inside an output folder: portable characters only, never empty,
   never ``.``/``..`` or hidden, bounded length (a hash of the whole keeps two long names apart);
   :func:`name_part` for the parts of a name after its stem (a variant's ``rule=value`` tags).
@@ -25,29 +29,31 @@ _STEM_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 _PART_UNSAFE = re.compile(r"[^A-Za-z0-9._,=-]")  # a tag part may also say rule=value,value
 
 
-def printable(text: object, limit: int = MAX_SHOWN) -> str:
+_ESCAPED = frozenset(("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"))  # Unicode categories written as escapes
+
+
+def printable(text: object, limit: int | None = MAX_SHOWN, keep: str = "") -> str:
     """``text`` with every character a terminal would act on written as an escape: C0/C1 controls
     (ESC, BEL, CR, newline), DEL, format characters (bidi overrides, zero-width) and lone surrogates (the
-    bytes of non-UTF-8 input decoded with ``surrogateescape``) -- no markup handling."""
+    bytes of non-UTF-8 input decoded with ``surrogateescape``) -- no markup handling. ``limit``: characters
+    shown, the rest counted (None: all); ``keep``: characters left as they are (a page keeps newlines)."""
     s = str(text)
-    cut = len(s) - limit if len(s) > limit else 0
+    cut = len(s) - limit if limit is not None and len(s) > limit else 0
     if cut:
         s = s[:limit]
-    parts = []
-    for c in s:
-        cat = unicodedata.category(c)
-        if cat in ("Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp"):
-            o = ord(c)
-            if 0xDC80 <= o <= 0xDCFF:  # surrogateescape: the original byte
-                parts.append(f"\\x{o - 0xDC00:02x}")
-            elif o < 0x100:
-                parts.append(f"\\x{o:02x}")
-            else:
-                parts.append(f"\\u{o:04x}" if o < 0x10000 else f"\\U{o:08x}")
-        else:
-            parts.append(c)
-    out = "".join(parts)
+    out = s if s.isprintable() else "".join(_escape(c, keep) for c in s)  # isprintable: none to escape
     return f"{out}... ({cut} more characters)" if cut else out
+
+
+def _escape(c: str, keep: str) -> str:
+    if unicodedata.category(c) not in _ESCAPED or c in keep:
+        return c
+    o = ord(c)
+    if 0xDC80 <= o <= 0xDCFF:  # surrogateescape: the original byte
+        return f"\\x{o - 0xDC00:02x}"
+    if o < 0x100:
+        return f"\\x{o:02x}"
+    return f"\\u{o:04x}" if o < 0x10000 else f"\\U{o:08x}"
 
 
 def terminal_text(text: object, limit: int = MAX_SHOWN) -> str:
@@ -56,6 +62,30 @@ def terminal_text(text: object, limit: int = MAX_SHOWN) -> str:
     from rich.markup import escape
 
     return escape(printable(text, limit))
+
+
+def page_text(text: str) -> str:
+    """Untrusted text for an HTML page, before Jinja2's autoescape (which makes ``<``, ``&`` and quotes
+    text): control and format characters written as escapes, as on a terminal (:func:`printable`), so a
+    page holds no raw ESC, BEL, NUL or tab, no bidi override that reorders what it shows, and no lone
+    surrogate (which UTF-8 cannot encode); newlines are kept (a scene's description is shown as written),
+    nothing is cut."""
+    return printable(text, None, keep="\n")
+
+
+# OWASP (CSV Injection): a cell starting with one of these is a formula to a spreadsheet (Excel,
+# LibreOffice Calc, Google Sheets): =HYPERLINK(...), +SUM(1,2), @SUM(1), -2+3, a tab or a carriage return.
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_cell(value: object) -> str:
+    """A CSV cell from untrusted text: control and format characters written as escapes
+    (:func:`printable`, nothing cut: no raw ESC, NUL or line break inside a cell), then, when the cell
+    starts with a character a spreadsheet evaluates (``FORMULA_START``), a leading ``'`` -- OWASP's rule:
+    a spreadsheet reads the cell as text, never as a formula. The csv module then quotes
+    commas and quotes (RFC 4180)."""
+    s = printable(value, None)
+    return f"'{s}" if s.startswith(FORMULA_START) else s
 
 
 def file_stem(name: object, fallback: str = "scene") -> str:

@@ -358,6 +358,8 @@ def load_scene(path: str | Path) -> Scene:
             raise SceneError(f"{p}: {st.st_size} bytes, more than a scene may have ({MAX_SCENE_BYTES})")
         data = p.read_bytes()
     except FileNotFoundError:
+        if p.is_symlink():
+            raise SceneError(f"{p}: a broken symbolic link (what it points to does not exist)") from None
         raise SceneError(f"{p}: no such scene file") from None
     except IsADirectoryError:
         raise SceneError(f"{p}: is a directory, not a scene file") from None

@@ -5,9 +5,10 @@ Two kinds of page use it: the comparison report (minirt.pages.report) and the gr
 (minirt.grading.page). Both open from disk and load nothing from the network: the style and the one
 script are inline, and a Content Security Policy allows images from the page's own folder, inline styles,
 and only the page's own script, by its hash (``page_parts``). Every string from a scene file, an image's
-path or a student's folder is escaped by the environment's autoescape. The pictures are 8-bit PNGs at the
-renders' own resolution, shown at one scale (``display``) and scaled up without smoothing; the same pixels
-are written once (``Assets``); every file is written atomically.
+path or a student's folder is text: its control and format characters are written as escapes (the
+environment's ``finalize``: minirt.io.untrusted.page_text) and its markup is escaped (autoescape). The
+pictures are 8-bit PNGs at the renders' own resolution, shown at one scale (``display``) and scaled up
+without smoothing; the same pixels are written once (``Assets``); every file is written atomically.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 
 from minirt.io.atomic import atomic_path
 from minirt.io.images import write_image
+from minirt.io.untrusted import page_text
 
 # Okabe-Ito colours (distinguishable with every common colour-vision deficiency).
 BLUE, ORANGE, PURPLE, YELLOW, SKY = (0, 114, 178), (230, 159, 0), (204, 121, 167), (240, 228, 66), (86, 180, 233)
@@ -103,6 +105,14 @@ def display(w: int, h: int, tile: int) -> dict[str, Any]:
     return {"scale": s, "w": round(w * s), "h": round(h * s), "pixelated": s >= 1}
 
 
+def _shown(value: Any) -> Any:
+    """Every value a template prints: a string, unless already markup (the page's own style and script),
+    goes through minirt.io.untrusted.page_text -- no raw ESC, BEL, NUL or bidi override reaches a page."""
+    import markupsafe
+
+    return page_text(value) if isinstance(value, str) and not isinstance(value, markupsafe.Markup) else value
+
+
 @functools.cache
 def environment():
     import jinja2
@@ -110,6 +120,7 @@ def environment():
     return jinja2.Environment(
         loader=jinja2.PackageLoader("minirt.pages", "templates"),
         autoescape=True,  # every string from a scene, a path or a folder name is text, never markup
+        finalize=_shown,  # ... and its control characters are escapes (minirt.io.untrusted.page_text)
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
         lstrip_blocks=True,

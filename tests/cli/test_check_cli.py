@@ -58,6 +58,30 @@ def test_check_json_and_junit(tmp_path):
     assert int(suites.find("testsuite").get("failures")) == 0
 
 
+def test_a_bundled_scene_is_recorded_by_its_name(tmp_path):
+    """check.json names a bundled scene by its name, not by where minirt is installed (the same document on
+    every machine), as the API's result and JUnit do; a path the user gives stays as given."""
+    from minirt.model.bundled import BUNDLED
+
+    p = minirt("check", "exercise", str(BUNDLED / "rules.toml"), "scenes/matte.toml", "-b", "embree",
+               "--size", "8x8", "--json", "-", "-q", "--junit", str(tmp_path / "j.xml"), cwd=ROOT)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    d = json.loads(p.stdout)
+    assert [s["file"] for s in d["scenes"]] == ["exercise", "rules", "scenes/matte.toml"]
+    assert str(BUNDLED) not in p.stdout and str(BUNDLED) not in (tmp_path / "j.xml").read_text()
+
+
+def test_rejected_run_leaves_no_json_folder(tmp_path):
+    """--json and --junit are checked before any work but their folders are made only when written: a run
+    rejected later (a missing scene, a bad --junit) leaves no empty folder behind."""
+    for args in (["nosuch"], ["scenes/exercise.toml", "--junit", str(tmp_path)]):
+        p = run("check", *args, "--json", str(tmp_path / "new" / "deeper" / "r.json"), "-q")
+        assert p.returncode == 2 and len(p.stderr.splitlines()) == 1, p.stderr
+        assert not (tmp_path / "new").exists()
+    p = run("check", "exercise", "-b", "embree", "--size", "8x8", "-q", "--json", str(tmp_path / "new" / "r.json"))
+    assert p.returncode == 0 and json.loads((tmp_path / "new" / "r.json").read_text())["verdict"] == "pass"
+
+
 def test_check_bad_input_exits_2(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[camera]\ndistance = -1\n")
