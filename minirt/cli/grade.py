@@ -171,7 +171,7 @@ def _grade_class(
         output_file(Path(json_out), "--json")
     output_folder(out_dir)
     if cache is not None:
-        output_folder(cache, "--cache")
+        output_folder(cache, "--cache", mode=0o700)
     wh = parse_size(size)
     loaded = [(str(f), *load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
     workers = pool(workers, scheduler, default=0)  # 0: one per core, sized to the images by grade_folder

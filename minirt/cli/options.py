@@ -147,10 +147,12 @@ def pool(workers: int | None, scheduler: str | None, default: int) -> int:
     return jobs.pool(workers, scheduler, default, "--workers and --scheduler")
 
 
-def output_folder(path: Path, option: str = "--out") -> Path:
-    """Make the output folder before any work, so a bad --out fails in a second, not after a render."""
+def output_folder(path: Path, option: str = "--out", mode: int = 0o777) -> Path:
+    """Make the output folder before any work, so a bad --out fails in a second, not after a render.
+    ``mode``: a new folder's permissions (less the umask); a cache's is 0o700, this user's alone
+    (minirt.jobs.cache refuses a folder others may write)."""
     try:
-        path.mkdir(parents=True, exist_ok=True)
+        path.mkdir(mode=mode, parents=True, exist_ok=True)
     except OSError as e:
         raise MinirtError(f"{option} {path}: cannot create the folder ({e.strerror or e})") from None
     if not os.access(path, os.W_OK):
