@@ -14,6 +14,8 @@ import typer
 
 from minirt.cli.console import MAX_MESSAGE, emit_json, err, out, progress_bar
 from minirt.cli.options import (
+    CACHE_TRUST,
+    CLUSTER_TRUST,
     GradeWorkersOpt,
     JsonOpt,
     ProfileOpt,
@@ -64,7 +66,7 @@ def grade(
             "--scheduler",
             metavar="ADDRESS",
             help="With --class: grade on a running Dask cluster (tcp://host:8786); its workers need minirt "
-            "and the same paths.",
+            "and the same paths. " + CLUSTER_TRUST,
         ),
     ] = None,
     cache: Annotated[
@@ -73,7 +75,7 @@ def grade(
             "--cache",
             metavar="DIR",
             help="With --class: keep each image's grade in DIR by content hash (image bytes, scene, rules, "
-            "versions); a rerun grades only new or changed images.",
+            "versions); a rerun grades only new or changed images. " + CACHE_TRUST,
         ),
     ] = None,
     profile: ProfileOpt = None,

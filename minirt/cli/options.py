@@ -70,11 +70,23 @@ GradeWorkersOpt = _workers_opt("with --class, one per core, none with fewer than
 FuzzWorkersOpt = _workers_opt("one per core, none with fewer than 8 jobs each")
 SweepWorkersOpt = _workers_opt("1, one series after the other: series at once share cores, and so their times")
 
+# What every --scheduler and --cache says besides its own sentence (also grade's and sweep's own options).
+CLUSTER_TRUST = (
+    "Trusting a cluster: its scheduler and workers compute the results and can run any code in minirt (Dask "
+    "sends jobs and results as pickles), so use a cluster you control; TLS (tls:// with Dask's security "
+    "settings) is how Dask authenticates and encrypts one. minirt waits MINIRT_SCHEDULER_TIMEOUT seconds "
+    "(default 5) for the scheduler to answer."
+)
+CACHE_TRUST = (
+    "Entries are data (JSON and .npy), never code; DIR must be yours and writable by no one else, unless "
+    "MINIRT_CACHE_SHARED=1 says you trust everyone who can write there."
+)
 SchedulerOpt = Annotated[
     str | None,
     typer.Option(
         "--scheduler", metavar="ADDRESS",
-        help="Run the jobs on a running Dask cluster (tcp://host:8786); its workers need minirt and the renderers.",
+        help="Run the jobs on a running Dask cluster (tcp://host:8786); its workers need minirt and the renderers. "
+        + CLUSTER_TRUST,
     ),
 ]  # fmt: skip
 CacheOpt = Annotated[
@@ -82,7 +94,7 @@ CacheOpt = Annotated[
     typer.Option(
         "--cache", metavar="DIR",
         help="Keep each (scene, oracle) check's result in DIR by content hash (scene text, size, oracle, "
-        "versions); a rerun checks only what changed.",
+        "versions); a rerun checks only what changed. " + CACHE_TRUST,
     ),
 ]  # fmt: skip
 JsonOpt = Annotated[

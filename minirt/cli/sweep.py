@@ -13,6 +13,7 @@ import typer
 
 from minirt.cli.console import err, out, progress_bar
 from minirt.cli.options import (
+    CACHE_TRUST,
     ProfileOpt,
     QuietOpt,
     RuleOpt,
@@ -62,7 +63,7 @@ def sweep(
             "--cache",
             metavar="DIR",
             help="Keep each backend's series in DIR by content hash (scene text, rules, size, knobs, versions, "
-            "machine); a rerun renders only what changed.",
+            "machine); a rerun renders only what changed. " + CACHE_TRUST,
         ),
     ] = None,
     quiet: QuietOpt = False,
