@@ -310,13 +310,17 @@ def handshake(scheduler: str, wait: float | None = None) -> None:
 
 @contextlib.contextmanager
 def _client(workers: int, scheduler: str | None) -> Iterator[Any]:
-    from distributed import Client
-
     from minirt.errors import MinirtError
     from minirt.jobs.logs import route_logs
 
-    route_logs()  # after importing distributed, which installs its handlers
     with contextlib.ExitStack() as stack:
+        if scheduler is None:  # started first: the cluster's process starts while this one imports Dask
+            from minirt.jobs.cluster import local_cluster
+
+            address = stack.enter_context(local_cluster(workers))  # its own session: Ctrl-C is minirt's
+        from distributed import Client
+
+        route_logs()  # after importing distributed, which installs its handlers
         if scheduler is not None:
             wait = timeout()
             handshake(scheduler, wait)
@@ -328,11 +332,9 @@ def _client(workers: int, scheduler: str | None) -> Iterator[Any]:
                     raise MinirtError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({why})") from None
             yield client
             return
-        from minirt.jobs.cluster import local_cluster
-
-        address = stack.enter_context(local_cluster(workers))  # in a session of its own: Ctrl-C is minirt's
+        where = address()  # waits for the cluster to start: Ctrl-C meanwhile stops it at once
         with _signals_held():  # a client half connected cannot be closed: Ctrl-C waits the moment it takes
-            client = stack.enter_context(Client(address, timeout="30s"))
+            client = stack.enter_context(Client(where, timeout="30s"))
             client.run(_one_core)
             client.forward_logging("distributed", level=logging.ERROR)  # a worker's records, said here (OneLine)
         yield client

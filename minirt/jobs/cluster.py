@@ -22,21 +22,23 @@ one-line handler; each worker's are forwarded to minirt (minirt.jobs.worker).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import select
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 START_SECONDS = 120.0  # a cluster that has not started by then (a machine swapping) is an error
 STOP_SECONDS = 5.0
 
 
 @contextlib.contextmanager
-def local_cluster(workers: int) -> Iterator[str]:
-    """The address of an embedded cluster of ``workers`` processes, started for the block (module docstring)."""
+def local_cluster(workers: int) -> Iterator[Callable[[], str]]:
+    """An embedded cluster of ``workers`` processes for the block (module docstring), started at once; what
+    it yields gives the scheduler's address, waiting for it (the caller imports Dask meanwhile)."""
     from minirt.errors import MinirtError
     from minirt.jobs.processes import spawn
 
@@ -48,11 +50,15 @@ def local_cluster(workers: int) -> Iterator[str]:
         [sys.executable, "-m", "minirt.jobs.cluster", str(workers)],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
     )  # fmt: skip
-    try:
-        address = _first_line(p, START_SECONDS)
-        if not address.startswith("tcp://"):
+
+    def address() -> str:
+        said = _first_line(p, START_SECONDS)
+        if not said.startswith("tcp://"):
             raise MinirtError(f"--workers {workers}: the local Dask cluster did not start ({_ended(p)})")
-        yield address
+        return said
+
+    try:
+        yield functools.cache(address)
     except BaseException:  # an error or an interrupt: the workers' jobs are no longer wanted
         _stop(p, graceful=False)
         raise
