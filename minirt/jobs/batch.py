@@ -279,7 +279,8 @@ def handshake(scheduler: str, wait: float | None = None) -> None:
     seconds (``timeout()``): the port refuses or does not resolve, or what answers is not Dask -- a web
     server, a port that accepts and never speaks. Dask's Client would retry a refusing port until its own
     time-out, read a web server's reply as a message of exabytes (MemoryError), and wait on a silent port
-    forever. Other schemes (tls://) are left to Dask."""
+    forever. An address without a scheme is tcp://, without a port Dask's 8786, as Dask reads them; other
+    schemes (tls://) are left to Dask."""
     import socket
     from urllib.parse import urlsplit
 
@@ -287,11 +288,11 @@ def handshake(scheduler: str, wait: float | None = None) -> None:
 
     wait = timeout() if wait is None else wait
     try:
-        u = urlsplit(scheduler)
-        host, port = u.hostname, u.port
+        u = urlsplit(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+        host, port = u.hostname, u.port or 8786
     except ValueError:
         return  # Dask's own message says what is wrong with the address
-    if u.scheme != "tcp" or host is None or port is None:
+    if u.scheme != "tcp" or not host:
         return
     try:
         sock = socket.create_connection((host, port), timeout=wait)

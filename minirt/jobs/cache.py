@@ -161,8 +161,9 @@ class Cache:
     """A folder of job results. ``key(item)``: the item's content hash; ``keep(result)``: whether a result
     may be stored (not an error that a dead worker or a missing renderer could have caused);
     ``accept(item, result)``: on a hit, whether the stored result can stand (and restore what it needs,
-    such as a page it wrote), else the item is run again. ``label``: how messages name the folder (the
-    option that gave it). The folder is checked when the cache is made (``trusted_folder``)."""
+    such as a page it wrote) -- false, or an exception, and the item is run again. ``label``: how messages
+    name the folder (the option that gave it). The folder is checked when the cache is made
+    (``trusted_folder``); ``max_bytes``: the largest entry read or written."""
 
     folder: Path
     key: Callable[[Any], str]
