@@ -118,6 +118,11 @@ def serve(workers: int) -> None:
 
     for sig in (signal.SIGINT, signal.SIGHUP):  # its own session has no terminal; minirt decides
         signal.signal(sig, signal.SIG_IGN)
+    # Standard output is the pipe minirt reads the address from, once: the processes started from here
+    # (nannies, workers, renderers) write theirs to standard error instead -- a pipe nobody reads would
+    # block a worker after 64 KiB, and minirt's own standard output may be JSON (--json -).
+    said = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)
     route_logs()
     # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which also turns off glibc's dynamic
     # mmap threshold: every array over 128 KiB is then a fresh mmap, page-faulted and unmapped again. A
@@ -141,8 +146,8 @@ def serve(workers: int) -> None:
             preload=["minirt.jobs.worker"],  # each worker's Dask records go to minirt, forwarded
         ) as cluster,
     ):
-        sys.stdout.write(cluster.scheduler_address + "\n")
-        sys.stdout.flush()
+        with said:
+            said.write(cluster.scheduler_address + "\n")
         sys.stdin.buffer.read()  # until minirt closes it, or is gone
 
 

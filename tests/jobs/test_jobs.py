@@ -38,6 +38,11 @@ def dies_on_two(x: int) -> int:
     return x
 
 
+def chatty(x: int) -> int:
+    print("x" * 100_000, flush=True)  # more than a pipe holds
+    return x
+
+
 def pid(_: int) -> int:
     time.sleep(0.2)
     return os.getpid()
@@ -86,6 +91,15 @@ def test_local_workers_in_order_errors_and_crashes(capfd):
     assert got[0] == 0 and got[1] == 1 and got[3] == 3 and "died" in got[2]
     said = capfd.readouterr()
     assert "Compute Failed" not in said.err and "Traceback" not in said.err, said.err
+
+
+@pytest.mark.slow
+def test_what_workers_print_goes_to_standard_error(capfd):
+    """A worker writing to its standard output neither blocks (the cluster's process reads the address from
+    a pipe) nor lands in minirt's standard output, which may be JSON (--json -)."""
+    assert jobs.run(chatty, list(range(4)), workers=2) == [0, 1, 2, 3]
+    said = capfd.readouterr()
+    assert "xxx" not in said.out and said.err.count("x" * 100_000) == 4
 
 
 def test_a_busy_dashboard_port_is_not_touched():
