@@ -2,11 +2,11 @@
 *preload* (minirt.jobs.batch starts the LocalCluster with ``preload=["minirt.jobs.worker"]``), before the
 worker takes any job. Never imported by minirt itself: importing it makes the process ignore Ctrl-C.
 
-- **Interrupts are the parent's.** A terminal sends Ctrl-C (SIGINT) and a hang-up (SIGHUP) to the whole
-  foreground process group, and the worker processes are in it. Left alone each would raise
-  KeyboardInterrupt and print a page of asyncio traceback. Here they ignore both: minirt -- the parent --
-  gets the signal, stops the cluster (which stops its workers; a worker whose parent is gone exits by
-  itself) and says one line. SIGTERM and SIGKILL still end a worker at once: the nanny uses them.
+- **Interrupts are the parent's.** The cluster's processes run in a session of their own
+  (minirt.jobs.cluster), out of reach of the terminal's Ctrl-C and hang-up; a worker also ignores SIGINT
+  and SIGHUP sent to it some other way (to the cluster's process group), which would make it print a page
+  of asyncio traceback. minirt decides, and stops the cluster. SIGTERM and SIGKILL still end a worker at
+  once: the nanny uses them.
 - **Logs go through minirt.** The worker prints none of Dask's records itself (a job's "Compute Failed"
   with its traceback, a heartbeat lost while the cluster stops): those at ERROR and above are forwarded to
   minirt (``Client.forward_logging``), which says each in one line, or not at all when the job's ERROR

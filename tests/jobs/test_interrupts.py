@@ -165,3 +165,17 @@ def _cmdline(pid: int) -> bytes:
         return Path(f"/proc/{pid}/cmdline").read_bytes()
     except OSError:
         return b""
+
+
+def test_sigkill_of_minirt_takes_the_cluster_with_it(klass, tmp_path):
+    """SIGKILL runs no handler: the cluster's process dies with minirt (setpriv --pdeathsig KILL, or the
+    end of its standard input), and its workers with their nanny."""
+    people, scenes = klass
+    out = tmp_path / "out"
+    run, left = interrupt(
+        ["grade", "--class", people, "--scenes", scenes, "--out", out, "--workers", 2, "-q"],
+        lambda: len(list((out / "pages").glob("*.html"))) >= 2,
+        signal.SIGKILL,
+    )
+    assert run.returncode == -signal.SIGKILL
+    assert left == set(), "processes left running"
