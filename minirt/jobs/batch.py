@@ -241,7 +241,7 @@ def _greeting(sock, wait: float) -> bytes:
             try:
                 chunk = sock.recv(n - len(got))
             except TimeoutError:
-                raise ValueError(f"nothing that a Dask scheduler says came within {wait:g} s") from None
+                raise ValueError(f"it did not greet as Dask does within {wait:g} s") from None
             if not chunk:
                 raise ValueError("it closed the connection without a Dask greeting")
             got += chunk
