@@ -5,12 +5,16 @@ family of minirt.campaign.families (deterministic for family, seed and index), t
 reference exactly as ``minirt check`` does, and -- with ``defects`` -- checks it again against the
 reference with each injected defect, reusing the oracle's render. Jobs run through minirt.jobs.batch (in
 this process, an embedded LocalCluster, or a running Dask cluster); the client alone reads and writes
-files, so remote workers need minirt and the renderers, not a shared file system.
+files, so remote workers need minirt and the renderers, not a shared file system. Scenes are made as
+their jobs are handed out, and of each finished job the campaign keeps only what fuzz.json counts (an
+``Outcome``; its evidence is written at once), so a campaign of a million scenes holds ~0.4 GB, and one
+the machine cannot hold is refused before it starts (``fits_in_memory``). A job's result -- from a worker
+or the cache -- is checked against ``JobResult`` before it is used.
 
-**Cache.** A job's result is stored as ``OUT/cache/KEY.json``, KEY the SHA-256 of everything the
-result depends on: the scene text, the oracle, the defects, the versions of minirt's own code (a
-digest of its sources), of Dr.Jit and of the oracle (its version line). A rerun does only the jobs
-whose key is new; the campaign's JSON is the same bytes either way (no timings in it).
+**Cache.** A job's result is stored as ``OUT/cache/KEY.json`` (JSON: data, never code), KEY the SHA-256
+of everything the result depends on: the scene text, the oracle, the defects, the versions of minirt's
+own code (a digest of its sources), of Dr.Jit and of the oracle (its version line). A rerun does only the
+jobs whose key is new; the campaign's JSON is the same bytes either way (no timings in it).
 
 **Defects.** Each kind stands for a bug a student's tracer could have, applied to the reference (its
 scene, rules, traced effects or buffers) while the oracle's image stays the same. A defect *changes
@@ -26,19 +30,21 @@ in scenes it can judge (its check of the correct reference conclusive).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, Required, TypedDict
 
 import numpy as np
 
 from minirt.jobs.cache import Codec, digest, json_codec
+from minirt.jobs.data import Schema
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Material, Scene
 
 VERDICTS = ("pass", "warn", "fail", "error", "skip")
+Verdict = Literal["pass", "warn", "fail", "error", "skip"]
 CHANGE_REL = 1e-9  # t and normals differing by more than this (relative) change the image's geometry
 
 
@@ -324,62 +330,45 @@ def failed_job(job: Job, message: str) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------------------------
-# The campaign
+# What a job gives back
 
 
-@dataclass
-class Campaign:
-    seed: int
-    families: tuple[str, ...]
-    size: tuple[int, int]
-    backends: tuple[str, ...]
-    defects: tuple[str, ...]
-    scenes: list[tuple[str, str, str]] = field(default_factory=list)  # (name, family, text)
-    results: list[dict[str, Any]] = field(default_factory=list)
-    cached: int = 0
-    seconds: float = 0.0
-
-    def jobs(self) -> list[Job]:
-        return [Job(n, f, t, b, self.defects) for n, f, t in self.scenes for b in self.backends]
+class DefectFound(TypedDict, total=False):
+    changes: Required[bool]
+    changes_judged: Required[bool]
+    verdict: Required[Verdict]
+    reason: str  # why the defect could not be rendered
 
 
-def scenes(count: int, seed: int, families: Sequence[str], size: tuple[int, int]) -> list[tuple[str, str, str]]:
-    """``count`` scenes, the families taken in turn: scene i is family i mod F's number i // F."""
-    from minirt.campaign import families as fuzz
-
-    out = []
-    for i in range(count):
-        fam = families[i % len(families)]
-        k = i // len(families)
-        out.append((f"{fam}_{seed}_{k}", fam, fuzz.scene_text(fam, seed, k, size[0], size[1])))
-    return out
+class Evidence(TypedDict):
+    check: str  # the check's JSON
+    images: dict[str, bytes]  # role -> PNG bytes
 
 
-def run(
-    campaign: Campaign,
-    cache: Path | None,
-    workers: int = 1,
-    scheduler: str | None = None,
-    on_done: Callable[[Job, dict[str, Any]], None] | None = None,
-) -> Campaign:
-    """Every job of the campaign, from ``cache`` (a folder; None: no cache) where it holds the job's key."""
-    from minirt.harness.backends import versions
-    from minirt.jobs import batch as jobs
-    from minirt.jobs.cache import Cache
+class JobResult(TypedDict, total=False):
+    """What ``run_job`` (or ``failed_job``) gives back, and what the cache holds: checked before use."""
 
-    t0 = time.perf_counter()
-    v = versions(campaign.backends)
-    # an error may be passing (a dead worker, a renderer missing here): never stored, redone next time
-    store = None if cache is None else Cache(cache, lambda j: job_key(j, v), CODEC, _not_error)
-    campaign.results = jobs.run(run_job, campaign.jobs(), workers=workers, scheduler=scheduler, on_done=on_done,
-                                on_error=failed_job, cache=store)  # fmt: skip
-    campaign.cached = store.hits if store else 0
-    campaign.seconds = time.perf_counter() - t0
-    return campaign
+    scene: Required[str]
+    family: Required[str]
+    backend: Required[str]
+    verdict: Required[Verdict]
+    inconclusive: Required[bool]
+    reason: Required[str]
+    seconds: Required[float]
+    evidence: Evidence
+    defects: dict[str, DefectFound]
 
 
-def _not_error(result: dict[str, Any]) -> bool:
-    return result["verdict"] != "error"
+RESULT = Schema(JobResult)
+
+
+def result_fits(job: Job, result: JobResult) -> None:
+    """Raise ValueError unless ``result`` -- from a worker or the cache -- is a result of ``job``."""
+    RESULT.check(result)
+    if (result["scene"], result["family"], result["backend"]) != (job.scene, job.family, job.backend):
+        raise ValueError(f"a result of {result['scene']!r} on {result['backend']!r}, not of this job")
+    if not set(result.get("defects") or {}) <= set(job.defects):
+        raise ValueError("a result of other defects")
 
 
 def _encode(result: dict[str, Any]) -> bytes:
@@ -392,31 +381,157 @@ def _encode(result: dict[str, Any]) -> bytes:
 def _decode(data: bytes) -> dict[str, Any]:
     d = json_codec.decode(data)
     ev = d.get("evidence")
-    if ev:
-        ev["images"] = {k: bytes.fromhex(v) for k, v in ev.get("images", {}).items()}
+    if isinstance(ev, dict) and isinstance(ev.get("images"), dict):
+        ev["images"] = {k: bytes.fromhex(v) for k, v in ev["images"].items()}
     return d
 
 
-CODEC = Codec("json", _encode, _decode)
+CODEC = Codec("json", _encode, _decode, RESULT.check)
+
+
+# ---------------------------------------------------------------------------------------------
+# The campaign
+
+
+@dataclass(slots=True)
+class Outcome:
+    """What the campaign keeps of a job's result once its evidence is written: what fuzz.json counts."""
+
+    verdict: str
+    inconclusive: bool
+    reason: str
+    defects: dict[str, DefectFound] | None
+
+
+# Bytes the campaign keeps per job (an Outcome and its list slot; a non-PASS's reason adds its length) and
+# per defect checked in a job (its entry, as read from JSON), measured with tracemalloc over 100,000 of
+# them: 80 and 344 bytes; rounded up here for the reasons and the per-scene tallies of fuzz.json.
+OUTCOME_BYTES = 128
+DEFECT_BYTES = 384
+
+
+@dataclass
+class Campaign:
+    seed: int
+    families: tuple[str, ...]
+    size: tuple[int, int]
+    backends: tuple[str, ...]
+    defects: tuple[str, ...]
+    count: int = 0  # scenes
+    outcomes: list[Outcome | None] = field(default_factory=list)  # per job: scene i's oracle j at i * B + j
+    cached: int = 0
+    seconds: float = 0.0
+
+    def scene(self, i: int) -> tuple[str, str]:
+        """Scene ``i``'s name and family: family i mod F's number i // F."""
+        fam = self.families[i % len(self.families)]
+        return f"{fam}_{self.seed}_{i // len(self.families)}", fam
+
+    def job(self, k: int) -> tuple[str, str, str]:
+        """Job ``k``'s scene name, family and oracle."""
+        name, fam = self.scene(k // len(self.backends))
+        return name, fam, self.backends[k % len(self.backends)]
+
+    def jobs(self) -> Iterator[Job]:
+        """Every job, scene by scene, each scene's text made as its jobs are taken (never a list of them)."""
+        from minirt.campaign import families as fuzz
+
+        for i in range(self.count):
+            name, fam = self.scene(i)
+            text = fuzz.scene_text(fam, self.seed, i // len(self.families), *self.size)
+            for b in self.backends:
+                yield Job(name, fam, text, b, self.defects)
+
+
+def scenes(count: int, seed: int, families: Sequence[str], size: tuple[int, int]) -> list[tuple[str, str, str]]:
+    """``count`` scenes as (name, family, text), the families taken in turn: scene i is family i mod F's
+    number i // F (``Campaign.jobs`` makes the same scenes one at a time)."""
+    c = Campaign(seed, tuple(families), size, ("",), (), count)
+    return [(j.scene, j.family, j.text) for j in c.jobs()]
+
+
+def fits_in_memory(c: Campaign, local_workers: int) -> None:
+    """Bad input before any work (minirt.jobs.memory): a campaign this machine cannot hold, as one line --
+    what it keeps per job (OUTCOME_BYTES, DEFECT_BYTES per defect), and a check of one scene at its size
+    running here or in each of ``local_workers`` processes."""
+    from minirt.harness import backends
+    from minirt.jobs import memory
+
+    total = c.count * len(c.backends)
+    kept = total * (OUTCOME_BYTES + len(c.defects) * DEFECT_BYTES)
+    w, h = c.size
+    memory.require(
+        kept + backends.check_bytes([w * h], list(c.backends), local_workers),
+        f"a campaign of {c.count} scenes x {len(c.backends)} oracles at {w}x{h}",
+        "fuzz fewer scenes at a time (--count, a new --seed for the next ones), or at a smaller --size",
+    )
+
+
+def run(
+    campaign: Campaign,
+    cache: Path | None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    on_done: Callable[[Job, dict[str, Any]], None] | None = None,
+    out: Path | None = None,
+) -> Campaign:
+    """Every job of the campaign, from ``cache`` (a folder; None: no cache) where it holds the job's key;
+    ``out``: the folder that gets each non-PASS job's evidence as it finishes (``write_evidence``). Jobs
+    are made and handed out as they are needed; what is kept of each is its Outcome."""
+    import contextlib
+
+    from minirt.harness.backends import versions
+    from minirt.jobs import batch as jobs
+    from minirt.jobs.cache import Cache
+
+    t0 = time.perf_counter()
+    v = versions(campaign.backends)
+    # an error may be passing (a dead worker, a renderer missing here): never stored, redone next time
+    store = None if cache is None else Cache(cache, lambda j: job_key(j, v), CODEC, _not_error, label="fuzz cache")
+    campaign.outcomes = [None] * (campaign.count * len(campaign.backends))
+    done = jobs.stream(run_job, campaign.jobs(), workers=workers, scheduler=scheduler, on_error=failed_job,
+                       cache=store, check=result_fits)  # fmt: skip
+    with contextlib.closing(done):
+        for k, job, res, ok in done:
+            if ok and on_done:
+                on_done(job, res)
+            if out is not None:
+                write_evidence(job, res, out)
+            campaign.outcomes[k] = Outcome(res["verdict"], bool(res.get("inconclusive")), res["reason"],
+                                           res.get("defects"))  # fmt: skip
+    campaign.cached = store.hits if store else 0
+    campaign.seconds = time.perf_counter() - t0
+    return campaign
+
+
+def _not_error(result: dict[str, Any]) -> bool:
+    return result["verdict"] != "error"
+
+
+def _results(c: Campaign) -> Iterator[tuple[str, str, str, Outcome]]:
+    for k, o in enumerate(c.outcomes):
+        if o is not None:
+            yield (*c.job(k), o)
 
 
 def summary(c: Campaign) -> dict[str, Any]:
     """The campaign's JSON document (no timings: the same bytes for the same command)."""
     verdicts = dict.fromkeys(VERDICTS, 0)
-    failures, inconclusive = [], 0
-    for r in c.results:
-        verdicts[r["verdict"]] += 1
-        inconclusive += bool(r.get("inconclusive"))
-        if r["verdict"] in ("fail", "error"):
-            failures.append({"scene": r["scene"], "family": r["family"], "backend": r["backend"],
-                             "verdict": r["verdict"], "reason": r["reason"]})  # fmt: skip
+    failures, inconclusive, jobs = [], 0, 0
+    for scene, family, backend, o in _results(c):
+        jobs += 1
+        verdicts[o.verdict] += 1
+        inconclusive += o.inconclusive
+        if o.verdict in ("fail", "error"):
+            failures.append({"scene": scene, "family": family, "backend": backend, "verdict": o.verdict,
+                             "reason": o.reason})  # fmt: skip
     doc: dict[str, Any] = {
         "seed": c.seed,
         "families": list(c.families),
         "size": list(c.size),
         "backends": list(c.backends),
-        "scenes": len(c.scenes),
-        "jobs": len(c.results),
+        "scenes": c.count,
+        "jobs": jobs,
         "verdicts": verdicts,
         "inconclusive": inconclusive,
         "failures": failures,
@@ -429,8 +544,8 @@ def summary(c: Campaign) -> dict[str, Any]:
 
 def _by_family(c: Campaign) -> dict[str, dict[str, int]]:
     out = {f: dict.fromkeys(VERDICTS, 0) for f in c.families}
-    for r in c.results:
-        out[r["family"]][r["verdict"]] += 1
+    for _, family, _, o in _results(c):
+        out[family][o.verdict] += 1
     return out
 
 
@@ -438,9 +553,9 @@ def _defects(c: Campaign) -> dict[str, Any]:
     """Per defect, over scenes: those it changes for some oracle, those it changes on pixels that oracle's
     check judges (outside its band and edges), those where an oracle it changes FAILed, and the rates."""
     by_scene: dict[str, dict[str, list[bool]]] = {}
-    for r in c.results:
-        for name, d in (r.get("defects") or {}).items():
-            s = by_scene.setdefault(name, {}).setdefault(r["scene"], [False, False, False])
+    for scene, _, _, o in _results(c):
+        for name, d in (o.defects or {}).items():
+            s = by_scene.setdefault(name, {}).setdefault(scene, [False, False, False])
             s[0] |= bool(d["changes"])
             s[1] |= bool(d.get("changes_judged"))
             s[2] |= bool(d["changes"]) and d["verdict"] == "fail"
@@ -463,29 +578,24 @@ def _defects(c: Campaign) -> dict[str, Any]:
     return out
 
 
-def write_evidence(c: Campaign, out: Path) -> list[Path]:
-    """Every non-PASS job's scene file, check JSON and images under ``out``; returns the scene files."""
+def write_evidence(job: Job, r: dict[str, Any], out: Path) -> None:
+    """A non-PASS job's scene file, check JSON and images under ``out`` (nothing for a PASS)."""
     from minirt.io.atomic import atomic_path
 
-    texts = {n: t for n, _, t in c.scenes}
-    written = []
-    for r in c.results:
-        if r["verdict"] == "pass":
-            continue
-        scene = out / f"{r['scene']}.toml"
-        if not scene.exists():
-            with atomic_path(scene) as tmp:
-                tmp.write_text(texts[r["scene"]], encoding="utf-8")
-            written.append(scene)
-        ev = r.get("evidence") or {}
-        files = {f"{r['scene']}.{r['backend']}.check.json": ev.get("check", "").encode()}
-        for role, png in (ev.get("images") or {}).items():
-            files[f"{r['scene']}.{r['backend']}.{role}.png"] = png
-        for name, data in files.items():
-            if data:
-                with atomic_path(out / name) as tmp:
-                    tmp.write_bytes(data)
-    return written
+    if r["verdict"] == "pass":
+        return
+    scene = out / f"{job.scene}.toml"
+    if not scene.exists():
+        with atomic_path(scene) as tmp:
+            tmp.write_text(job.text, encoding="utf-8")
+    ev = r.get("evidence") or {}
+    files = {f"{job.scene}.{job.backend}.check.json": ev.get("check", "").encode()}
+    for role, png in (ev.get("images") or {}).items():
+        files[f"{job.scene}.{job.backend}.{role}.png"] = png
+    for name, data in files.items():
+        if data:
+            with atomic_path(out / name) as tmp:
+                tmp.write_bytes(data)
 
 
 def fuzz(
@@ -497,14 +607,15 @@ def fuzz(
     use_cache: bool = True,
     on_done: Callable[[Job, dict[str, Any]], None] | None = None,
 ) -> dict[str, Any]:
-    """``minirt fuzz``: generate ``count`` scenes, run every (scene, oracle) job (cached in
-    ``out_dir/cache`` unless ``use_cache`` is false), write the evidence of what failed and
-    ``out_dir/fuzz.json``; return that document."""
+    """``minirt fuzz``: ``count`` scenes, every (scene, oracle) job (cached in ``out_dir/cache`` unless
+    ``use_cache`` is false) -- after a memory pre-check (``fits_in_memory``), the scenes made as their jobs
+    are handed out -- the evidence of what failed and ``out_dir/fuzz.json``; return that document."""
     from minirt.io.images import write_json
 
-    c.scenes = scenes(count, c.seed, c.families, c.size)
-    run(c, out_dir / "cache" if use_cache else None, workers=workers, scheduler=scheduler, on_done=on_done)
-    write_evidence(c, out_dir)
+    c.count = count
+    fits_in_memory(c, 0 if scheduler else workers if workers > 1 else 0)
+    run(c, out_dir / "cache" if use_cache else None, workers=workers, scheduler=scheduler, on_done=on_done,
+        out=out_dir)  # fmt: skip
     doc = summary(c)
     write_json(out_dir / "fuzz.json", doc)
     return doc

@@ -49,7 +49,7 @@ def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, sch
     wh = parse_size(size)
     checks.read_all(files)  # bad input first, before any long work
     if cache is not None:
-        output_folder(cache, "--cache")
+        output_folder(cache, "--cache", mode=0o700)
     total = checks.job_count(files, names)
     with progress_bar(not quiet) as bar:
         task = bar.add_task("checking", total=total) if bar else None

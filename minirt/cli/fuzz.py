@@ -33,7 +33,8 @@ FUZZ_HELP = "\n\n".join([
     "Dask LocalCluster (default: one worker per core once there are enough jobs) or on a running Dask "
     "cluster (--scheduler tcp://host:8786; its workers need minirt and the renderers installed). Results "
     "are cached in OUT/cache by content hash (scene text, oracle, defects, versions), so a rerun does only "
-    "what changed.",
+    "what changed. Scenes are made as their jobs are handed out, and a campaign this machine cannot hold "
+    "is refused before it starts.",
     "--defects also checks each oracle against the reference with an injected bug (defects: {defects}): "
     "a defect that changes a scene's image must make some oracle FAIL there; the catch rate is reported.",
     "Every non-PASS keeps its scene file, the check's JSON and both images in OUT. Writes OUT/fuzz.json "

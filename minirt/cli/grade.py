@@ -14,6 +14,7 @@ import typer
 
 from minirt.cli.console import MAX_MESSAGE, emit_json, err, out, progress_bar
 from minirt.cli.options import (
+    CLUSTER_TRUST,
     GradeCacheOpt,
     GradeWorkersOpt,
     JsonOpt,
@@ -69,7 +70,7 @@ def grade(
             "--scheduler",
             metavar="ADDRESS",
             help="With --class: grade on a running Dask cluster (tcp://host:8786); its workers need minirt "
-            "and the same paths.",
+            "and the same paths. " + CLUSTER_TRUST,
         ),
     ] = None,
     cache: GradeCacheOpt = None,
@@ -169,7 +170,7 @@ def _grade_class(
         output_file(Path(json_out), "--json")
     output_folder(out_dir)
     if cache is not None:
-        output_folder(cache, "--cache")
+        output_folder(cache, "--cache", mode=0o700)
     wh = parse_size(size)
     loaded = [(str(f), *load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
     workers = pool(workers, scheduler, default=0)  # 0: one per core, sized to the images by grade_folder

@@ -70,11 +70,23 @@ GradeWorkersOpt = _workers_opt("with --class, one per core, none with fewer than
 FuzzWorkersOpt = _workers_opt("one per core, none with fewer than 8 jobs each")
 SweepWorkersOpt = _workers_opt("1, one series after the other: series at once share cores, and so their times")
 
+# What every --scheduler and --cache says besides its own sentence (also grade's and sweep's own options).
+CLUSTER_TRUST = (
+    "Trusting a cluster: its scheduler and workers compute the results and can run any code in minirt (Dask "
+    "sends jobs and results as pickles), so use a cluster you control; TLS (tls:// with Dask's security "
+    "settings) is how Dask authenticates and encrypts one. minirt waits MINIRT_SCHEDULER_TIMEOUT seconds "
+    "(default 5) for the scheduler to answer."
+)
+CACHE_TRUST = (
+    "Entries are data (JSON and .npy), never code; DIR must be yours and writable by no one else, unless "
+    "MINIRT_CACHE_SHARED=1 says you trust everyone who can write there."
+)
 SchedulerOpt = Annotated[
     str | None,
     typer.Option(
         "--scheduler", metavar="ADDRESS",
-        help="Run the jobs on a running Dask cluster (tcp://host:8786); its workers need minirt and the renderers.",
+        help="Run the jobs on a running Dask cluster (tcp://host:8786); its workers need minirt and the renderers. "
+        + CLUSTER_TRUST,
     ),
 ]  # fmt: skip
 
@@ -86,15 +98,15 @@ def _cache_opt(help_: str) -> Any:
 
 CacheOpt = _cache_opt(
     "Keep each (scene, oracle) check's result in DIR by content hash (scene text, size, oracle, versions); a rerun "
-    "checks only what changed."
+    "checks only what changed. " + CACHE_TRUST
 )
 GradeCacheOpt = _cache_opt(
     "With --class: keep each image's grade in DIR by content hash (image bytes, scene, rules, versions); a rerun "
-    "grades only new or changed images."
+    "grades only new or changed images. " + CACHE_TRUST
 )
 SweepCacheOpt = _cache_opt(
     "Keep each backend's series in DIR by content hash (scene text, rules, size, knobs, versions, machine); a rerun "
-    "renders only what changed."
+    "renders only what changed. " + CACHE_TRUST
 )
 JsonOpt = Annotated[
     str | None,
@@ -158,10 +170,12 @@ def pool(workers: int | None, scheduler: str | None, default: int) -> int:
     return jobs.pool(workers, scheduler, default, "--workers and --scheduler")
 
 
-def output_folder(path: Path, option: str = "--out") -> Path:
-    """Make the output folder before any work, so a bad --out fails in a second, not after a render."""
+def output_folder(path: Path, option: str = "--out", mode: int = 0o777) -> Path:
+    """Make the output folder before any work, so a bad --out fails in a second, not after a render.
+    ``mode``: a new folder's permissions (less the umask); a cache's is 0o700, this user's alone
+    (minirt.jobs.cache refuses a folder others may write)."""
     try:
-        path.mkdir(parents=True, exist_ok=True)
+        path.mkdir(mode=mode, parents=True, exist_ok=True)
     except OSError as e:
         raise MinirtError(f"{option} {path}: cannot create the folder ({e.strerror or e})") from None
     if not os.access(path, os.W_OK):

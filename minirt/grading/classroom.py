@@ -240,13 +240,31 @@ def grade_job(job: ClassJob) -> ClassRow:
 ASSET_LINK = re.compile(r'"assets/([A-Za-z0-9._-]+\.png)"')  # a class page's pictures (named by their pixels)
 
 
+def row_fits(job: ClassJob, row: ClassRow) -> None:
+    """Raise ValueError unless ``row`` -- from a worker or the cache -- is a row of ``job``: a ClassRow of
+    its student and scene, without the grade's arrays, whose page (if any) is the job's own page name --
+    a page path read from a cache entry is where its bytes are written back, so it is never taken as is."""
+    from minirt.grading.page import safe_stem
+    from minirt.jobs.data import Schema
+
+    Schema(ClassRow, (ClassRow,)).check(row)
+    if (row.student, row.scene) != (Path(job.student).name, Path(job.scene_file).stem):
+        raise ValueError(f"a row of {row.student!r}, {row.scene!r}, not of this image")
+    if row.verdict not in (MATCH, DIFFERS, ERROR):
+        raise ValueError(f"an unknown verdict {row.verdict!r}")
+    if row.page not in ("", f"pages/{safe_stem(job.page_stem, 'index')}.html"):
+        raise ValueError(f"a page {row.page!r} that is not the image's")
+
+
 def class_cache(folder: Path, out_dir: Path) -> Cache:
-    """The cache of ``grade_class``'s jobs: a row is reused for the same image bytes, scene, rules, page
-    name and versions, and its page is written back from the cached bytes -- when every picture it links
-    is still in ``out_dir/pages/assets`` (pictures are named by their pixels' hash, so a file of that name
-    is that picture); otherwise the image is graded again. Error rows are never kept."""
+    """The cache of ``grade_class``'s jobs (minirt.jobs.cache, as data): a row is reused for the same image
+    bytes, scene, rules, page name and versions, and its page is written back from the cached bytes -- when
+    the row fits its job (``row_fits``) and every picture its page links is still in ``out_dir/pages/assets``
+    (pictures are named by their pixels' hash, so a file of that name is that picture); otherwise the image
+    is graded again. Error rows are never kept."""
     from minirt.harness.backends import versions
-    from minirt.jobs.cache import Cache, digest, pickle_codec
+    from minirt.jobs.cache import Cache, data_codec, digest
+    from minirt.jobs.data import Schema
 
     v = versions([])
 
@@ -256,6 +274,7 @@ def class_cache(folder: Path, out_dir: Path) -> Cache:
                        "drjit": v["drjit"]})  # fmt: skip
 
     def accept(job: ClassJob, row: ClassRow) -> bool:
+        row_fits(job, row)
         if not row.page:
             return True
         if row.page_html is None:
@@ -269,7 +288,8 @@ def class_cache(folder: Path, out_dir: Path) -> Cache:
             tmp.write_bytes(row.page_html)
         return True
 
-    return Cache(folder, key, pickle_codec, keep=lambda row: row.verdict != ERROR, accept=accept)
+    codec = data_codec(Schema(ClassRow, (ClassRow,)))
+    return Cache(folder, key, codec, keep=lambda row: row.verdict != ERROR, accept=accept)
 
 
 def grade_class(
@@ -307,7 +327,8 @@ def grade_class(
         if on_done:
             on_done(job, row)
 
-    return jobs.run(grade_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=cache)
+    return jobs.run(grade_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=cache,
+                    check=row_fits)  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -90,8 +90,8 @@ def run(
     ``workers`` > 1 or a Dask ``scheduler``: each (scene, oracle) is one job of minirt.jobs.batch, run on that
     many local worker processes or on the cluster's workers; the job carries the scene file's text, so
     workers need minirt and the renderers, not the files. The verdicts and figures are the same.
-    ``cache``: a folder of job results (minirt.jobs.cache) keyed by the scene's text and name, the size, the
-    oracle and the versions; a job it holds is not run again (jobs run one by one here then, without
+    ``cache``: a folder of job results (minirt.jobs.cache, data only) keyed by the scene's text and name, the
+    size, the oracle and the versions; a job it holds is not run again (jobs run one by one here then, without
     POV-Ray's renders started ahead)."""
     loaded = [_scene_and_rules(p, size) for p in paths]  # each file parsed once, for every use below
     _fits_in_memory([s for s, _ in loaded], names, 0 if scheduler else workers if workers > 1 else 0)
@@ -143,10 +143,63 @@ def check_job(job: CheckJob) -> tuple[BackendCheck, RenderResult]:
     return bc, refs.get(rules)
 
 
-def check_cache(folder: Path, oracles: list[str]) -> Cache:
-    """The cache of ``run``'s jobs in ``folder``: results with arrays, so pickled (see minirt.jobs.cache)."""
+def _schema():
+    """What a check job gives back (minirt.jobs.data.Schema): the oracle's check and the reference."""
+    from minirt.harness.results import Check, RuleDiagnosis
+    from minirt.jobs.data import Schema
+
+    return Schema(tuple[BackendCheck, RenderResult | None], (BackendCheck, Check, RuleDiagnosis, RenderResult))
+
+
+def _arrays(bc: BackendCheck, ref: RenderResult | None):
+    """(where, array) for every image-shaped array of a check job's result."""
+    for who, r in (("result", bc.result), ("reference", bc.reference), ("scene reference", ref)):
+        if r is None:
+            continue
+        for name in ("hit", "shape_id", "t", "position", "normal", "color", "image8"):
+            if getattr(r, name) is not None:
+                yield f"{who}.{name}", getattr(r, name)
+        yield from ((f"{who}.terms[{k}]", a) for k, a in r.terms.items())
+        yield from ((f"{who}.aux[{k}]", a) for k, a in r.aux.items())
+    for name, c in bc.checks.items():
+        yield from ((f"checks[{name}].images[{k}]", a) for k, a in c.images.items())
+    yield from ((f"rule_masks[{k}]", a) for k, a in bc.rule_masks.items())
+    d = bc.rule_diagnosis
+    if d.unexplained_mask is not None:
+        yield "rule_diagnosis.unexplained_mask", d.unexplained_mask
+    yield from ((f"rule_diagnosis.explained_masks[{k}]", a) for k, a in d.explained_masks.items())
+
+
+def fits(job: CheckJob, got: tuple[BackendCheck, RenderResult | None], size: tuple[int, int]) -> None:
+    """Raise ValueError unless ``got`` -- from a worker or a cache -- is a check job's result for ``job``:
+    of the schema's types, for the job's oracle, every picture ``size`` (width, height) as the job's scene."""
+    from minirt.jobs.data import JSON, check
+
+    _schema().check(got)
+    bc, ref = got
+    if bc.backend != job.backend:
+        raise ValueError(f"a check of {bc.backend!r}, not of {job.backend!r}")
+    # what check.json and the report print of the fields typed Any: JSON data
+    check(bc.rules_followed, dict[str, JSON], "rules_followed")
+    for name, c in bc.checks.items():
+        check(c.figures, dict[str, JSON], f"checks[{name}].figures")
+    for who, r in (("result", bc.result), ("reference", bc.reference), ("scene reference", ref)):
+        if r is not None:
+            check(r.meta, dict[str, JSON], f"{who}.meta")
+    w, h = size
+    for r in (bc.result, bc.reference, ref):
+        if r is not None and (r.width, r.height) != (w, h):
+            raise ValueError(f"a {r.width}x{r.height} render of a {w}x{h} scene")
+    for where, a in _arrays(bc, ref):
+        if a.shape[:2] != (h, w):
+            raise ValueError(f"{where} has shape {a.shape}, not the scene's {h}x{w}")
+
+
+def check_cache(folder: Path, oracles: list[str], sizes: dict[CheckJob, tuple[int, int]]) -> Cache:
+    """The cache of ``run``'s jobs in ``folder``: results with arrays, as data (minirt.jobs.cache);
+    ``sizes``: each job's image size, which an entry must have."""
     from minirt.harness.backends import versions
-    from minirt.jobs.cache import Cache, digest, pickle_codec
+    from minirt.jobs.cache import Cache, data_codec, digest
 
     v = versions(oracles)
 
@@ -155,8 +208,12 @@ def check_cache(folder: Path, oracles: list[str]) -> Cache:
                        "backend": job.backend, "minirt": v["minirt"], "drjit": v["drjit"],
                        "oracle": v.get(job.backend, "")})  # fmt: skip
 
+    def accept(job: CheckJob, got) -> bool:
+        fits(job, got, sizes[job])
+        return True
+
     # an error may be passing (a dead worker, a crashed renderer): never stored, redone next time
-    return Cache(folder, key, pickle_codec, keep=lambda got: got[0].verdict != "error")
+    return Cache(folder, key, data_codec(_schema()), keep=lambda got: got[0].verdict != "error", accept=accept)
 
 
 def _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache: Path | None = None) -> CheckResult:
@@ -177,8 +234,11 @@ def _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache: P
     def failed(job: CheckJob, message: str):
         return BackendCheck(backend=job.backend, verdict="error", reason=message), None
 
-    store = None if cache is None else check_cache(cache, oracles)
-    got = jobs.run(check_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=store)
+    cameras = {j: loaded[index[id(j)][0]][0].camera for j in todo}
+    sizes = {j: (c.width, c.height) for j, c in cameras.items()}  # what a result from a worker or the cache must be
+    store = None if cache is None else check_cache(cache, oracles, sizes)
+    got = jobs.run(check_job, todo, workers=workers, scheduler=scheduler, on_done=done, on_error=failed, cache=store,
+                   check=lambda job, result: fits(job, result, sizes[job]))  # fmt: skip
     scenes = []
     for i, (p, (scene, rules)) in enumerate(zip(paths, loaded, strict=True)):
         sc = SceneCheck(scene.name, scene_label(p), "skip", description=scene.description, path=str(p))

@@ -27,6 +27,7 @@ import tempfile
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from minirt.io.atomic import stale
 
@@ -61,6 +62,13 @@ def run(cmd: list[str], cwd: Path | str | None = None, timeout: float | None = N
             _live.discard(p)
     text = (out or b"").decode("utf-8", "replace"), (err or b"").decode("utf-8", "replace")
     return subprocess.CompletedProcess(cmd, p.returncode, *text)
+
+
+def spawn(cmd: list[str], **popen: Any) -> subprocess.Popen:
+    """A long-lived child (the embedded Dask cluster, minirt.jobs.cluster) started as renderers are: in a
+    session of its own (a terminal's signals reach minirt, not it) and killed by the kernel if minirt is.
+    The caller stops it; ``popen``: subprocess.Popen's other arguments."""
+    return subprocess.Popen([*_pdeathsig_prefix(), *cmd], start_new_session=True, **popen)
 
 
 def _kill(p: subprocess.Popen) -> None:

@@ -14,11 +14,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 
 from minirt.harness import backends as bk
+from minirt.jobs.data import JSON, Schema
 from minirt.model.backend import Series, Setting
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
@@ -30,6 +31,27 @@ from minirt.sweep.timing import REPEATS, SLOW_SECONDS, timed, wall_seconds
 SIZE = 256  # realistic: the exercise renders 256x256; tests pass small sizes
 
 Progress = Callable[[int, int, str], None]
+
+
+class Row(TypedDict):
+    """One row of a series (``_row``, with ``timing``'s keys filled in): what a series job gives back."""
+
+    backend: str
+    knob: str | None
+    value: JSON
+    cost: float | None
+    status: Literal["ok", "skip", "error"]
+    reason: str
+    seconds_median: float | None
+    seconds_setup: float | None
+    seconds_first: float | None
+    seconds_total: float | None
+    seconds_at_resolution: bool
+    timer_resolution: float | None
+    runs: list[float]
+    metric: str | None
+    error: dict[str, JSON]
+    pareto: bool
 
 
 def _row(
@@ -161,12 +183,25 @@ def run_series(job: SeriesJob) -> tuple[list[dict[str, Any]], dict[str, dict[str
     return rows, sweep.converged
 
 
+# What a series job gives back: its rows, and the converged answers it rendered (sweep.json's "converged").
+SERIES = Schema(tuple[list[Row], dict[str, dict[str, JSON]]])
+
+
+def series_fits(job: SeriesJob, got: tuple[list[Row], dict[str, dict[str, JSON]]]) -> None:
+    """Raise ValueError unless ``got`` -- from a worker or the cache -- is a series of ``job``'s backend."""
+    SERIES.check(got)
+    rows, _ = got
+    if not rows or any(r["backend"] != job.backend for r in rows):
+        raise ValueError(f"not a series of {job.backend!r}")
+
+
 def sweep_cache(folder: Path, backends_used: list[str], where: str, cat: Catalogue):
-    """The cache of run_sweep's series in ``folder`` (minirt.jobs.cache): keyed by the scene's text, the rules,
-    the series' knobs, size and repeats, the versions -- and the machine the times were taken on (``where``:
-    this host and its cores, or the cluster's address), since a series' times are only that machine's."""
+    """The cache of run_sweep's series in ``folder`` (minirt.jobs.cache, as data): keyed by the scene's text,
+    the rules, the series' knobs, size and repeats, the versions -- and the machine the times were taken on
+    (``where``: this host and its cores, or the cluster's address), since a series' times are only that
+    machine's."""
     from minirt.harness.backends import versions
-    from minirt.jobs.cache import Cache, digest, pickle_codec
+    from minirt.jobs.cache import Cache, data_codec, digest
 
     v = versions(bk.oracles_among(backends_used))
 
@@ -182,8 +217,13 @@ def sweep_cache(folder: Path, backends_used: list[str], where: str, cat: Catalog
                        "minirt": v["minirt"], "drjit": v["drjit"], "oracle": v.get(job.backend, ""),
                        "where": where})  # fmt: skip
 
+    def accept(job: SeriesJob, got) -> bool:
+        series_fits(job, got)
+        return True
+
     # a series with a skip or error row may be the machine's (a renderer missing, a crash): redone next time
-    return Cache(folder, key, pickle_codec, keep=lambda got: all(r["status"] == "ok" for r in got[0]))
+    return Cache(folder, key, data_codec(SERIES), keep=lambda got: all(r["status"] == "ok" for r in got[0]),
+                 accept=accept)  # fmt: skip
 
 
 def here() -> str:
@@ -256,7 +296,7 @@ def run_sweep(
     _notify = started if here_ else None
     try:
         got = jobs.run(run_series, todo, workers=workers, scheduler=scheduler, on_done=finished, on_error=failed,
-                       cache=store)  # fmt: skip
+                       cache=store, check=series_fits)  # fmt: skip
     finally:
         _notify = None
     rows = [r for series_rows, _ in got for r in series_rows]

@@ -150,3 +150,25 @@ def test_the_class_cache_shrinks_to_the_memory_left(monkeypatch):
     monkeypatch.setattr(memory, "available", lambda: base + floor - 1)  # less: refused, naming the job
     with pytest.raises(MinirtError, match=r"^a class of 2 needs about .* GB of memory, .*fewer --workers"):
         memory.class_cache_bytes(px, 2, most, "a class of 2")
+
+
+def test_a_campaign_that_cannot_fit_is_refused_before_any_job(monkeypatch, tmp_path):
+    """`minirt fuzz --count 1000000`: with 1 GB left (~0.4 GB kept for a million scenes' outcomes, plus
+    the checks themselves) it fits and starts at once -- its first scenes made as their jobs go out, not a
+    million scenes first; with 0.5 GB it is one line before any job."""
+    import time
+
+    from minirt.campaign import campaign
+
+    c = campaign.Campaign(seed=1, families=("random",), size=(8, 8), backends=("embree",), defects=(), count=10**6)
+    monkeypatch.setattr(memory, "available", lambda: 1 << 30)
+    campaign.fits_in_memory(c, local_workers=0)
+    t0 = time.perf_counter()
+    first = [j.scene for _, j in zip(range(3), c.jobs(), strict=False)]
+    assert first == ["random_1_0", "random_1_1", "random_1_2"] and time.perf_counter() - t0 < 5
+    monkeypatch.setattr(memory, "available", lambda: 1 << 29)
+    p = minirt("fuzz", "--count", 1_000_000, "--size", "8x8", "-b", "embree", "--workers", 1, "-o", tmp_path, "-q")
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1, p.stderr
+    assert lines[0].startswith("minirt: error: a campaign of 1000000 scenes x 1 oracles at 8x8 needs about")
+    assert "--count" in lines[0] and not (tmp_path / "cache").exists()
