@@ -168,9 +168,10 @@ def exr_channels(result: RenderResult) -> tuple[np.ndarray, list[str]]:
         add(f"aux.{key}", result.aux[key], "XYZ")
     out = np.empty((*blocks[0].shape[:2], len(names)), np.float32)
     i = 0
-    for a in blocks:
-        out[..., i : i + a.shape[-1]] = a
-        i += a.shape[-1]
+    with np.errstate(over="ignore"):  # a value beyond float32 (a colour of 1e308) is stored as inf, quietly:
+        for a in blocks:  # the scene allows it, and NumPy's RuntimeWarning is no message for a user
+            out[..., i : i + a.shape[-1]] = a
+            i += a.shape[-1]
     return out, names
 
 
