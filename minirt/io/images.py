@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import re
@@ -311,28 +312,44 @@ def _open_regular(path: Path) -> int:
     return fd
 
 
-_PINNED = "minirt-image-"  # the temporary folders of _opened_name: PREFIX<pid>-XXXX
-_swept: list[bool] = []
+_PINNED = "minirt-image-"  # the temporary folder of _opened_name: PREFIX<pid>-XXXX, one per process
+_pin_folder: dict[int, str] = {}  # pid -> this process's folder (a forked child makes its own)
 
 
 @contextlib.contextmanager
 def _opened_name(fd: int, suffix: str) -> Iterator[str | None]:
     """A name, ending in ``suffix``, that opens the very file behind ``fd``, so the reader decodes the file
     that was checked, not whatever the path names a moment later: on Linux a link to /proc/self/fd/N in
-    a private temporary folder (the suffix picks the reader and its error messages, as for the path
-    itself); None where there is no /proc. Folders of killed runs are removed by the next read."""
+    this process's private temporary folder (the suffix picks the reader and its error messages, as for
+    the path itself); None where there is no /proc. The link goes when the read ends, the folder when
+    the process does; the folders of killed runs are removed by the next process that reads an image.
+    (One folder per process, not per read: removing a folder costs milliseconds, a link microseconds.)"""
     proc = f"/proc/self/fd/{fd}"
     if not os.path.exists(proc):
         yield None
         return
-    if not _swept:  # once per process: a class reads thousands of images
-        _swept.append(True)
+    name = os.path.join(_pinning_folder(), f"{fd}{suffix.lower()}")  # an open fd's number is unique
+    os.symlink(proc, name)
+    try:
+        yield name
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(name)
+
+
+def _pinning_folder() -> str:
+    pid = os.getpid()
+    if pid not in _pin_folder:
         for q in stale(Path(tempfile.gettempdir()), re.compile(re.escape(_PINNED) + r"(\d+)-")):
             shutil.rmtree(q, ignore_errors=True)
-    with tempfile.TemporaryDirectory(prefix=f"{_PINNED}{os.getpid()}-") as tmp:
-        name = os.path.join(tmp, "image" + suffix.lower())
-        os.symlink(proc, name)
-        yield name
+        _pin_folder[pid] = tempfile.mkdtemp(prefix=f"{_PINNED}{pid}-")
+        atexit.register(_remove_pinning_folder, pid)
+    return _pin_folder[pid]
+
+
+def _remove_pinning_folder(pid: int) -> None:
+    if os.getpid() == pid:  # not a forked child's exit: the folder is its parent's
+        shutil.rmtree(_pin_folder.pop(pid, ""), ignore_errors=True)
 
 
 def _read_student_image(
