@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -77,7 +78,6 @@ def test_the_file_checked_is_the_file_decoded(tmp_path, monkeypatch):
     """A file swapped for a FIFO between the check and the decode (a student's folder being written to while
     it is graded): the decode reads the regular file that was opened and checked, not the FIFO now under
     its name, and leaves no temporary folder behind."""
-    import tempfile
 
     import minirt.io.images as images
 
@@ -94,7 +94,6 @@ def test_the_file_checked_is_the_file_decoded(tmp_path, monkeypatch):
         return fd
 
     monkeypatch.setattr(images, "_open_regular", open_then_swap)
-    before = set(Path(tempfile.gettempdir()).glob(f"minirt-image-{os.getpid()}-*"))
     try:
         colour, _ = read_student_image(path)
     finally:
@@ -103,7 +102,24 @@ def test_the_file_checked_is_the_file_decoded(tmp_path, monkeypatch):
             w.wait()
     assert writers
     np.testing.assert_array_equal(colour, PIXELS)
-    assert set(Path(tempfile.gettempdir()).glob(f"minirt-image-{os.getpid()}-*")) == before
+    assert os.listdir(images._pinning_folder()) == []  # the link went with the read
+
+
+def test_the_pinning_folder_goes_with_its_process_and_a_killed_one_s_with_the_next(tmp_path):
+    """Each process links the files it reads from one temporary folder, removed when it exits; the folder
+    of a run that was killed (SIGKILL: no exit handler ran) is removed by the next process that reads."""
+    import tempfile
+
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    stale = Path(tempfile.mkdtemp(prefix=f"minirt-image-{dead.pid}-"))
+    (stale / "5.png").symlink_to("/proc/self/fd/5")
+    write_image(tmp_path / "a.png", PIXELS)
+    code = "import sys; import minirt.io.images as m; m.read_student_image(sys.argv[1]); print(m._pinning_folder())"
+    p = subprocess.run([sys.executable, "-c", code, str(tmp_path / "a.png")], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    own = Path(p.stdout.strip())
+    assert own.name.startswith("minirt-image-") and not own.exists() and not stale.exists()
 
 
 @pytest.mark.parametrize("name", ["zero.png", "null.tga"])
