@@ -41,7 +41,9 @@ def grade(
     image: Annotated[
         Path | None,
         typer.Argument(
-            metavar="IMAGE", help="The other tracer's image: PNG, BMP, PPM/PGM, TGA, TIFF or EXR.", show_default=False
+            metavar="IMAGE",
+            help="The other tracer's image: PNG, BMP, PPM/PGM, TGA, TIFF or EXR (a regular file; alpha is ignored).",
+            show_default=False,
         ),
     ] = None,
     json_out: JsonOpt = None,

@@ -158,8 +158,12 @@ def parse_size(size: str | None) -> tuple[int, int] | None:
         wh = (int(w), int(h if sep else w))  # "64" is 64x64; "10x" is a mistake, not 10x10
     except ValueError:
         raise MinirtError(f"--size {size}: expected WIDTHxHEIGHT, e.g. 128x128") from None
-    if min(wh) < 1:
-        raise MinirtError(f"--size {size}: width and height must be >= 1")
+    from minirt.model.scene import LIMITS
+
+    for name, v in zip(("width", "height"), wh, strict=True):  # the scene's limits, named as the user wrote them
+        lo, hi = LIMITS[name]
+        if not lo <= v <= hi:
+            raise MinirtError(f"--size {size}: the {name} must be between {lo} and {hi}")
     return wh
 
 

@@ -14,7 +14,6 @@ import typer
 
 from minirt.cli.console import emit_json, out
 from minirt.cli.options import HeightOpt, Precision, ProfileOpt, RuleOpt, WidthOpt, load
-from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
 
 
@@ -55,14 +54,8 @@ def probe(
     if image is not None:
         from minirt.grading.grade import check_size, load_target
 
-        target = load_target(image)
-        try:
-            notes = check_size(scene, target, str(image))
-        except MinirtError as e:  # grade's message, with probe's options for the size
-            rows, cols = target.shape
-            raise MinirtError(
-                str(e).replace(f"grade with --size {cols}x{rows}", f"probe with --width {cols} --height {rows}")
-            ) from None
+        target = load_target(image, scene, resize="probe with --width {w} --height {h}")  # size checked first
+        notes = check_size(scene, target, str(image))
     p = run_probe(scene, rules, x, y, precision.value)
     if target is not None:
         p["image"] = image_pixel(scene, p, target, rules, notes)

@@ -22,7 +22,7 @@ import numpy as np
 
 from minirt import diagnose as dg
 from minirt.errors import MinirtError
-from minirt.io.images import read_student_image
+from minirt.io.images import ImageHeader, read_student_image
 from minirt.jobs import memory
 from minirt.model import rules as rules_mod
 from minirt.model.rules import Rules
@@ -245,22 +245,54 @@ class Grade:
         return out
 
 
-def load_target(path: str | Path) -> dg.Target:
-    pixels, is_float = read_student_image(path)
+GRADE_RESIZE = "grade with --size {w}x{h}"
+
+
+def load_target(path: str | Path, scene: Scene | None = None, resize: str = GRADE_RESIZE) -> dg.Target:
+    """The image to grade. With ``scene``, its header's size is checked against the scene's (``size_notes``;
+    ``resize`` is the advice for another size, given the image's {w} and {h}) and the memory a grade of
+    it needs (``GRADE_RESIZE``; else only its pixels') against what is available, before a pixel is
+    decoded: a file that claims 100000x100000 pixels costs a header's read, not the machine's memory."""
+
+    def before_decoding(header: ImageHeader) -> None:
+        if scene is None:
+            return
+        size_notes(scene, header.width, header.height, str(path), resize)
+        w, h = scene.camera.width, scene.camera.height
+        if resize == GRADE_RESIZE:
+            memory.require(
+                memory.grade_bytes(w * h),
+                f"grading {path} ({w}x{h})",
+                "grade on a machine with more memory, or a smaller render of the same scene (--size)",
+            )
+        else:  # only its pixels are held
+            memory.require(
+                w * h * 3 * (4 if header.is_float else 1),
+                f"reading {path} ({w}x{h})",
+                "use a machine with more memory, or a smaller render of the same scene",
+            )
+
+    pixels, is_float = read_student_image(path, before_decoding)
     return dg.Target(pixels, is_float, str(path))
 
 
 def check_size(scene: Scene, target: dg.Target, image: str) -> list[str]:
     """The image's size against the scene's: fine, transposed (a note), or a one-line error."""
-    w, h = scene.camera.width, scene.camera.height
     rows, cols = target.shape
+    return size_notes(scene, cols, rows, image)
+
+
+def size_notes(scene: Scene, cols: int, rows: int, image: str, resize: str = GRADE_RESIZE) -> list[str]:
+    """An image of ``cols`` x ``rows`` against the scene's size: [] when it is the scene's, a note when it is
+    transposed, else a one-line MinirtError (``resize``: how to grade another size)."""
+    w, h = scene.camera.width, scene.camera.height
     if (cols, rows) == (w, h):
         return []
     if (cols, rows) == (h, w):
         return [f"the image is {cols}x{rows} for a {w}x{h} scene: x and y are swapped (transposed)"]
     raise MinirtError(
         f"{image}: the image is {cols}x{rows}, the scene {scene.source or scene.name} is {w}x{h} "
-        f"(render at the scene's size, or grade with --size {cols}x{rows})"
+        f"(render at the scene's size, or {resize.format(w=cols, h=rows)})"
     )
 
 
@@ -274,14 +306,8 @@ def grade_image(
 ) -> Grade:
     """Grade one image of one scene (raises MinirtError for bad input)."""
     scene = scene.with_overrides(samples=1)  # the exercise traces one ray per pixel
-    target = load_target(image)
+    target = load_target(image, scene)  # the size and the memory checked before the image is decoded
     notes = check_size(scene, target, str(image))
-    w, h = scene.camera.width, scene.camera.height
-    memory.require(
-        memory.grade_bytes(w * h),
-        f"grading {image} ({w}x{h})",
-        "grade on a machine with more memory, or a smaller render of the same scene (--size)",
-    )
     d = dg.diagnose(scene, rules, target, cache)
     verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
     g = Grade(scene, scene_file, str(image), verdict, diagnosis=d, target=target, notes=notes)

@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
+import re
+import shutil
+import stat
+import tempfile
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +18,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from minirt.errors import MinirtError
-from minirt.io.atomic import atomic_path
+from minirt.io.atomic import atomic_path, stale
 from minirt.model.result import TERMS, RenderResult
 
 
@@ -115,14 +122,14 @@ def _read(path: str | Path, fmt) -> tuple[np.ndarray, list[str]]:
     silenced)."""
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise MinirtError(f"{path}: cannot read image: {oiio.geterror()}")
+        raise MinirtError(f"{path}: cannot read image: {_error(oiio)}")
     try:
         spec = inp.spec()
         with _quiet_stderr():
             data = inp.read_image(0, 0, 0, spec.nchannels, fmt)
         a = None if data is None else np.asarray(data)
         if a is None or a.size != spec.height * spec.width * spec.nchannels:
-            why = " ".join((inp.geterror() or "").split())[:200] or "fewer pixels than its header says"
+            why = " ".join((_error(inp) or "").split())[:200] or "fewer pixels than its header says"
             raise MinirtError(f"{path}: truncated or corrupt image ({why})")
         return a.reshape(spec.height, spec.width, spec.nchannels), list(spec.channelnames)
     finally:
@@ -162,9 +169,10 @@ def exr_channels(result: RenderResult) -> tuple[np.ndarray, list[str]]:
         add(f"aux.{key}", result.aux[key], "XYZ")
     out = np.empty((*blocks[0].shape[:2], len(names)), np.float32)
     i = 0
-    for a in blocks:
-        out[..., i : i + a.shape[-1]] = a
-        i += a.shape[-1]
+    with np.errstate(over="ignore"):  # a value beyond float32 (a colour of 1e308) is stored as inf, quietly:
+        for a in blocks:  # the scene allows it, and NumPy's RuntimeWarning is no message for a user
+            out[..., i : i + a.shape[-1]] = a
+            i += a.shape[-1]
     return out, names
 
 
@@ -223,22 +231,189 @@ def write_json(path: str | Path, data: Any) -> None:
 # Formats a graded image may come in (OpenImageIO reads each; the extension picks the reader).
 STUDENT_EXTENSIONS = (".png", ".bmp", ".ppm", ".pgm", ".pnm", ".tga", ".tif", ".tiff", ".exr")
 
+# The most channels a graded image may have: minirt's own EXR has 27, a student's image 1 to 4. Only the
+# first three are decoded, but a reader holds a whole scanline of every channel at once.
+MAX_CHANNELS = 256
 
-def read_student_image(path: str | Path) -> tuple[np.ndarray, bool]:
+# Rows decoded per read: a block of about 16 MiB, so a signal is handled between blocks (a C reader holds
+# Python's signal handlers off until it returns) and a large image never needs a second copy.
+_BLOCK_BYTES = 16 << 20
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    """What an image file says about itself before any pixel is decoded."""
+
+    path: Path
+    width: int
+    height: int
+    channels: int
+    is_float: bool  # float or 16-bit: decoded as float32; else 8-bit levels
+    reader: str  # OpenImageIO's name for the format ("png", "openexr", ...)
+
+
+def read_student_image(
+    path: str | Path, before_decoding: Callable[[ImageHeader], None] | None = None
+) -> tuple[np.ndarray, bool]:
     """An image another tracer wrote, as (rows, columns, 3): uint8 levels for 8-bit files, float32
     for float and 16-bit files (the bool says which). Grey images are repeated into R, G and B; an
-    alpha channel is ignored. Any problem is one MinirtError line naming the file."""
+    alpha channel is ignored: colours are read as stored (OpenImageIO would otherwise multiply them by
+    alpha), and alpha itself is never decoded.
+
+    The file is untrusted: it must be a regular file (a FIFO, a device or a socket is refused without
+    being opened, so nothing blocks), it is opened once, without blocking, and decoded from that open
+    file; its header's size is checked against the largest scene (``minirt.model.scene.LIMITS``) and
+    ``MAX_CHANNELS``, then by ``before_decoding`` (the grader's check against the scene and the memory),
+    before a pixel is decoded. Any problem is one MinirtError line naming the file."""
     path = Path(path)
-    if not path.exists():
-        raise MinirtError(f"{path}: no such image file")
-    if path.is_dir():
+    fd = _open_regular(path)
+    try:
+        if path.suffix.lower() not in STUDENT_EXTENSIONS:
+            raise MinirtError(
+                f"{path}: unsupported image type {path.suffix or '(none)'} (use {', '.join(STUDENT_EXTENSIONS)})"
+            )
+        with _opened_name(fd, path.suffix) as opened, _quiet_stderr():  # libpng and friends print their own
+            return _read_student_image(path, opened, before_decoding)  # complaint; ours is the one line
+    finally:
+        os.close(fd)
+
+
+_KINDS = {stat.S_IFIFO: "a FIFO", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device"}
+
+
+def _file_kind(mode: int) -> str:
+    return _KINDS.get(stat.S_IFMT(mode), "a socket" if stat.S_ISSOCK(mode) else "not a file")
+
+
+def _open_regular(path: Path) -> int:
+    """A read-only descriptor of ``path``, a regular file, or one MinirtError line. Whatever else it is
+    is refused from ``stat`` before any open (opening a FIFO waits for a writer; a device may do
+    anything on open); the open itself does not block (O_NONBLOCK), and its ``fstat`` is checked
+    again: a file swapped for a FIFO in between is refused, not waited on."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise MinirtError(f"{path}: no such image file") from None
+    except OSError as e:
+        raise MinirtError(f"{path}: cannot read: {e.strerror or e}") from None
+    if stat.S_ISDIR(st.st_mode):
         raise MinirtError(f"{path}: is a folder, expected an image file")
-    if path.suffix.lower() not in STUDENT_EXTENSIONS:
-        raise MinirtError(
-            f"{path}: unsupported image type {path.suffix or '(none)'} (use {', '.join(STUDENT_EXTENSIONS)})"
-        )
-    with _quiet_stderr():  # libpng and friends print their own complaint; ours is the one line
-        return _read_student_image(path)
+    if not stat.S_ISREG(st.st_mode):
+        raise MinirtError(f"{path}: not a regular file ({_file_kind(st.st_mode)}); an image must be a file")
+    flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as e:
+        raise MinirtError(f"{path}: cannot read: {e.strerror or e}") from None
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise MinirtError(f"{path}: not a regular file ({_file_kind(st.st_mode)}); an image must be a file")
+    return fd
+
+
+_PINNED = "minirt-image-"  # the temporary folder of _opened_name: PREFIX<pid>-XXXX, one per process
+_pin_folder: dict[int, str] = {}  # pid -> this process's folder (a forked child makes its own)
+
+
+@contextlib.contextmanager
+def _opened_name(fd: int, suffix: str) -> Iterator[str | None]:
+    """A name, ending in ``suffix``, that opens the very file behind ``fd``, so the reader decodes the file
+    that was checked, not whatever the path names a moment later: on Linux a link to /proc/self/fd/N in
+    this process's private temporary folder (the suffix picks the reader and its error messages, as for
+    the path itself); None where there is no /proc. The link goes when the read ends, the folder when
+    the process does; the folders of killed runs are removed by the next process that reads an image.
+    (One folder per process, not per read: removing a folder costs milliseconds, a link microseconds.)"""
+    proc = f"/proc/self/fd/{fd}"
+    if not os.path.exists(proc):
+        yield None
+        return
+    name = os.path.join(_pinning_folder(), f"{fd}{suffix.lower()}")  # an open fd's number is unique
+    os.symlink(proc, name)
+    try:
+        yield name
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(name)
+
+
+def _pinning_folder() -> str:
+    pid = os.getpid()
+    if pid not in _pin_folder:
+        for q in stale(Path(tempfile.gettempdir()), re.compile(re.escape(_PINNED) + r"(\d+)-")):
+            shutil.rmtree(q, ignore_errors=True)
+        _pin_folder[pid] = tempfile.mkdtemp(prefix=f"{_PINNED}{pid}-")
+        atexit.register(_remove_pinning_folder, pid)
+    return _pin_folder[pid]
+
+
+def _remove_pinning_folder(pid: int) -> None:
+    if os.getpid() == pid:  # not a forked child's exit: the folder is its parent's
+        shutil.rmtree(_pin_folder.pop(pid, ""), ignore_errors=True)
+
+
+def _read_student_image(
+    path: Path, opened: str | None, before_decoding: Callable[[ImageHeader], None] | None
+) -> tuple[np.ndarray, bool]:
+    _error(oiio)  # a stale error of an earlier read must not be taken for this file's
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # colours as stored: not multiplied by alpha on read
+    inp = oiio.ImageInput.open(opened or str(path), config)
+    if inp is None:
+        raise MinirtError(f"{path}: cannot read image: {_one_line(_error(oiio), opened, path)}")
+    try:
+        header = _header(path, inp)
+        if before_decoding is not None:
+            before_decoding(header)
+        a = _decode(path, inp, header, opened)
+    finally:
+        inp.close()
+    if err := _error(oiio):  # a reader that filled in what a truncated file lacked says so here
+        raise MinirtError(f"{path}: cannot read image: {_one_line(err, opened, path)}")
+    colour = a if a.shape[-1] == 3 else np.repeat(a, 3, axis=-1)
+    if header.is_float and not np.isfinite(colour).all():
+        raise MinirtError(f"{path}: the image holds NaN or infinite values")
+    return colour, header.is_float
+
+
+def _header(path: Path, inp: Any) -> ImageHeader:
+    """The header, checked: a flat image of 1 to ``MAX_CHANNELS`` channels, no side over the largest
+    scene's."""
+    from minirt.model.scene import LIMITS
+
+    spec = inp.spec()
+    w, h, c = spec.width, spec.height, spec.nchannels
+    if w < 1 or h < 1 or c < 1:
+        raise MinirtError(f"{path}: empty image")
+    if spec.deep or spec.depth > 1:
+        raise MinirtError(f"{path}: a {'deep' if spec.deep else 'volume'} image; expected a flat picture")
+    most = LIMITS["width"][1], LIMITS["height"][1]
+    if w > most[0] or h > most[1]:
+        raise MinirtError(f"{path}: the image says it is {w}x{h}, larger than any scene ({most[0]}x{most[1]})")
+    if c > MAX_CHANNELS:
+        raise MinirtError(f"{path}: the image says it has {c} channels, more than {MAX_CHANNELS}")
+    is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE) or spec.format.size() > 1
+    return ImageHeader(path, w, h, c, is_float, inp.format_name())
+
+
+def _decode(path: Path, inp: Any, header: ImageHeader, opened: str | None) -> np.ndarray:
+    """The first three channels (grey: the first), block by block of rows into one array."""
+    w, h = header.width, header.height
+    channels = 3 if header.channels >= 3 else 1
+    dtype, fmt = (np.float32, oiio.FLOAT) if header.is_float else (np.uint8, oiio.UINT8)
+    out = np.empty((h, w, channels), dtype)
+    y0 = inp.spec().y  # an EXR's data window may start elsewhere than row 0
+    rows = max(1, _BLOCK_BYTES // (w * header.channels * 4))
+    for top in range(0, h, rows):
+        n = min(rows, h - top)
+        data = inp.read_scanlines(0, 0, y0 + top, y0 + top + n, 0, 0, channels, fmt)
+        if data is None or inp.has_error:
+            raise MinirtError(f"{path}: cannot read image: {_one_line(_error(inp), opened, path)}")
+        block = np.asarray(data)
+        if block.size != n * w * channels:
+            raise MinirtError(f"{path}: the file is truncated (rows {top} to {top + n} of {h} hold too few values)")
+        out[top : top + n] = block.reshape(n, w, channels)
+    return out
 
 
 @contextlib.contextmanager
@@ -258,35 +433,17 @@ def _quiet_stderr():
         os.close(sys_err)
 
 
-def _read_student_image(path: Path) -> tuple[np.ndarray, bool]:
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise MinirtError(f"{path}: cannot read image: {_one_line(oiio.geterror())}")
+def _error(source: Any) -> str:
+    """``source.geterror()`` (OpenImageIO, or an ImageInput), whose message quotes the file's own bytes
+    (a garbled header's text) and is then not always UTF-8, which the binding cannot decode."""
     try:
-        spec = inp.spec()
-        if spec.width < 1 or spec.height < 1 or spec.nchannels < 1:
-            raise MinirtError(f"{path}: empty image")
-        is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE) or spec.format.size() > 1
-        fmt = oiio.FLOAT if is_float else oiio.UINT8
-        data = inp.read_image(0, 0, 0, spec.nchannels, fmt)
-        if data is None:
-            raise MinirtError(f"{path}: cannot read image: {_one_line(inp.geterror())}")
-        a = np.asarray(data)
-        if a.size != spec.width * spec.height * spec.nchannels:
-            raise MinirtError(
-                f"{path}: the file is truncated ({a.size} of {spec.width * spec.height * spec.nchannels} values)"
-            )
-        a = a.reshape(spec.height, spec.width, spec.nchannels)
-    finally:
-        inp.close()
-    if err := oiio.geterror():  # a reader that filled in what a truncated file lacked says so here
-        raise MinirtError(f"{path}: cannot read image: {_one_line(err)}")
-    colour = a[..., :3] if a.shape[-1] >= 3 else np.repeat(a[..., :1], 3, axis=-1)
-    colour = np.ascontiguousarray(colour)
-    if is_float and not np.isfinite(colour).all():
-        raise MinirtError(f"{path}: the image holds NaN or infinite values")
-    return colour, is_float
+        return source.geterror()
+    except UnicodeDecodeError:
+        return "a reader's message that is not text (a garbled header?)"
 
 
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split()) or "unknown error"
+def _one_line(text: str, opened: str | None = None, path: Path | None = None) -> str:
+    """A reader's message on one line, the file named by its path (not /proc/self/fd/N)."""
+    if opened:
+        text = str(text).replace(opened, str(path))
+    return " ".join(str(text).split())[:300] or "unknown error"
