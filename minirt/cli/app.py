@@ -156,6 +156,8 @@ def main() -> None:
         err.print(f"minirt: error: {terminal_text(where)}: {terminal_text(e.strerror or e)}")
         sys.exit(2)
     except Exception as e:
+        if _stopped_by:  # the interrupt, wrapped by a library it unwound through (Dr.Jit's traced loops)
+            _stopped(_stopped_by[0])
         if os.environ.get("MINIRT_DEBUG"):
             raise
         err.print(f"minirt: internal error: {type(e).__name__}: {terminal_text(e)} (set MINIRT_DEBUG=1 for details)")

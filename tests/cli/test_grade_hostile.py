@@ -188,3 +188,19 @@ def test_garbled_images_are_graded_or_one_line(tmp_path, case):
         one_error_line(p)
     else:
         assert p.returncode in (0, 1) and p.stderr.startswith(("MATCH rules:", "DIFFERS rules:")), p.stderr
+
+
+def test_a_signal_wrapped_by_a_library_still_stops_with_its_status(monkeypatch):
+    """A signal that lands while Dr.Jit traces a loop reaches the command as Dr.Jit's RuntimeError ("dr.while_loop():
+    encountered an exception"), not as the interrupt: it is still the signal's stop (128+N, one line), not an
+    internal error (seen once in a loaded run of the test above: exit 1)."""
+    from minirt.cli import app
+    from minirt.grading import grade as grading
+
+    def diagnose(*args, **kw):
+        app._stopped_by.append(signal.SIGHUP)  # what the handler records before it raises
+        raise RuntimeError("dr.while_loop(): encountered an exception (see above).")
+
+    monkeypatch.setattr(grading.dg, "diagnose", diagnose)
+    p = minirt("grade", SCENE, SAMPLE, "--size", "256x256", "-q")
+    assert (p.returncode, p.stderr.splitlines()[-1:]) == (129, ["minirt: stopped by SIGHUP"]), p.stderr
