@@ -41,6 +41,7 @@ import math
 import numpy as np
 
 from minirt.model.scene import Ball, Scene
+from minirt.oracles.base import ball_silhouette_margins
 
 U32 = 2.0**-24  # float32 unit round-off
 DIR_ERR = 32 * U32  # the camera ray's direction against the reference's (radians; see the module docstring)
@@ -108,14 +109,7 @@ def silhouette_t_bound(scene: Scene, o: np.ndarray, d: np.ndarray, shape_id: np.
     |r - h| / r): |dt| <= 2 eps r / sqrt(2 m) = 2 u32 (4 |f| + |C| + r) / sqrt(2 m); twice that is
     returned, |f| the ray's own origin's distance from the centre. Rays inside the band are not judged."""
     out = np.zeros(len(o))
-    for k, s in enumerate(scene.shapes):
-        on = shape_id == k
-        if not isinstance(s, Ball) or not on.any():
-            continue
-        f = o[on] - np.asarray(s.center)
-        b = np.einsum("ij,ij->i", f, d[on])
-        hh = np.linalg.norm(f - b[:, None] * d[on], axis=1)
-        m = np.maximum(np.abs(s.radius - hh) / s.radius, 1e-30)
+    for on, s, f, m in ball_silhouette_margins(scene, o, d, shape_id):
         reach = 4 * np.linalg.norm(f, axis=1) + float(np.linalg.norm(s.center)) + s.radius
         out[on] = 4 * U32 * reach / np.sqrt(2 * m)
     return out

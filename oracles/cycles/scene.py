@@ -16,6 +16,7 @@ import numpy as np
 from minirt.model import camera
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
+from minirt.oracles.base import plane_frame
 
 U32 = 2.0**-24  # float32 unit round-off
 
@@ -71,16 +72,6 @@ def scene_size(scene: Scene) -> float:
 # Planes as quads
 
 
-def _frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A right-handed orthonormal frame (t1, t2) with t1 x t2 = n (Duff et al.'s branchless form)."""
-    sign = math.copysign(1.0, n[2])
-    a = -1.0 / (sign + n[2])
-    b = n[0] * n[1] * a
-    t1 = np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
-    t2 = np.array([b, sign + n[1] * n[1] * a, -n[1]])
-    return t1, t2
-
-
 @dataclass
 class Quad:
     """The quad standing in for one plane: its frame and the box (in plane coordinates) it must cover."""
@@ -96,7 +87,7 @@ class Quad:
     def __post_init__(self):
         self.n = np.asarray(self.plane.normal, dtype=np.float64)
         self.q = np.asarray(self.plane.point, dtype=np.float64)
-        self.t1, self.t2 = _frame(self.n)
+        self.t1, self.t2 = plane_frame(self.n)
         self.lo, self.hi = np.full(2, np.inf), np.full(2, -np.inf)
 
     def include(self, p: np.ndarray) -> None:

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from minirt.model.scene import Ball, Scene
+from minirt.oracles.base import ball_silhouette_margins
 
 U32 = 2.0**-24  # float32 unit round-off
 # Mitsuba's spawn_ray offset: a secondary ray leaves si.p + n * RAY_EPSILON (1 + max|p|) (include/mitsuba/core
@@ -104,13 +105,6 @@ def silhouette_t_bound(scene: Scene, o: np.ndarray, d: np.ndarray, shape_id: np.
     margin taken at the float32-rounded ray). Rays inside the band (m < K eps) are not judged at all.
     """
     out = np.zeros(len(o))
-    for k, s in enumerate(scene.shapes):
-        on = shape_id == k
-        if not isinstance(s, Ball) or not on.any():
-            continue
-        f = o[on] - np.asarray(s.center)
-        b = np.einsum("ij,ij->i", f, d[on])
-        hh = np.linalg.norm(f - b[:, None] * d[on], axis=1)
-        m = np.maximum(np.abs(s.radius - hh) / s.radius, 1e-30)
+    for on, s, f, m in ball_silhouette_margins(scene, o, d, shape_id):
         out[on] = 4 * U32 * np.einsum("ij,ij->i", f, f) / (s.radius * np.sqrt(2 * m))
     return out

@@ -13,7 +13,6 @@ their size.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -21,19 +20,10 @@ import numpy as np
 from minirt.model import camera
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
+from minirt.oracles.base import plane_frame
 from minirt.oracles.mitsuba.accuracy import DIR_ERR, U32
 
 _PAD = 1e-3
-
-
-def _frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A right-handed orthonormal frame (t1, t2) with t1 x t2 = n (Duff et al.'s branchless form)."""
-    sign = math.copysign(1.0, n[2])
-    a = -1.0 / (sign + n[2])
-    b = n[0] * n[1] * a
-    t1 = np.array([1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
-    t2 = np.array([b, sign + n[1] * n[1] * a, -n[1]])
-    return t1, t2
 
 
 class PlaneRect:
@@ -42,7 +32,7 @@ class PlaneRect:
     def __init__(self, plane: Plane):
         self.n = np.asarray(plane.normal, dtype=np.float64)
         self.q = np.asarray(plane.point, dtype=np.float64)
-        self.t1, self.t2 = _frame(self.n)
+        self.t1, self.t2 = plane_frame(self.n)
         self.lo = np.array([np.inf, np.inf])
         self.hi = np.array([-np.inf, -np.inf])
 
