@@ -326,7 +326,10 @@ class EmbreeOracle(Oracle):
     render_running: ClassVar[int] = 50
     export_as: ClassVar[str | None] = "mesh"
     export_what: ClassVar[str] = "glTF"
-    supported: ClassVar[dict[str, tuple[Any, ...]]] = {"near_root_only": (False,)}
+    supported: ClassVar[dict[str, tuple[Any, ...]]] = {
+        "near_root_only": (False,),
+        "t_max": (math.inf,),  # its rays' tfar is inf: every hit counts (raw_normals: no shading to follow)
+    }
 
     def available(self) -> tuple[bool, str]:
         try:

@@ -63,10 +63,14 @@ def _moot(scene: Scene, rules: Rules) -> set[str]:
     return out
 
 
+# Rules whose value the search finds from the image (``_Search._found``) rather than from a list of values.
+FOUND = ("t_max",)
+
+
 def _moves(current: Rules, names: tuple[str, ...], moot: set[str] = frozenset()) -> list[Rules]:
     out = []
     for name in names:
-        if name in moot:
+        if name in moot or name in FOUND:
             continue
         for v in rules_mod.values(name):
             if v != getattr(current, name):
@@ -94,6 +98,42 @@ def _profile_moves(current: Rules) -> list[Rules]:
 SAMPLE = 4096
 VERIFY = 3  # candidates verified in full per step before the search gives up
 EXPONENT_SEARCH = 256  # the specular exponents a search considers (rules allow up to 1024)
+# Halvings (in log scale) of each end of the best offsets' run: the grid's step, 10^(1/4), down to a
+# factor 10^(1/4 / 2^10) = 1.0006 -- finer than the 2.4 % between 0.5 / 1024 and 5e-4.
+OFFSET_BISECT = 10
+
+
+def simplest(lo: float, hi: float) -> float:
+    """The simplest number x with lo < x <= hi (0 <= lo < hi): fewest significant decimal digits (0.001,
+    29.3) or fewest bits of an odd numerator over a power of two (0.5 / 1024 = 2^-11); among equally simple
+    ones, the nearest to the middle of the interval (geometric, lo > 0). What a student wrote is simple in
+    one of the two; any x in the interval reproduces the image as well as another."""
+    if not lo < hi:
+        return hi
+    mid = math.sqrt(lo * hi) if lo > 0 else hi / 2
+    for cost in range(1, 18):
+        found = []
+        top = math.floor(math.log10(hi))
+        bottom = math.floor(math.log10(lo)) if lo > 0 else top - 1
+        for e in range(top, bottom - 1, -1):  # decimal: k · 10^(e - cost + 1), k of ``cost`` digits
+            kmin, kmax = 10 ** (cost - 1), 10**cost - 1
+            scale = 10.0 ** (e - cost + 1)
+            for k in {max(kmin, min(kmax, round(mid / scale) + j)) for j in (-1, 0, 1)}:
+                x = float(f"{k}e{e - cost + 1}")
+                if lo < x <= hi:
+                    found.append(x)
+        top2 = math.floor(math.log2(hi))
+        bottom2 = math.floor(math.log2(lo)) if lo > 0 else top2 - 1
+        for e in range(top2, bottom2 - 1, -1):  # binary: m · 2^(e - cost + 1), m odd of ``cost`` bits
+            scale = math.ldexp(1.0, e - cost + 1)
+            mmin, mmax = 1 << (cost - 1), (1 << cost) - 1
+            for m in {max(mmin, min(mmax, round(mid / scale) + j)) for j in (-2, -1, 0, 1, 2)}:
+                x = math.ldexp(m, e - cost + 1)
+                if m % 2 == 1 and lo < x <= hi:
+                    found.append(x)
+        if found:
+            return min(found, key=lambda x: (abs(math.log(x / mid)) if mid > 0 else abs(x - mid), x))
+    return hi
 
 
 @dataclass
@@ -111,6 +151,7 @@ class _Search:
         self.scene, self.target, self.cache = scene, target, cache
         self.steps: list[dict[str, Any]] = []
         self._exponents: dict[Rules, int] = {}
+        self._offsets: dict[Rules, float | None] = {}
         target._model_shape = (scene.camera.height, scene.camera.width)
 
     def full(self, rules: Rules) -> tuple[np.ndarray | None, Variant]:
@@ -240,6 +281,9 @@ class _Search:
             better = self._step(start, current, vc, sub, flips, singles, seen)
             if better is None and self._residual(current):  # not for pixels only a level off
                 better = self._step(start, current, vc, sub, flips, self._paired(current, singles, seen), seen)
+            if better is None and self._residual(current):  # values read off the image: t_max, the offset
+                found = [c for c in self._found(current, cls, sub, moot) if c not in seen]
+                better = self._step(start, current, vc, sub, flips, found, seen)
             if better is None:
                 return current
             seen.add(better)
@@ -289,6 +333,89 @@ class _Search:
             if refit != c and refit not in seen and refit not in out:
                 out.append(refit)
         return out
+
+    def _found(self, current: Rules, cls: np.ndarray, sub: _Subset, moot: set[str]) -> list[Rules]:
+        """Candidates whose value is read off the image, for a descent stuck with pixels beyond tolerance:
+        the t_max that cuts the wrong pixels' hits off (``_best_t_max``) and the numeric offset that fits
+        best (``_best_offset``)."""
+        out = []
+        t_max = self._best_t_max(current, cls)
+        if t_max is not None and t_max != current.t_max:
+            out.append(replace(current, t_max=t_max))
+        if "offset" not in moot:
+            x = self._best_offset(current, sub)
+            if x is not None and x != current.offset:
+                out.append(replace(current, offset=x))
+        return [c for c in out if _valid(c)]
+
+    def _best_t_max(self, rules: Rules, cls: np.ndarray) -> float | None:
+        """The t_max whose cut best matches the wrong pixels: the primary rays' hits sorted by t, farthest
+        first, the cut that takes the most pixels beyond tolerance and the fewest exact ones (a decision
+        stump on the reference's t buffer); then the simplest number between the farthest hit it keeps and
+        the nearest it drops (``simplest``). None when no cut takes more wrong pixels than right ones."""
+        sid, t = self.cache.first_hits(self.scene, rules)
+        hit = np.flatnonzero(sid >= 0)
+        if hit.size == 0:
+            return None
+        order = hit[np.argsort(-t[hit], kind="stable")]
+        c = cls.reshape(-1)[order]
+        score = np.cumsum(np.where(c == 2, 1, np.where(c == 0, -1, 0)))
+        tt = t[order]
+        cut = np.flatnonzero(np.append(tt[1:] != tt[:-1], True))  # cut only between different t
+        k = cut[np.argmax(score[cut])]
+        if score[k] <= 0:
+            return None
+        lo = float(tt[k + 1]) if k + 1 < tt.size else 0.0
+        return simplest(lo, float(tt[k]))
+
+    def _best_offset(self, rules: Rules, sub: _Subset) -> float | None:
+        """The numeric offset that fits the image best with the other rules as they are, found rather than
+        picked from a list: the pixels beyond tolerance on the search's subset counted on a grid of offsets
+        (four a decade, 1e-8 .. 0.18, and 0), then each end of the best run of the grid bisected (in
+        log scale, ``OFFSET_BISECT`` times, on the pixels that change there), then the simplest number
+        inside (``simplest``): a student's 0.5 / 1024 comes out as 0.00048828125, not as the nearest grid
+        value. The tracer reads the offset at run time: one kernel for all."""
+        if rules.offset == "error-bound" and rules.offset_along == "ray":
+            return None
+        key = replace(rules, offset=0.0).traced()
+        if key in self._offsets:
+            return self._offsets[key]
+        idx = sub.idx
+        weight = np.where(np.arange(idx.size) < sub.n_wrong, sub.w_weight, sub.r_weight)
+
+        def beyond(x: float, at: np.ndarray) -> np.ndarray:
+            r = replace(rules, offset=x)
+            v = self.cache.subset(self.scene, r, idx[at])
+            d = self.target.difference(v.color, r, idx[at])
+            return self.target.beyond(d) & ~v.shadow_ill
+
+        everywhere = np.arange(idx.size)
+        grid = [0.0] + [10.0 ** (k / 4) for k in range(-32, -2)]
+        counts = [float((beyond(x, everywhere) * weight).sum()) for x in grid]
+        best = min(counts)
+        runs = [i for i, c in enumerate(counts) if c == best]
+        a, b = runs[0], runs[-1]
+        if a == 0:
+            self._offsets[key] = 0.0
+            return 0.0
+
+        def edge(good: float, bad: float) -> float:
+            """Bisect between a best offset and a worse one on the pixels that differ: the bad side's end."""
+            at = np.flatnonzero(beyond(good, everywhere) != beyond(bad, everywhere))
+            target = beyond(good, at)
+            for _ in range(OFFSET_BISECT):
+                mid = math.sqrt(good * bad)
+                if np.array_equal(beyond(mid, at), target):
+                    good = mid
+                else:
+                    bad = mid
+            return bad
+
+        lo = edge(grid[a], grid[a - 1])
+        hi = edge(grid[b], grid[b + 1]) if b + 1 < len(grid) else grid[b] * 10
+        x = simplest(lo, hi)
+        self._offsets[key] = x
+        return x
 
     def _one_step(self, start: Rules, name: str, value: Any) -> Variant | None:
         """The full render of the scene's own rules with one rule changed (shared across images)."""

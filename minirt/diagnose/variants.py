@@ -7,8 +7,9 @@ across students, so each variant is traced once however many images are graded.
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -73,6 +74,7 @@ class VariantCache:
         self._bytes = 0  # the kept variants' nbytes summed, kept up to date as they come, grow and go
         self._pinned: set[tuple] = set()
         self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self._hits: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.alternatives: dict[tuple, tuple[list[dict[str, Any]], set]] = {}  # see explain.indistinguishable
         self.requested: set[tuple] = set()
         self.renders = 0  # rays traced, in units of whole images
@@ -146,6 +148,26 @@ class VariantCache:
             flag[todo] = m["margin"] < EPS_REL
             known[todo] = True
         return flag[idx]
+
+    def first_hits(self, scene: Scene, rules: Rules) -> tuple[np.ndarray, np.ndarray]:
+        """(H·W,) shape id (-1: a miss) and t (inf: a miss) of every pixel's primary ray under the rules'
+        camera rules and near_root_only, every hit counted (t_max left out): what a t_max cuts, and what
+        the unexplained pixels are grouped by. One closest-hit kernel, kept per camera rules."""
+        import drjit as dr
+
+        from minirt.reference.tracer import Tracer
+
+        plain = replace(rules.traced(), t_max=math.inf)
+        key = (scene.digest, scene.source, scene.camera.width, scene.camera.height, _ray_key(rules), plain.near_root_only)
+        if key not in self._hits:
+            tr = Tracer(scene, plain, runtime=True)
+            o, d = tr.primary_rays()
+            with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+                sid, t = tr.closest(o, d)
+                dr.eval(sid, t)
+            sid = np.asarray(sid).astype(np.int32)
+            self._hits[key] = (sid, np.where(sid >= 0, np.asarray(t, dtype=np.float64), math.inf))
+        return self._hits[key]
 
     def _f32_render(self, scene: Scene, v: Variant) -> tuple[np.ndarray | None, np.ndarray]:
         """The same rules traced in float32, and the pixels where that image differs by more than a level:

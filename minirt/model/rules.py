@@ -20,12 +20,31 @@ Trace rules (``TRACE_RULES``) change what is traced:
 | pixel_sample      | "corner"                      | "corner" (or "center")             | "center"          |
 | specular_exponent | 8                             | 8                                  | 16                |
 | pixel_shift       | (0, 0) (pixels)               | (0, 0)                             | (0, 0)            |
+| t_max             | inf (every hit counts)        | inf                                | inf               |
+| raw_normals       | "none" (unit normals)         | "none"                             | "none"            |
 
 (1) s·n raw, the specular term only where r·s > 0. (2) hit + offset·(the new ray's direction).
 (3) Offset by the hit point's error bound on the side the new ray leaves to -- except from a ball under
 near_root_only = true, where secondary rays always start outside the ball: started inside (a shadow ray
 from a point facing away from the light), near_root_only would not see the ball and every back-face
 self-shadow would be lost; outside, the ball blocks, as under a numeric offset along the normal.
+
+Two rules come from bugs seen in real solutions of the exercise rather than from a reading of it (their
+defaults are the exercise's reading; ``grade`` finds their values from a student's image):
+
+- ``t_max``: the closest-hit search starts at a finite "infinity" (``double t = 30000;`` in a 2013
+  solution's Scene::Intersect, in pixel units), so hits of camera and reflected rays beyond it are
+  ignored: the far part of a ground plane turns to background at the horizon. Shadow rays keep the
+  shadow_range rule (the light is nearer than any such cut-off in the scenes where it shows). The
+  same finite start is in many course tracers' ``closest_hit`` (``t_min = 1e20``, ``INFINITY`` as a
+  large float).
+- ``raw_normals``: the normal used without normalising it -- a ball's p - c not divided by the radius
+  (the exercise's Appendix 2 gives (p - c) / r, and solutions that write ``GetNormal`` as ``at -
+  center`` drop the division), a plane's normal as written in the scene (the exercise stores a plane
+  as (n, a) without saying n is of unit length). "shading": in the diffuse term s·n; "reflection": in
+  the reflected direction r = d - 2 (d·n) n (the highlight's r·s uses that r as computed; the reflected
+  ray's direction is r normalised, as the exercise's Ray holds a normalised direction); "both". The
+  secondary rays' offset stays along the unit normal.
 
 Output rules (``OUTPUT_RULES``) say how the 8-bit bitmap is written; the tracer ignores them (see
 minirt.model.bitmap): ``encoding`` "round" (floor(c·255 + 0.5); eth2014: "floor256", min(255,
@@ -57,6 +76,8 @@ class Rules:
     specular_exponent: int = 8
     offset_along: str = "normal"
     pixel_shift: tuple[float, float] = (0.0, 0.0)
+    t_max: float = math.inf
+    raw_normals: str = "none"
     # Output rules: how the bitmap is written (minirt.model.bitmap); the tracer ignores them.
     encoding: str = "round"
     gamma: str = "linear"
@@ -65,7 +86,14 @@ class Rules:
     transpose: bool = False
 
     def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """Every rule by name -- except the rules from real solutions' bugs (``QUIET_AT_DEFAULT``) at their
+        defaults: documents written before those rules existed stay what they were, byte for byte (and
+        t_max's default, inf, is no JSON number)."""
+        d = asdict(self)
+        for name in QUIET_AT_DEFAULT:
+            if d[name] == _DEFAULTS[name]:
+                del d[name]
+        return d
 
     def differs(self, other: Rules) -> list[str]:
         """Names of the rules whose values differ between self and other."""
@@ -89,7 +117,10 @@ TRACE_RULES: tuple[str, ...] = (
     "pixel_sample",
     "specular_exponent",
     "pixel_shift",
+    "t_max",
+    "raw_normals",
 )
+QUIET_AT_DEFAULT: tuple[str, ...] = ("t_max", "raw_normals")
 OUTPUT_RULES: tuple[str, ...] = ("encoding", "gamma", "rows", "channels", "transpose")
 _DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(Rules)}
 
@@ -122,6 +153,7 @@ PROFILES: dict[str, Rules] = {
 }
 
 SPECULAR_EXPONENT_MAX = 1024
+T_MAX_FLIP = 10.0  # t_max's flip (``flipped``): inside the bundled scenes, whose far planes lie beyond it
 PIXEL_SHIFT_MAX = 4.0
 
 # The values each rule accepts; used for validation and for the CLI's help.
@@ -137,6 +169,8 @@ CHOICES: dict[str, tuple[Any, ...]] = {
     "pixel_sample": ("corner", "center"),
     "specular_exponent": (f"<an integer 1..{SPECULAR_EXPONENT_MAX}>",),
     "pixel_shift": (f'<"dx,dy" in pixels, |d| <= {PIXEL_SHIFT_MAX:g}>',),
+    "t_max": ("<a number > 0, or inf>",),
+    "raw_normals": ("none", "shading", "reflection", "both"),
     "encoding": ("round", "floor256", "floor"),
     "gamma": ("linear", "srgb", "2.2"),
     "rows": ("top-down", "bottom-up"),
@@ -150,6 +184,8 @@ _VALUES: dict[str, tuple[Any, ...]] = {
     "offset": (1e-6, 1e-3, 0.0, "error-bound"),
     "specular_exponent": (1, 2, 4, 8, 16, 32, 64, 128),
     "pixel_shift": ((0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0), (0.5, 0.5)),
+    # A diagnosis finds t_max's value from the image (minirt.diagnose.search), not from this list
+    "t_max": (math.inf, T_MAX_FLIP),
 }
 
 
@@ -202,6 +238,12 @@ def _check_value(name: str, value: Any) -> str | None:
             m = f"{PIXEL_SHIFT_MAX:g}"
             return f"model.pixel_shift: each part must be a finite number from -{m} to {m}, got {value!r}"
         return None
+    if name == "t_max":
+        if _is_number(value) and value > 0 and not math.isnan(value):
+            return None
+        if value == "inf":
+            return None
+        return f"model.t_max: must be a number > 0 (or inf), got {value!r}"
     if name == "gamma" and _is_number(value) and value == 2.2:
         return None  # --rule gamma=2.2 arrives as a number
     allowed = CHOICES[name]
@@ -244,6 +286,8 @@ def _normalise(name: str, value: Any) -> Any:
     """A valid value in the form Rules holds: floats for offsets and shifts, ints for exponents."""
     if name == "offset" and _is_number(value):
         return float(value)
+    if name == "t_max":
+        return math.inf if value == "inf" else float(value)
     if name == "specular_exponent":
         return int(value)
     if name == "pixel_shift":
@@ -294,8 +338,9 @@ def flipped(rules: Rules, name: str) -> Rules:
     that differ most, where "on-miss" and "none" look alike whenever every ray hits); offset swaps a
     number and "error-bound" (under offset_along = "ray", which needs a number, 1e-3 and 1e-6 swap
     instead); specular_exponent 8 <-> 16 (anything else -> 8); pixel_shift (0, 0) <-> (1, 0) (anything
-    else -> (0, 0)). offset_along "normal" -> "ray" under offset = "error-bound" also sets offset to
-    1e-3, the one case where a flip changes two rules: "ray" needs a numeric offset.
+    else -> (0, 0)); t_max inf <-> ``T_MAX_FLIP`` (anything else -> inf). offset_along "normal" -> "ray"
+    under offset = "error-bound" also sets offset to 1e-3, the one case where a flip changes two rules:
+    "ray" needs a numeric offset.
     """
     current = getattr(rules, name)
     if name == "offset":
@@ -310,6 +355,8 @@ def flipped(rules: Rules, name: str) -> Rules:
         return replace(rules, specular_exponent=16 if current == 8 else 8)
     if name == "pixel_shift":
         return replace(rules, pixel_shift=(1.0, 0.0) if current == (0.0, 0.0) else (0.0, 0.0))
+    if name == "t_max":
+        return replace(rules, t_max=T_MAX_FLIP if current == math.inf else math.inf)
     first, second = CHOICES[name][:2]
     is_first = type(current) is type(first) and current == first
     return replace(rules, **{name: second if is_first else first})

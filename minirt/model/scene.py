@@ -159,6 +159,7 @@ class Plane:
     normal: Vec3
     distance: float
     material: Material
+    written: float = 1.0  # |normal| as written in the scene (rule raw_normals: a normal never normalised)
 
     @property
     def point(self) -> Vec3:
@@ -317,6 +318,7 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
                     normal=(s.normal[0] / n, s.normal[1] / n, s.normal[2] / n),
                     distance=s.distance / n,
                     material=materials[s.material],
+                    written=n,
                 )
             )
     name = f.scene.name or Path(source).stem

@@ -166,6 +166,15 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
         terms["ambient"] = dr.select(hit, values.material(shape_id, "ambient"), zero)
         local = local + terms["ambient"]
     r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction
+    r_dir = r  # the reflected ray's direction
+    raw = rules.raw_normals
+    if raw != "none":
+        # rule raw_normals: the normal as a solution that never normalises it has it, of length r for a
+        # ball (p - c) and |n| as written for a plane (values.normal_length); the offset keeps the unit one.
+        nr = ns * values.normal_length(shape_id)
+        if raw in ("reflection", "both"):
+            r = d - 2 * dr.dot(d, nr) * nr  # the highlight's r·s takes it as computed
+            r_dir = dr.normalize(r)  # the exercise's Ray holds a normalised direction
     err = interaction.error_bound(tr, shape_id, p, o) if rules.offset == "error-bound" else None
     outward = interaction.outward(tr, shape_id)
     clamp_all, clamp_specular = values.rule(rules.clamp is True), values.rule(rules.clamp == "specular")
@@ -196,10 +205,11 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
             if record:
                 rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
         if fx.diffuse:
+            sd = dr.dot(s, nr) if raw in ("shading", "both") else sn  # the same sign as sn
             if isinstance(clamp_all, bool):
-                fac = dr.maximum(sn, 0) if clamp_all else sn  # "specular": s·n raw
+                fac = dr.maximum(sd, 0) if clamp_all else sd  # "specular": s·n raw
             else:
-                fac = dr.select(clamp_all, dr.maximum(sn, 0), sn)
+                fac = dr.select(clamp_all, dr.maximum(sd, 0), sd)
             terms["diffuse"] = dr.select(lit, lc * values.material(shape_id, "diffuse") * fac, zero)
             local = local + terms["diffuse"]
         if fx.specular:
@@ -239,8 +249,8 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
     if record:
         rec.update(shading_normal=ns, reflected=r, error_bound=err)
     if spawn is not None:
-        ro = interaction.offset_origin(tr, p, ns, err, r, outward)
-        lvl.record["next"] = (ro, r)
+        ro = interaction.offset_origin(tr, p, ns, err, r_dir, outward)
+        lvl.record["next"] = (ro, r_dir)
     return lvl, spawn
 
 

@@ -129,11 +129,27 @@ class Values(ABC):
     def is_ball(self, shape_id) -> Any:
         """Whether the hit shape is a ball (false on a miss)."""
 
+    def normal_length(self, shape_id) -> Any:
+        """The length of the hit shape's normal as a solution that never normalises it has it (rule
+        raw_normals): a ball's radius (p - c, not divided by it), a plane's normal's length as written in
+        the scene (``Plane.written``); 1 on a miss. A select chain over the shapes (the balls' radii
+        gathered from the table when the scene has one)."""
+        out = self.T.Float(1.0)
+        for k, s in enumerate(self.scene.shapes):
+            key, v = (("radius", k), s.radius) if isinstance(s, Ball) else (("normal_length", k), s.written)
+            out = dr.select(shape_id == k, self.k(key, v), out)
+        return out
+
     def closest(self, o, d) -> tuple[Any, Any]:
         """Appendix 1 (``Scene.Intersect``): (id, t) of the closest hit over all shapes, -1 and inf on a miss;
         ties keep the lower shape id."""
         # Full width from the start: with no shapes at all these are the results, one per ray.
         t_best = dr.full(self.T.Float, math.inf, dr.width(d))
+        if self.rules.t_max != math.inf:
+            # rule t_max: the search starts at a finite "infinity", so hits beyond it are ignored (and a
+            # ray that finds none is a miss: shade_level gives it inf). Under ``runtime`` read at run time
+            # (``k``): one kernel for every t_max the diagnosis tries.
+            t_best = dr.minimum(t_best, self.k("t_max", self.rules.t_max))
         id_best = dr.full(self.T.Int, -1, dr.width(d))
         return self._closest(o, d, t_best, id_best)
 
@@ -376,3 +392,14 @@ class Tabled(Values):
 
     def is_ball(self, shape_id) -> Any:
         return dr.gather(self.T.Bool, self.table.is_ball, self.T.UInt(shape_id), shape_id >= 0)
+
+    def normal_length(self, shape_id) -> Any:
+        """The ball's radius gathered from the table, the planes' lengths by a select chain (planes are few)."""
+        T, tab = self.T, self.table
+        k, hit = T.UInt(shape_id), shape_id >= 0
+        is_ball = dr.gather(T.Bool, tab.is_ball, k, hit)
+        out = dr.select(is_ball, dr.gather(T.Float, tab.radius, k, is_ball), T.Float(1.0))
+        for j, s in enumerate(self.scene.shapes):
+            if isinstance(s, Plane):
+                out = dr.select(shape_id == j, self.k(("normal_length", j), s.written), out)
+        return out

@@ -146,6 +146,9 @@ class CyclesOracle(Oracle):
         "clamp": (True,),  # BSDFs are 0 below the surface: max(0, n.s)
         "offset": ("error-bound",),  # no offset: the primitive a ray leaves is skipped (the closest rule)
         "offset_along": ("normal",),  # ("ray" needs a numeric offset)
+        # rules from real solutions' bugs: a renderer has neither a finite "infinity" nor unnormalised normals
+        "t_max": (math.inf,),
+        "raw_normals": ("none",),
         # ray_origin, pixel_sample, pixel_shift: any (the near clip and the camera's shift)
         # specular_exponent: any (no specular lobe: unsupported_terms)
     }

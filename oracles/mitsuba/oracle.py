@@ -6,6 +6,7 @@ tolerances (geometry_tolerance). The conventions it bridges are the package docs
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Any, ClassVar
@@ -54,6 +55,9 @@ class MitsubaOracle(Oracle):
         "offset": ("error-bound",),
         # Its offsets lie along the normal ("ray" needs a numeric offset anyway).
         "offset_along": ("normal",),
+        # rules from real solutions' bugs: a renderer has neither a finite "infinity" nor unnormalised normals
+        "t_max": (math.inf,),
+        "raw_normals": ("none",),
         # ray_origin, pixel_sample and pixel_shift: any (custom rays are minirt.model.camera's, so they honour all
         # three; the sensor via near_clip and the principal point offsets).
         # specular_exponent: any (no specular lobe is simulated; see unsupported_terms).

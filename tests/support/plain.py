@@ -88,7 +88,7 @@ class Plain:
 
     # -- Scene::Intersect (appendix 1) --
     def closest(self, o, d):
-        best, t_best, ts = None, math.inf, []
+        best, t_best, ts = None, self.rules.t_max, []  # rule t_max: the search starts there
         for k, s in enumerate(self.scene.shapes):
             t = self.intersect(s, o, d)
             ts.append(t)
@@ -150,6 +150,13 @@ class Plain:
         dist = norm(to_light)
         s = (to_light[0] / dist, to_light[1] / dist, to_light[2] / dist)
         r = sub(d, mul(n, 2 * dot(d, n)))
+        raw = ru.raw_normals
+        flip = -1.0 if ru.two_sided and dot(d, self.normal(shape, p)[1]) > 0 else 1.0
+        # rule raw_normals: GetNormal without the normalisation: p - c, a plane's normal as written
+        nr = mul(sub(p, shape.center) if isinstance(shape, Ball) else mul(shape.normal, shape.written), flip)
+        if raw in ("reflection", "both"):
+            r = sub(d, mul(nr, 2 * dot(d, nr)))
+        r_dir = normalize(r) if raw in ("reflection", "both") else r
         so = self.start(shape, p, n, s, o)
         blocked = False
         for other in sc.shapes:
@@ -162,19 +169,20 @@ class Plain:
         if not blocked:
             sn = dot(s, n)
             rs = dot(r, s)
+            sd = dot(s, nr) if raw in ("shading", "both") else sn
             e = ru.specular_exponent
             if ru.clamp is True:
-                diff = max(sn, 0.0)
+                diff = max(sd, 0.0)
                 spec = rs**e if (sn > 0 and rs > 0) else 0.0
             elif ru.clamp == "specular":
-                diff = sn
+                diff = sd
                 spec = rs**e if rs > 0 else 0.0
             else:
-                diff, spec = sn, rs**e
+                diff, spec = sd, rs**e
             color = add(color, mul(cmul(sc.light.color, m.diffuse), diff))
             color = add(color, mul(cmul(sc.light.color, m.specular), spec))
         if depth > 0:
-            result = self.trace(self.start(shape, p, n, r, o), r, depth - 1)
+            result = self.trace(self.start(shape, p, n, r_dir, o), r_dir, depth - 1)
             color = add(color, cmul(result, m.reflection))
         if ru.background == "on-hit":
             color = add(color, sc.background)
