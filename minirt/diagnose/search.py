@@ -98,9 +98,11 @@ def _profile_moves(current: Rules) -> list[Rules]:
 SAMPLE = 4096
 VERIFY = 3  # candidates verified in full per step before the search gives up
 EXPONENT_SEARCH = 256  # the specular exponents a search considers (rules allow up to 1024)
-# Halvings (in log scale) of each end of the best offsets' run: the grid's step, 10^(1/4), down to a
-# factor 10^(1/4 / 2^10) = 1.0006 -- finer than the 2.4 % between 0.5 / 1024 and 5e-4.
-OFFSET_BISECT = 10
+# Rounds of a finer grid of OFFSET_STEPS offsets inside the bracket around the best ones: each round
+# shrinks the bracket (in log scale) by about (OFFSET_STEPS + 1) / 2, four rounds of 9 from the grid's
+# 10^(1/2) to a factor 1.0008 -- finer than the 2.4 % between 0.5 / 1024 and 5e-4.
+OFFSET_ROUNDS = 4
+OFFSET_STEPS = 9
 
 
 def simplest(lo: float, hi: float) -> float:
@@ -371,8 +373,8 @@ class _Search:
     def _best_offset(self, rules: Rules, sub: _Subset) -> float | None:
         """The numeric offset that fits the image best with the other rules as they are, found rather than
         picked from a list: the pixels beyond tolerance on the search's subset counted on a grid of offsets
-        (four a decade, 1e-8 .. 0.18, and 0), then each end of the best run of the grid bisected (in
-        log scale, ``OFFSET_BISECT`` times, on the pixels that change there), then the simplest number
+        (four a decade, 1e-8 .. 0.18, and 0), then the bracket around the best run narrowed by finer grids
+        (``OFFSET_ROUNDS``, on the pixels that change inside it), then the simplest number
         inside (``simplest``): a student's 0.5 / 1024 comes out as 0.00048828125, not as the nearest grid
         value. The tracer reads the offset at run time: one kernel for all."""
         if rules.offset == "error-bound" and rules.offset_along == "ray":
@@ -385,13 +387,12 @@ class _Search:
 
         def beyond(x: float, at: np.ndarray) -> np.ndarray:
             r = replace(rules, offset=x)
-            v = self.cache.subset(self.scene, r, idx[at])
-            d = self.target.difference(v.color, r, idx[at])
+            v = self.cache.subset(self.scene, r, at)
+            d = self.target.difference(v.color, r, at)
             return self.target.beyond(d) & ~v.shadow_ill
 
-        everywhere = np.arange(idx.size)
         grid = [0.0] + [10.0 ** (k / 4) for k in range(-32, -2)]
-        counts = [float((beyond(x, everywhere) * weight).sum()) for x in grid]
+        counts = [float((beyond(x, idx) * weight).sum()) for x in grid]
         best = min(counts)
         runs = [i for i, c in enumerate(counts) if c == best]
         a, b = runs[0], runs[-1]
@@ -399,20 +400,19 @@ class _Search:
             self._offsets[key] = 0.0
             return 0.0
 
-        def edge(good: float, bad: float) -> float:
-            """Bisect between a best offset and a worse one on the pixels that differ: the bad side's end."""
-            at = np.flatnonzero(beyond(good, everywhere) != beyond(bad, everywhere))
-            target = beyond(good, at)
-            for _ in range(OFFSET_BISECT):
-                mid = math.sqrt(good * bad)
-                if np.array_equal(beyond(mid, at), target):
-                    good = mid
-                else:
-                    bad = mid
-            return bad
-
-        lo = edge(grid[a], grid[a - 1])
-        hi = edge(grid[b], grid[b + 1]) if b + 1 < len(grid) else grid[b] * 10
+        # Narrow the bracket around the best run in rounds, each a finer grid on the pixels of the whole
+        # image whose match differs between the bracket's ends and its best offset.
+        lo, hi = grid[a - 1], grid[b + 1] if b + 1 < len(grid) else grid[b] * 10
+        mid = grid[(a + b) // 2]
+        everywhere = np.arange(self.target._model_shape[0] * self.target._model_shape[1])
+        ends = [beyond(x, everywhere) for x in (lo, mid, hi)]
+        at = np.flatnonzero((ends[0] != ends[1]) | (ends[1] != ends[2]))
+        if at.size:
+            for _ in range(OFFSET_ROUNDS):
+                xs = [lo * (hi / lo) ** (k / (OFFSET_STEPS + 1)) for k in range(OFFSET_STEPS + 2)]
+                c = [int(beyond(x, at).sum()) for x in xs[1:-1]]
+                run = [k + 1 for k, v in enumerate(c) if v == min(c)]
+                lo, hi = xs[run[0] - 1], xs[run[-1] + 1]
         x = simplest(lo, hi)
         self._offsets[key] = x
         return x

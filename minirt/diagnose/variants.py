@@ -158,7 +158,8 @@ class VariantCache:
         from minirt.reference.tracer import Tracer
 
         plain = replace(rules.traced(), t_max=math.inf)
-        key = (scene.digest, scene.source, scene.camera.width, scene.camera.height, _ray_key(rules), plain.near_root_only)
+        cam = (scene.camera.width, scene.camera.height, _ray_key(rules), plain.near_root_only)
+        key = (scene.digest, scene.source, *cam)
         if key not in self._hits:
             tr = Tracer(scene, plain, runtime=True)
             o, d = tr.primary_rays()
