@@ -146,6 +146,9 @@ def _print_grade(g, page: Path | None) -> None:
     for e in d.explained:
         s = grading.sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule))
         err.print(terminal_text(f"  {e.rule}={e.value} ({e.pixels} pixels): {s}", MAX_MESSAGE))
+    for u in d.unexplained:
+        err.print(terminal_text(f"  unexplained: {u.sentence}", MAX_MESSAGE))
+        err.print(f"    one of them step by step: {terminal_text(g.probe_command(*u.example), MAX_MESSAGE)}")
     for i in d.indistinguishable:
         tell = (
             f"scene {i['scene_that_tells']} tells them apart"

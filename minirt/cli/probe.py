@@ -133,3 +133,5 @@ def _print_probe(p: dict[str, Any]) -> None:
             n = im["difference"]
             diff = "the same" if n == 0 else f"differs by {n} level{'s' if n != 1 else ''}"
         out.print(terminal_text(f"your image: {yours} [{im['format']}]  reference: {ref} -> {diff}"))
+        if im.get("departs"):
+            out.print(terminal_text(f"where it departs: {im['departs']}"))

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from minirt.diagnose import rest
 from minirt.diagnose.search import SAMPLE, _moot, _moves, _Search, _valid
 from minirt.diagnose.target import FLOAT_TOL, Target, _coded
 from minirt.diagnose.variants import VariantCache
@@ -47,6 +48,8 @@ class Diagnosis:
     best_color: np.ndarray
     steps: list[dict[str, Any]]
     renders: int  # candidate renders looked at (VariantCache.requested): traced now or taken from the cache
+    # the pixels still beyond tolerance under ``best``, grouped by what the reference knows of them
+    unexplained: list[rest.Group] = field(default_factory=list)
 
     @property
     def changed(self) -> dict[str, str]:
@@ -105,6 +108,7 @@ def diagnose(
         best_color=cache.get(scene, best).color,
         steps=search.steps,
         renders=len(cache.requested),
+        unexplained=rest.groups(scene, best, mb, cache.first_hits(scene, best)) if mb.any() else [],
     )
 
 

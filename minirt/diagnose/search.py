@@ -352,16 +352,27 @@ class _Search:
 
     def _best_t_max(self, rules: Rules, cls: np.ndarray) -> float | None:
         """The t_max whose cut best matches the wrong pixels: the primary rays' hits sorted by t, farthest
-        first, the cut that takes the most pixels beyond tolerance and the fewest exact ones (a decision
-        stump on the reference's t buffer); then the simplest number between the farthest hit it keeps and
-        the nearest it drops (``simplest``). None when no cut takes more wrong pixels than right ones."""
+        first, the cut that takes the most pixels beyond tolerance that the image shows as a miss would be
+        drawn, and the fewest exact ones that it does not (a decision stump on the reference's t buffer);
+        then the simplest number between the farthest hit it keeps and the nearest it drops (``simplest``).
+        None when no cut fixes more pixels than it breaks."""
         sid, t = self.cache.first_hits(self.scene, rules)
         hit = np.flatnonzero(sid >= 0)
         if hit.size == 0:
             return None
+        # what a cut pixel shows: the colour of a miss (the background under "on-miss", else black)
+        h, w = self.target._model_shape
+        miss = np.zeros((h, w, 3))
+        if rules.background == "on-miss":
+            miss[:] = self.scene.background
+        dm = self.target.difference(miss, rules)
+        if dm is None:
+            return None
+        as_miss = ~self.target.beyond(dm).reshape(-1)
         order = hit[np.argsort(-t[hit], kind="stable")]
-        c = cls.reshape(-1)[order]
-        score = np.cumsum(np.where(c == 2, 1, np.where(c == 0, -1, 0)))
+        c, m = cls.reshape(-1)[order], as_miss[order]
+        # a cut fixes a wrong pixel that the image shows as a miss, and breaks a right one that it is not
+        score = np.cumsum(np.where((c == 2) & m, 1, np.where((c == 0) & ~m, -1, 0)))
         tt = t[order]
         cut = np.flatnonzero(np.append(tt[1:] != tt[:-1], True))  # cut only between different t
         k = cut[np.argmax(score[cut])]
@@ -402,7 +413,7 @@ class _Search:
 
         # Narrow the bracket around the best run in rounds, each a finer grid on the pixels of the whole
         # image whose match differs between the bracket's ends and its best offset.
-        lo, hi = grid[a - 1], grid[b + 1] if b + 1 < len(grid) else grid[b] * 10
+        lo, hi = max(grid[a - 1], grid[1] / 2), grid[b + 1] if b + 1 < len(grid) else grid[b] * 10
         mid = grid[(a + b) // 2]
         everywhere = np.arange(self.target._model_shape[0] * self.target._model_shape[1])
         ends = [beyond(x, everywhere) for x in (lo, mid, hi)]

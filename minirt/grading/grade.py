@@ -114,6 +114,22 @@ SENTENCES: dict[str, Callable[[Any, Any], str]] = {
         f"your pixel grid is shifted by ({yours[0]:g}, {yours[1]:g}) pixels: the ray of pixel (x, y) passes "
         f"where the exercise's ray of pixel (x + {yours[0]:g}, y + {yours[1]:g}) does (an off-by-one in the loop?)."
     ),
+    "t_max": lambda yours, ex: (
+        f'your closest-hit search ignores hits beyond t = {yours:g} (it starts at a finite "infinity"), so '
+        "what lies farther is not drawn; the exercise counts every hit, however far."
+        if yours != float("inf")
+        else f"you count every hit however far; here hits beyond t = {ex:g} are ignored."
+    ),
+    "raw_normals": lambda yours, ex: (
+        {
+            "shading": "you use the normal without normalising it in the diffuse term s·n",
+            "reflection": "you use the normal without normalising it when you reflect the ray (r = d − 2(d·n)n)",
+            "both": "you use the normal without normalising it, in the diffuse term s·n and in the reflection",
+            "none": "you use unit normals",
+        }[yours]
+        + " (a ball's p − c not divided by its radius, a plane's normal as written in the scene); "
+        + ("the exercise's normal is of unit length ((p − c)/r, Appendix 2)." if ex == "none" else f"here: {ex}.")
+    ),
     "encoding": lambda yours, ex: (
         f"you write a colour c as {_enc_words(yours)}; the exercise writes {_enc_words(ex)} (AdjustColor)."
     ),
@@ -187,16 +203,29 @@ class Grade:
                 cmd += ["--rule", f"{name}={value}"]
         return shlex.join(cmd)
 
+    def probe_command(self, x: int, y: int) -> str:
+        """The command that traces pixel (x, y) step by step under the diagnosis's rules, beside the image's
+        value, and says where the image departs (``minirt probe --image``)."""
+        cmd = ["minirt", "probe", self.scene_file, str(x), str(y), "--image", self.image]
+        if self.size_override:
+            cmd += ["--width", str(self.size_override[0]), "--height", str(self.size_override[1])]
+        if self.diagnosis:
+            for name, value in sorted(self.diagnosis.changed.items()):
+                cmd += ["--rule", f"{name}={value}"]
+        return shlex.join(cmd)
+
     def summary(self) -> str:
         if self.verdict == ERROR:
             return self.reason
         d = self.diagnosis
         if self.verdict == MATCH:
             return f"the image is the scene's model as given ({d.pixels} pixels)"
+        k = len(d.unexplained)
+        where = f", in {k} group{'s' if k != 1 else ''} by where they lie" if k else ""
         if not d.changed:
-            return f"{d.as_given_pixels} of {d.pixels} pixels differ; no rule setting explains them"
+            return f"{d.as_given_pixels} of {d.pixels} pixels differ; no rule setting explains them{where}"
         rules = ", ".join(f"{k}={v}" for k, v in sorted(d.changed.items()))
-        rest = f"; {d.mismatch_pixels} pixels still unexplained" if d.mismatch_pixels else ""
+        rest = f"; {d.mismatch_pixels} pixels still unexplained{where}" if d.mismatch_pixels else ""
         return f"{d.as_given_pixels} of {d.pixels} pixels differ; explained by {rules}{rest}"
 
     def as_dict(self) -> dict[str, Any]:
@@ -237,6 +266,8 @@ class Grade:
                         for e in d.explained
                     ],
                     "search": {"steps": d.steps, "renders": d.renders},
+                    # where the pixels no rule setting explains lie (minirt.diagnose.rest), largest group first
+                    "unexplained": [u.as_dict() for u in d.unexplained],
                 },
                 "indistinguishable": d.indistinguishable,
                 "reproduce": self.reproduce(),

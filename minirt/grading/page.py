@@ -223,6 +223,14 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
             item["picture"] = _picture(assets, f"{stem}-rule{k}-{rule_part}.png", shown, disp)
         explained.append(item)
     v["explained"] = explained
+    groups = []
+    for k, u in enumerate(d.unexplained):
+        item = {"pixels": u.pixels, "sentence": u.sentence, "example": u.example, "picture": None,
+                "probe": g.probe_command(*u.example)}  # fmt: skip
+        if base8 is not None and u.mask.shape == (h, w):
+            item["picture"] = _picture(assets, f"{stem}-rest{k}.png", highlight(base8, u.mask, MASK_RGB), disp)
+        groups.append(item)
+    v["groups"] = groups
     v["mask_rgb"] = "#{:02x}{:02x}{:02x}".format(*MASK_RGB)
     v["ill_rgb"] = "#{:02x}{:02x}{:02x}".format(*ILL_RGB)
     v["indistinguishable"] = [

@@ -147,11 +147,22 @@ class Explained(_Open):
     sentence: str
 
 
+class Unexplained(_Open):
+    pixels: int
+    shapes: list[int] = Field(description="Indices in the scene's [[shapes]] (-1: no shape, the background).")
+    conditions: dict[str, Any] = Field(description="What holds for the group's pixels (t_above, lit, ...).")
+    sentence: str
+    example: list[int] = Field(description="(x, y) of one pixel of the group, for minirt probe --image.")
+
+
 class Diagnosis(_Open):
     rules: dict[str, str] = Field(description="The rule settings, changed from the scene's, that explain the image.")
     mismatch_pixels: int
     explained: list[Explained]
     search: dict[str, Any] = Field(default_factory=dict)
+    unexplained: list[Unexplained] = Field(
+        default_factory=list, description="The pixels no rule setting explains, in groups, largest first."
+    )
 
 
 class AsGiven(_Open):

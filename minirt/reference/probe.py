@@ -158,7 +158,9 @@ def image_pixel(
         value = [int(v) for v in img[y, x]]
         ref = [int(v) for v in p["color8"]]
     diff = max(abs(a - b) for a, b in zip(value, ref, strict=True))
+    departs = _departs(p, np.array(value, dtype=np.float64), rules, target.is_float)
     return {
+        "departs": departs,
         "file": target.name,
         "format": "float" if target.is_float else "8-bit",
         "value": value,
@@ -168,3 +170,57 @@ def image_pixel(
         "read_transposed": transposed,
         "notes": list(notes or []),
     }
+
+
+# The pseudo-code's order of the first level's terms: the colour is built up in these steps.
+STEPS = ("ambient", "diffuse", "specular", "reflection", "background")
+
+
+def _departs(p: dict[str, Any], value: np.ndarray, rules: Rules, is_float: bool) -> str | None:
+    """The step of TraceRay where the image's value leaves the reference's, in words (None when it does not):
+    the image matched against the colour built up term by term (ambient, then diffuse, ...), and against the
+    colour without one term, and against the colour with one term scaled. Within the grade's tolerance: one
+    8-bit level, or FLOAT_TOL for floats."""
+    from minirt.model.bitmap import encode, transfer
+
+    tol = 2.0**-10 if is_float else 1  # minirt.diagnose.target's FLOAT_TOL and LEVEL_TOL
+
+    def same(c: np.ndarray) -> bool:
+        if is_float:
+            return bool(np.abs(transfer(np.clip(c, 0, 1), rules.gamma) - value).max() <= tol)
+        return bool(np.abs(encode(c.reshape(1, 1, 3), rules.encoding, rules.gamma).reshape(3) - value).max() <= tol)
+
+    terms = {k: np.array(v, dtype=np.float64) for k, v in p["levels"][0]["terms"].items()}
+    steps = [k for k in STEPS if k in terms and np.any(terms[k] != 0)]
+    full = np.array(p["color"], dtype=np.float64)
+    if same(full):
+        return None
+    hit = p["hit"]
+    where = "the background (no hit)" if hit is None else f"shape {hit['id']} at t = {hit['t']:.6g}"
+    total = np.zeros(3)
+    for k, name in enumerate(steps):
+        if same(total) and k > 0:
+            return (
+                f"your value is the reference's up to the {steps[k - 1]} term and departs at the {name} term "
+                f"({', '.join(steps[k:])} missing or different), on {where}"
+            )
+        total = total + terms[name]
+    for name in steps:
+        if same(full - terms[name]):
+            return f"your value is the reference's without its {name} term, on {where}"
+    # one term scaled: value = (colour - term) + a·term, a fitted on the channels where the term shows
+    lin = value if is_float else value / 255.0
+    fits = []
+    if rules.gamma == "linear":
+        for name in steps:
+            term = terms[name]
+            big = np.abs(term) > 1e-3
+            if not big.any():
+                continue
+            a = float(np.median((lin[big] - (full - term)[big]) / term[big]))
+            if abs(a - 1) > 1e-3 and same(full - term + a * term):
+                fits.append((abs(math.log(abs(a))) if a else math.inf, name, a))
+    if fits:  # several terms can be scaled to the value: the one that needs the least change
+        _, name, a = min(fits)
+        return f"your {name} term is {a:.3g} times the reference's, on {where}"
+    return f"none of the reference's steps gives your value: the hit ({where}) or every term differs"
