@@ -30,6 +30,10 @@ from minirt.model.scene import Ball, Scene
 # A condition must keep this share of a group's unexplained pixels (a few stray pixels -- noise, a
 # pixel a level past tolerance -- must not stop the condition that describes the rest) ...
 KEEP = 0.97
+# Where no condition keeps KEEP of them, the one that keeps at least SPLIT splits that part off as a group
+# of its own (the rest is grouped next): a mirror floor whose wrong pixels are partly where it reflects a
+# ball, partly in that ball's shadow.
+SPLIT = 0.5
 # ... and rule out at least this share of the explained pixels on the same shape still in the group
 # (else it says nothing: "on the ball, lit" where the whole ball is lit).
 RULE_OUT = 0.25
@@ -165,9 +169,12 @@ def groups(
     for shape in _by_count(f["shape"][is_u]):
         left = is_u & (f["shape"] == shape)
         while left.sum():
-            conds, inside = _conditions(f, left, ~is_u & (f["shape"] == shape), weight, sid_all, t_all, shape)
+            others = ~is_u & (f["shape"] == shape)
+            conds, inside = _conditions(f, left, others, weight, sid_all, t_all, shape, KEEP)
+            if not conds:  # nothing holds for nearly all of them: split off the part a condition describes
+                conds, inside = _conditions(f, left, others, weight, sid_all, t_all, shape, SPLIT)
             members = left & inside
-            if not members.any():  # no condition holds for the rest: one group, "anywhere on the shape"
+            if not conds or not members.any():  # no condition describes the rest: "anywhere on the shape"
                 conds, members = {}, left
             found.append((shape, conds, members))
             left = left & ~members
@@ -183,7 +190,10 @@ def groups(
     for shapes, conds, members in merged.values():
         mask = np.zeros(h * w, dtype=bool)
         mask[idx[members]] = True
-        first = int(idx[members][0])
+        # the example: the member nearest the group's centroid (away from its edges, where terms are small)
+        at = idx[members]
+        ys, xs = at // w, at % w
+        first = int(at[np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2)])
         shapes = sorted(shapes)
         n = int(members.sum())
         out.append(
@@ -207,24 +217,27 @@ def _conditions(
     sid_all: np.ndarray,
     t_all: np.ndarray,
     shape: int,
+    keep_first: float,
 ) -> tuple[dict[str, Any], np.ndarray]:
-    """Greedy decision stumps: the conditions that keep KEEP of the unexplained pixels ``u`` and rule out
-    the most of the explained ones ``e`` (weighted), best first, at most MAX_CONDITIONS. Returns them and
-    the mask (over the traced pixels) of where they all hold."""
+    """Greedy decision stumps: the conditions that rule out the most of the explained pixels ``e``
+    (weighted) while keeping the unexplained ones ``u``, best first, at most MAX_CONDITIONS: the first
+    keeping ``keep_first`` of them (KEEP; or SPLIT, where it splits a part off), each later one KEEP of
+    those still in. Returns them and the mask (over the traced pixels) of where they all hold."""
     conds: dict[str, Any] = {}
     inside = np.ones(u.size, dtype=bool)
-    n_u = u.sum()
+    keep = keep_first
     for _ in range(MAX_CONDITIONS):
         cu, ce = u & inside, e & inside
-        base = (weight * ce).sum()
+        base, n_u = (weight * ce).sum(), cu.sum()
         if base == 0:
             break
         best = None
         for name, holds, value in _stumps(f, cu, sid_all, t_all, shape, conds):
-            if (cu & holds).sum() < KEEP * n_u:
+            kept = (cu & holds).sum() / n_u
+            if kept < keep:
                 continue
             out = (weight * (ce & ~holds)).sum() / base
-            score = out * (THRESHOLD_WEIGHT if name in THRESHOLDS else 1.0)
+            score = kept * out * (THRESHOLD_WEIGHT if name in THRESHOLDS else 1.0)
             if out >= RULE_OUT and (best is None or score > best[0]):
                 best = (score, name, value, holds)
         if best is None:
@@ -232,6 +245,7 @@ def _conditions(
         _, name, value, holds = best
         conds[name] = value
         inside &= holds
+        keep = KEEP
     return conds, inside
 
 

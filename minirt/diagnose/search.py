@@ -341,23 +341,28 @@ class _Search:
         the t_max that cuts the wrong pixels' hits off (``_best_t_max``) and the numeric offset that fits
         best (``_best_offset``)."""
         out = []
-        t_max = self._best_t_max(current, cls)
-        if t_max is not None and t_max != current.t_max:
-            out.append(replace(current, t_max=t_max))
+        for deep in (False, True):  # the cut of the pixels' own hits first: it checks what a cut pixel shows
+            t_max = self._best_t_max(current, cls, deep)
+            if t_max is not None and t_max != current.t_max and replace(current, t_max=t_max) not in out:
+                out.append(replace(current, t_max=t_max))
         if "offset" not in moot:
             x = self._best_offset(current, sub)
             if x is not None and x != current.offset:
                 out.append(replace(current, offset=x))
         return [c for c in out if _valid(c)]
 
-    def _best_t_max(self, rules: Rules, cls: np.ndarray) -> float | None:
-        """The t_max whose cut best matches the wrong pixels: the primary rays' hits sorted by t, farthest
-        first, the cut that takes the most pixels beyond tolerance that the image shows as a miss would be
-        drawn, and the fewest exact ones that it does not (a decision stump on the reference's t buffer);
-        then the simplest number between the farthest hit it keeps and the nearest it drops (``simplest``).
-        None when no cut fixes more pixels than it breaks."""
+    def _best_t_max(self, rules: Rules, cls: np.ndarray, reflected: bool = True) -> float | None:
+        """The t_max whose cut best matches the wrong pixels: the pixels sorted by their farthest hit (their
+        own, or with ``reflected`` a reflected ray's: ``VariantCache.deep_t``), farthest first, the cut that
+        takes the most pixels beyond tolerance that the image shows as a miss would be drawn, and the fewest
+        exact ones that it does not (a decision stump on the reference's t buffers); then the simplest number
+        between the farthest hit it keeps and the nearest it drops (``simplest``). None when no cut fixes
+        more pixels than it breaks."""
         sid, t = self.cache.first_hits(self.scene, rules)
-        hit = np.flatnonzero(sid >= 0)
+        first = np.where(sid >= 0, t, 0.0)
+        deep = self.cache.deep_t(self.scene, rules) if reflected else np.zeros_like(first)
+        key = np.maximum(first, deep)  # a cut below it changes the pixel: its own hit or a reflection's
+        hit = np.flatnonzero(key > 0)
         if hit.size == 0:
             return None
         # what a cut pixel shows: the colour of a miss (the background under "on-miss", else black)
@@ -369,11 +374,14 @@ class _Search:
         if dm is None:
             return None
         as_miss = ~self.target.beyond(dm).reshape(-1)
-        order = hit[np.argsort(-t[hit], kind="stable")]
+        order = hit[np.argsort(-key[hit], kind="stable")]
+        # a cut at the pixel's own hit fixes a wrong pixel that the image shows as a miss, and breaks a right
+        # one that it does not; one in a reflection changes the pixel: it fixes it if wrong, else breaks it
+        own = first[order] >= deep[order]
         c, m = cls.reshape(-1)[order], as_miss[order]
-        # a cut fixes a wrong pixel that the image shows as a miss, and breaks a right one that it is not
-        score = np.cumsum(np.where((c == 2) & m, 1, np.where((c == 0) & ~m, -1, 0)))
-        tt = t[order]
+        fixes, breaks = (c == 2) & (m | ~own), (c == 0) & (~m | ~own)
+        score = np.cumsum(fixes.astype(np.int64) - breaks)
+        tt = key[order]
         cut = np.flatnonzero(np.append(tt[1:] != tt[:-1], True))  # cut only between different t
         k = cut[np.argmax(score[cut])]
         if score[k] <= 0:
@@ -384,7 +392,7 @@ class _Search:
     def _best_offset(self, rules: Rules, sub: _Subset) -> float | None:
         """The numeric offset that fits the image best with the other rules as they are, found rather than
         picked from a list: the pixels beyond tolerance on the search's subset counted on a grid of offsets
-        (four a decade, 1e-8 .. 0.18, and 0), then the bracket around the best run narrowed by finer grids
+        (four a decade, 1e-8 .. 0.1, and 0), then the bracket around the best run narrowed by finer grids
         (``OFFSET_ROUNDS``, on the pixels that change inside it), then the simplest number
         inside (``simplest``): a student's 0.5 / 1024 comes out as 0.00048828125, not as the nearest grid
         value. The tracer reads the offset at run time: one kernel for all."""
@@ -402,7 +410,7 @@ class _Search:
             d = self.target.difference(v.color, r, at)
             return self.target.beyond(d) & ~v.shadow_ill
 
-        grid = [0.0] + [10.0 ** (k / 4) for k in range(-32, -2)]
+        grid = [0.0] + [10.0 ** (k / 4) for k in range(-32, -3)]  # 1e-8 .. 0.1: a student's offsets
         counts = [float((beyond(x, idx) * weight).sum()) for x in grid]
         best = min(counts)
         runs = [i for i, c in enumerate(counts) if c == best]
@@ -413,7 +421,7 @@ class _Search:
 
         # Narrow the bracket around the best run in rounds, each a finer grid on the pixels of the whole
         # image whose match differs between the bracket's ends and its best offset.
-        lo, hi = max(grid[a - 1], grid[1] / 2), grid[b + 1] if b + 1 < len(grid) else grid[b] * 10
+        lo, hi = max(grid[a - 1], grid[1] / 2), grid[min(b + 1, len(grid) - 1)]
         mid = grid[(a + b) // 2]
         everywhere = np.arange(self.target._model_shape[0] * self.target._model_shape[1])
         ends = [beyond(x, everywhere) for x in (lo, mid, hi)]

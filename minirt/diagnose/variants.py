@@ -170,6 +170,31 @@ class VariantCache:
             self._hits[key] = (sid, np.where(sid >= 0, np.asarray(t, dtype=np.float64), math.inf))
         return self._hits[key]
 
+    def deep_t(self, scene: Scene, rules: Rules) -> np.ndarray:
+        """(H·W,) the longest hit of each pixel's reflected rays (0: none hits): where a t_max cuts a pixel's
+        reflection though its own hit is near. Every hit counted (t_max left out); one recorded trace, kept
+        per traced rules."""
+        import drjit as dr
+
+        from minirt.reference.tracer import Tracer
+
+        plain = replace(rules.traced(), t_max=math.inf)
+        key = (*self._key(scene, plain), "deep")
+        if key not in self._hits:
+            n = scene.camera.width * scene.camera.height
+            tr = Tracer(scene, plain, runtime=True)
+            o, d = tr.primary_rays()
+            with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+                _, levels = tr.trace(o, d, record=True)
+            deep, root = np.zeros(n), np.arange(n)
+            for lvl in levels[1:]:
+                root = root[np.asarray(lvl.parent).astype(np.int64)]
+                t = np.broadcast_to(np.asarray(lvl.t, dtype=np.float64), root.shape)
+                ok = np.isfinite(t)
+                np.maximum.at(deep, root[ok], t[ok])
+            self._hits[key] = deep
+        return self._hits[key]
+
     def _f32_render(self, scene: Scene, v: Variant) -> tuple[np.ndarray | None, np.ndarray]:
         """The same rules traced in float32, and the pixels where that image differs by more than a level:
         decisions that rounding flips anywhere in the ray tree (reflections, planes' shadows, self-shadowing

@@ -64,9 +64,9 @@ def test_flipped_rule_shows_the_difference(images):
     assert p.returncode == 0, p.stderr
     yours, ref = tuple(int(c) for c in images["flipped8"]), tuple(int(c) for c in images["given8"])
     n = max(abs(a - b) for a, b in zip(yours, ref, strict=True))
-    assert (
-        p.stdout.strip().splitlines()[-1] == f"your image: {yours} [8-bit]  reference: {ref} -> differs by {n} levels"
-    )
+    lines = p.stdout.strip().splitlines()
+    assert lines[-2] == f"your image: {yours} [8-bit]  reference: {ref} -> differs by {n} levels"
+    assert lines[-1].startswith("where it departs: ")  # the step of TraceRay where the values part
     assert f"8-bit {ref}" in p.stdout
 
 
