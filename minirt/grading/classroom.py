@@ -189,7 +189,15 @@ def grade_one_row(student: Path, scene: Scene, scene_file: str, rules: Rules, ca
     d = g.diagnosis
     said = {n: sentence(n, getattr(d.best, n), getattr(d.given, n)) for n in d.changed}
     return ClassRow(
-        student.name, stem, g.verdict, d.changed, d.mismatch_pixels, d.as_given_pixels, grade=g, sentences=said
+        student.name,
+        stem,
+        g.verdict,
+        d.changed,
+        d.mismatch_pixels,
+        d.as_given_pixels,
+        grade=g,
+        sentences=said,
+        unexplained=[u.as_dict() for u in d.unexplained],
     )
 
 
@@ -425,6 +433,51 @@ def common_mistakes(rows: list[ClassRow]) -> list[dict[str, Any]]:
     return sorted(out, key=lambda m: (-m["students"], -m["images"], m["rule"], m["value"]))
 
 
+def common_unexplained(rows: list[ClassRow], top: int = 10) -> list[dict[str, Any]]:
+    """The groups of unexplained pixels across the class, most students first: groups of one scene on the
+    same shapes with the same conditions (a threshold's value aside: t > 29.3 and t > 29.4 are one group,
+    shown as their range) -> students, images, pixels, and the sentence of the largest one."""
+    seen: dict[tuple, dict[str, Any]] = {}
+    for r in rows:
+        for u in r.unexplained:
+            conds = u.get("conditions", {})
+            key = (r.scene, tuple(u.get("shapes", [])), tuple(sorted((k, _shape_of(v)) for k, v in conds.items())))
+            e = seen.setdefault(key, {"scene": r.scene, "shapes": list(key[1]), "students": set(), "images": 0,
+                                      "pixels": 0, "largest": -1, "sentence": "", "ranges": {}})  # fmt: skip
+            e["students"].add(r.student)
+            e["images"] += 1
+            e["pixels"] += int(u.get("pixels", 0))
+            if int(u.get("pixels", 0)) > e["largest"]:
+                e["largest"], e["sentence"] = int(u.get("pixels", 0)), str(u.get("sentence", ""))
+            for k, v in conds.items():
+                if _shape_of(v) == "number":
+                    lo, hi = e["ranges"].get(k, (v, v))
+                    e["ranges"][k] = (min(lo, v), max(hi, v))
+                else:
+                    e["ranges"][k] = v
+    out = []
+    for e in seen.values():
+        conds = {
+            k: (v if not isinstance(v, tuple) else (v[0] if v[0] == v[1] else list(v))) for k, v in e["ranges"].items()
+        }
+        out.append({"scene": e["scene"], "shapes": e["shapes"], "conditions": conds, "students": len(e["students"]),
+                    "images": e["images"], "pixels": e["pixels"], "sentence": e["sentence"]})  # fmt: skip
+    out.sort(key=lambda m: (-m["students"], -m["pixels"], m["scene"], m["shapes"], repr(m["conditions"])))
+    return out[:top]
+
+
+def _range(v: Any) -> Any:
+    """A condition across images: its value, or [lowest, highest] of a threshold that differs."""
+    if not isinstance(v, tuple):
+        return v
+    return v[0] if v[0] == v[1] else list(v)
+
+
+def _shape_of(v: Any) -> Any:
+    """A condition's value as a group's key: yes/no and shape indices as they are, a threshold as "number"."""
+    return "number" if isinstance(v, float) and not isinstance(v, bool) else v
+
+
 def class_dict(rows: list[ClassRow], scenes: list[str], skipped: list[Skipped] | None = None) -> dict[str, Any]:
     """grades.json's content: the students, scenes, counts, common mistakes, one row per student and scene,
     and the class folder's entries that were skipped (``survey``), each with its reason."""
@@ -438,7 +491,7 @@ def class_dict(rows: list[ClassRow], scenes: list[str], skipped: list[Skipped] |
         "common_mistakes": common_mistakes(rows),
         "grades": [r.as_dict() for r in rows],
         "skipped": [k.as_dict() for k in skipped or []],
-    }
+    } | ({"common_unexplained": common} if (common := common_unexplained(rows)) else {})
 
 
 def write_csv(path: Path, rows: list[ClassRow]) -> None:

@@ -360,8 +360,16 @@ class ClassRow:
     grade: Grade | None = field(default=None, repr=False)
     sentences: dict[str, str] = field(default_factory=dict, repr=False)  # rule -> the sentence for the student
     page_html: bytes | None = field(default=None, repr=False)  # the page's bytes, for the cache (``grade_class``)
+    # the groups of pixels no rule setting explains (Grade's diagnosis.unexplained, without their masks)
+    unexplained: list[dict[str, Any]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
+        out = self._row()
+        if self.unexplained:  # rows without any keep the bytes they had before such groups existed
+            out["unexplained"] = self.unexplained
+        return out
+
+    def _row(self) -> dict[str, Any]:
         return {
             "student": self.student,
             "scene": self.scene,

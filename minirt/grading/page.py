@@ -344,6 +344,18 @@ def write_row_page(row: ClassRow, out_dir: Path, stem: str) -> None:
     row.page = f"pages/{page.name}"
 
 
+def _unexplained_view(m: dict[str, Any]) -> dict[str, Any]:
+    """A common group of unexplained pixels (classroom.common_unexplained) as the class page shows it."""
+    return {
+        "scene": str(m.get("scene")),
+        "shapes": ", ".join(map(str, m.get("shapes", []))),
+        "students": int(m.get("students", 0)),
+        "images": int(m.get("images", 0)),
+        "pixels": int(m.get("pixels", 0)),
+        "sentence": str(m.get("sentence", "")),
+    }
+
+
 def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: bool = True) -> Path:
     """Write a page per graded row that has none yet into ``out_dir/pages/`` (setting ``row.page`` to its
     link; a class graded by ``classroom.grade_class`` arrives with its pages written) and the class table
@@ -387,6 +399,7 @@ def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: 
         verdicts=VERDICTS,
         vclass=VERDICT_CLASS,
         mistakes=_mistake_views(rows, summary.get("common_mistakes") or []),
+        unexplained=[_unexplained_view(m) for m in summary.get("common_unexplained") or []],
         total=len(rows),
         skipped=[(str(k.get("folder", "")), str(k.get("reason", ""))) for k in summary.get("skipped") or []],
     )

@@ -222,6 +222,11 @@ class ClassDocument(_Document):
     scenes: list[str]
     verdicts: dict[GradeVerdict, int]
     common_mistakes: list[Mistake]
+    common_unexplained: list[dict[str, Any]] = Field(
+        default_factory=list,
+        description="Groups of unexplained pixels across the class (same scene, shapes and conditions), most "
+        "students first; left out when there are none.",
+    )
     grades: list[ClassRow]
     skipped: list[SkippedEntry] = Field(
         default_factory=list, description="Entries of the class folder that are not students, and why."
