@@ -25,7 +25,8 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 # The main job: every backend on the exercise scene, the comparison report of all bundled scenes, then
-# the headline feature: grade a sample "student" image (a render with wrong rules, shipped in scenes/samples).
+# the headline feature: grade sample "student" images (renders with wrong rules, shipped in scenes/samples;
+# the second with bugs seen in real solutions and one no rule explains).
 # A FAIL or DIFFERS verdict (exit 1) still leaves a page to read; bad input or a backend error (exit 2) stops.
 demo: setup
 	$(BIN)/minirt render scenes/exercise.toml --backend all --out renders/exercise
@@ -33,6 +34,8 @@ demo: setup
 	@echo "open reports/index.html"
 	$(BIN)/minirt grade scenes/rules.toml scenes/samples/rules.student.png --out grades/sample || test $$? -eq 1
 	@echo "open grades/sample/index.html (the sample student's grade)"
+	$(BIN)/minirt grade scenes/three_balls.toml scenes/samples/three_balls.student.png --out grades/sample-real || test $$? -eq 1
+	@echo "open grades/sample-real/index.html (bugs seen in real solutions, and pixels no rule explains)"
 
 # Refresh the committed sample report (bundled scenes at 64x64, every backend).
 sample: setup

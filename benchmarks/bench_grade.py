@@ -3,6 +3,7 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_grade.py [--quick] [--students 200] [--out FILE.json]
+        [--versus TREE] [--single-only]
 
 Sections (JSON keys; Markdown on stdout in the same order):
 
@@ -10,7 +11,8 @@ Sections (JSON keys; Markdown on stdout in the same order):
   process, IMAGE a float32 render with three wrong rules (pixel centres, (r·s)^16, min(255, floor(256c)))
   -- every candidate render included. **cold**: each run gets a fresh, empty Dr.Jit kernel cache
   (``DRJIT_CACHE_DIR``), so every kernel is compiled; **warm kernels**: runs share a primed directory
-  (what a user sees from the second grade on). Median of 3 each.
+  (what a user sees from the second grade on). Median of 3 each. ``--versus TREE``: another checkout's
+  grade of the same image, its runs interleaved with this tree's (before/after in one run).
 - ``class_cache``: in one process, a first student's 800x800 image is graded, then a second student's
   (other wrong rules) with the same ``VariantCache``: the second's time is "with the class's cache warm".
 - ``class``: N students x 6 bundled scenes at 256x256, each student with 0-3 random wrong rules (seeded:
@@ -67,7 +69,10 @@ def run(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, int]:
     return dt, p.returncode
 
 
-def single(tmp: Path, size: int, repeats: int) -> dict[str, Any]:
+def single(tmp: Path, size: int, repeats: int, versus: Path | None = None) -> dict[str, Any]:
+    """The one-image figures; with ``versus`` (another checkout of minirt) its grade of the same image too,
+    each of its runs right after this tree's (PYTHONPATH: the same interpreter and packages), so the two are
+    timed under the same load."""
     img = tmp / "single.png"
     injected = student_png(
         ROOT / "scenes/rules.toml",
@@ -77,15 +82,33 @@ def single(tmp: Path, size: int, repeats: int) -> dict[str, Any]:
     )
     cmd = [sys.executable, "-m", "minirt", "grade", "scenes/rules.toml", str(img), "--size", f"{size}x{size}",
            "--quiet", "--json", str(tmp / "single.json")]  # fmt: skip
-    cold = []
+    other = [*cmd[:-1], str(tmp / "versus.json")]
+    trees = {"this": ({}, cmd)} | ({"versus": ({"PYTHONPATH": str(versus)}, other)} if versus else {})
+    cold: dict[str, list[float]] = {name: [] for name in trees}
     for k in range(repeats):
-        env = {**os.environ, "DRJIT_CACHE_DIR": str(tmp / f"cold{k}")}
-        cold.append(run(cmd, env)[0])
-    warm_env = {**os.environ, "DRJIT_CACHE_DIR": str(tmp / "warm")}
-    run(cmd, warm_env)  # primes the kernel cache
-    warm = [run(cmd, warm_env)[0] for _ in range(repeats)]
+        for name, (extra, c) in trees.items():
+            env = {**os.environ, **extra, "DRJIT_CACHE_DIR": str(tmp / f"cold-{name}{k}")}
+            cold[name].append(run(c, env)[0])
+    warm: dict[str, list[float]] = {name: [] for name in trees}
+    for name, (extra, c) in trees.items():
+        run(c, {**os.environ, **extra, "DRJIT_CACHE_DIR": str(tmp / f"warm-{name}")})  # primes the kernel cache
+    for _ in range(repeats):
+        for name, (extra, c) in trees.items():
+            warm[name].append(run(c, {**os.environ, **extra, "DRJIT_CACHE_DIR": str(tmp / f"warm-{name}")})[0])
     found = json.loads((tmp / "single.json").read_text())
-    return {
+    out = {}
+    if versus:
+        theirs = json.loads((tmp / "versus.json").read_text())
+        out["versus"] = {
+            "tree": str(versus),
+            "found": theirs["diagnosis"]["rules"],
+            "cold_s": cold["versus"],
+            "cold_median_s": statistics.median(cold["versus"]),
+            "warm_kernels_s": warm["versus"],
+            "warm_kernels_median_s": statistics.median(warm["versus"]),
+        }
+    cold, warm = cold["this"], warm["this"]
+    return out | {
         "size": size,
         "injected": injected,
         "found": found["diagnosis"]["rules"],
@@ -173,6 +196,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--students", type=int, default=200)
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--versus", type=Path, metavar="TREE", help="another checkout: its one-image grade beside")
+    ap.add_argument("--single-only", action="store_true", help="only the one-image section")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="minirt-bench-grade-") as t:
         tmp = Path(t)
@@ -181,10 +206,17 @@ def main() -> None:
             res["single"] = single(tmp, 96, 1)
             res["class_cache"] = class_cache(tmp, 96)
             res["class"] = whole_class(tmp, 3, 48)
+        elif a.single_only:
+            res["single"] = single(tmp, 800, 3, a.versus)
         else:
-            res["single"] = single(tmp, 800, 3)
+            res["single"] = single(tmp, 800, 3, a.versus)
             res["class_cache"] = class_cache(tmp, 800)
             res["class"] = whole_class(tmp, a.students, 256)
+    if a.single_only:
+        print(json.dumps(res["single"], indent=1))
+        if a.out:
+            a.out.write_text(json.dumps(res, indent=1) + "\n")
+        return
     if not a.quick:
         res["targets"] = {
             "800x800 cold < 10 s": res["single"]["cold_median_s"] < 10,

@@ -167,14 +167,21 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
         local = local + terms["ambient"]
     r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction
     r_dir = r  # the reflected ray's direction
-    raw = rules.raw_normals
-    if raw != "none":
-        # rule raw_normals: the normal as a solution that never normalises it has it, of length r for a
-        # ball (p - c) and |n| as written for a plane (values.normal_length); the offset keeps the unit one.
+    # rule raw_normals: the normal as a solution that never normalises it has it, of length r for a ball
+    # (p - c) and |n| as written for a plane (values.normal_length); the offset keeps the unit one. Under
+    # ``runtime`` both switches are read at run time: one kernel for every value (a diagnosis tries them all).
+    raw_shading = values.rule(rules.raw_normals in ("shading", "both"))
+    raw_reflection = values.rule(rules.raw_normals in ("reflection", "both"))
+    nr = None
+    if raw_shading is not False or raw_reflection is not False:
         nr = ns * values.normal_length(shape_id)
-        if raw in ("reflection", "both"):
-            r = d - 2 * dr.dot(d, nr) * nr  # the highlight's r·s takes it as computed
-            r_dir = dr.normalize(r)  # the exercise's Ray holds a normalised direction
+    if raw_reflection is not False:
+        r_raw = d - 2 * dr.dot(d, nr) * nr  # the highlight's r·s takes it as computed
+        r_unit = dr.normalize(r_raw)  # the exercise's Ray holds a normalised direction
+        if raw_reflection is True:
+            r, r_dir = r_raw, r_unit
+        else:
+            r, r_dir = dr.select(raw_reflection, r_raw, r), dr.select(raw_reflection, r_unit, r)
     err = interaction.error_bound(tr, shape_id, p, o) if rules.offset == "error-bound" else None
     outward = interaction.outward(tr, shape_id)
     clamp_all, clamp_specular = values.rule(rules.clamp is True), values.rule(rules.clamp == "specular")
@@ -205,7 +212,11 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
             if record:
                 rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
         if fx.diffuse:
-            sd = dr.dot(s, nr) if raw in ("shading", "both") else sn  # the same sign as sn
+            sd = sn  # s·n, or with raw_shading s·(the raw normal): the same sign
+            if raw_shading is True:
+                sd = dr.dot(s, nr)
+            elif raw_shading is not False:
+                sd = dr.select(raw_shading, dr.dot(s, nr), sn)
             if isinstance(clamp_all, bool):
                 fac = dr.maximum(sd, 0) if clamp_all else sd  # "specular": s·n raw
             else:

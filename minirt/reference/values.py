@@ -145,10 +145,10 @@ class Values(ABC):
         ties keep the lower shape id."""
         # Full width from the start: with no shapes at all these are the results, one per ray.
         t_best = dr.full(self.T.Float, math.inf, dr.width(d))
-        if self.rules.t_max != math.inf:
+        if self.rules.t_max != math.inf or self.runtime:
             # rule t_max: the search starts at a finite "infinity", so hits beyond it are ignored (and a
             # ray that finds none is a miss: shade_level gives it inf). Under ``runtime`` read at run time
-            # (``k``): one kernel for every t_max the diagnosis tries.
+            # (``k``), inf included (min(inf, inf) is inf): one kernel for every t_max a diagnosis tries.
             t_best = dr.minimum(t_best, self.k("t_max", self.rules.t_max))
         id_best = dr.full(self.T.Int, -1, dr.width(d))
         return self._closest(o, d, t_best, id_best)
@@ -394,12 +394,11 @@ class Tabled(Values):
         return dr.gather(self.T.Bool, self.table.is_ball, self.T.UInt(shape_id), shape_id >= 0)
 
     def normal_length(self, shape_id) -> Any:
-        """The ball's radius gathered from the table, the planes' lengths by a select chain (planes are few)."""
-        T, tab = self.T, self.table
-        k, hit = T.UInt(shape_id), shape_id >= 0
-        is_ball = dr.gather(T.Bool, tab.is_ball, k, hit)
-        out = dr.select(is_ball, dr.gather(T.Float, tab.radius, k, is_ball), T.Float(1.0))
-        for j, s in enumerate(self.scene.shapes):
-            if isinstance(s, Plane):
-                out = dr.select(shape_id == j, self.k(("normal_length", j), s.written), out)
-        return out
+        """Gathered by shape id from an array of its own (a ball's radius, a plane's length as written),
+        made once per Tracer: kernels independent of the layout, as the table's."""
+        T = self.T
+        if getattr(self, "_lengths", None) is None:
+            own = [s.radius if isinstance(s, Ball) else s.written for s in self.scene.shapes]
+            self._lengths = T.Float(np.array(own, dtype=T.np_dtype))
+        hit = shape_id >= 0
+        return dr.select(hit, dr.gather(T.Float, self._lengths, T.UInt(shape_id), hit), T.Float(1.0))
