@@ -275,6 +275,11 @@ class _Search:
                 e = self._best_exponent(current)
                 if e != current.specular_exponent and e not in rules_mod.values("specular_exponent"):
                     singles.append(replace(current, specular_exponent=e))
+            # t_max read off the image's own hits competes with the listed values at every step (a stump on the
+            # t buffer, no render); the cut found in reflections and the offset only when the descent is stuck
+            t_max = self._best_t_max(current, cls, reflected=False)
+            if t_max is not None and t_max != current.t_max and _valid(replace(current, t_max=t_max)):
+                singles.append(replace(current, t_max=t_max))
             singles += _profile_moves(current)
             singles = [c for c in singles if c not in seen]
             if tabu:
@@ -338,13 +343,12 @@ class _Search:
 
     def _found(self, current: Rules, cls: np.ndarray, sub: _Subset, moot: set[str]) -> list[Rules]:
         """Candidates whose value is read off the image, for a descent stuck with pixels beyond tolerance:
-        the t_max that cuts the wrong pixels' hits off (``_best_t_max``) and the numeric offset that fits
-        best (``_best_offset``)."""
+        the t_max that cuts the wrong pixels' hits or their reflections' off (``_best_t_max``) and the
+        numeric offset that fits best (``_best_offset``)."""
         out = []
-        for deep in (False, True):  # the cut of the pixels' own hits first: it checks what a cut pixel shows
-            t_max = self._best_t_max(current, cls, deep)
-            if t_max is not None and t_max != current.t_max and replace(current, t_max=t_max) not in out:
-                out.append(replace(current, t_max=t_max))
+        t_max = self._best_t_max(current, cls)  # (the cut of the pixels' own hits is a move of every step)
+        if t_max is not None and t_max != current.t_max:
+            out.append(replace(current, t_max=t_max))
         if "offset" not in moot:
             x = self._best_offset(current, sub)
             if x is not None and x != current.offset:
@@ -374,6 +378,8 @@ class _Search:
         if dm is None:
             return None
         as_miss = ~self.target.beyond(dm).reshape(-1)
+        if not reflected and not (as_miss & (cls.reshape(-1) == 2) & (first > 0)).any():
+            return None  # no wrong hit drawn as a miss: no cut of the own hits can gain
         order = hit[np.argsort(-key[hit], kind="stable")]
         # a cut at the pixel's own hit fixes a wrong pixel that the image shows as a miss, and breaks a right
         # one that it does not; one in a reflection changes the pixel: it fixes it if wrong, else breaks it
