@@ -443,9 +443,13 @@ class _Search:
         return x
 
     def _one_step(self, start: Rules, name: str, value: Any) -> Variant | None:
-        """The full render of the scene's own rules with one rule changed (shared across images)."""
+        """The full render of the scene's own rules with one rule changed (shared across images); for a
+        cache that is not shared (``VariantCache.share``) only one already there: the others are traced on
+        the search's subset of pixels (``_traced``), all a single image's decision needs."""
         r = start if value == getattr(start, name) else replace(start, **{name: value})
-        return self.cache.get(self.scene, r, pin=True) if _valid(r) else None
+        if not _valid(r) or not (self.cache.share or r == start or self.cache.has(self.scene, r)):
+            return None
+        return self.cache.get(self.scene, r, pin=True)
 
     def _estimate(
         self, start: Rules, current: Rules, vc: Variant, c: Rules, idx: np.ndarray
@@ -471,7 +475,7 @@ class _Search:
         if c.traced() == current.traced():
             return vc.color.reshape(-1, 3)[idx], vc, idx
         # one step from the scene's own rules: every image of this scene asks for it, keep it
-        v = self.cache.subset(self.scene, c, idx, keep=len(start.differs(c)) == 1)
+        v = self.cache.subset(self.scene, c, idx, keep=self.cache.share and len(start.differs(c)) == 1)
         return v.color, v, np.arange(idx.size)
 
     def _gain_on(

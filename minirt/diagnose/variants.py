@@ -68,8 +68,12 @@ class VariantCache:
     earlier images left in the cache (a class graded by one process or by several writes the same
     pages)."""
 
-    def __init__(self, max_bytes: int = 2 << 30):
+    def __init__(self, max_bytes: int = 2 << 30, share: bool = True):
         self.max_bytes = max_bytes
+        # share: other images of the same scenes will be graded with this cache (a class), so a search renders
+        # the scene's one-step variants in full and keeps them; a single image's search traces them only on
+        # its subset of pixels (the same colours there, a fraction of the rays and copies)
+        self.share = share
         self._items: OrderedDict[tuple, Variant] = OrderedDict()
         self._bytes = 0  # the kept variants' nbytes summed, kept up to date as they come, grow and go
         self._pinned: set[tuple] = set()
@@ -83,6 +87,10 @@ class VariantCache:
     @staticmethod
     def _key(scene: Scene, rules: Rules) -> tuple:
         return (scene.digest, scene.source, scene.camera.width, scene.camera.height, rules.traced())
+
+    def has(self, scene: Scene, rules: Rules) -> bool:
+        """Whether the full render of ``rules`` is kept."""
+        return self._key(scene, rules) in self._items
 
     def get(self, scene: Scene, rules: Rules, f32: bool = False, pin: bool = False) -> Variant:
         """The full render of ``rules`` (with its float32 twin if ``f32``); ``pin`` keeps it for good."""

@@ -339,7 +339,9 @@ def grade_image(
     scene = scene.with_overrides(samples=1)  # the exercise traces one ray per pixel
     target = load_target(image, scene)  # the size and the memory checked before the image is decoded
     notes = check_size(scene, target, str(image))
-    d = dg.diagnose(scene, rules, target, cache)
+    # one image on its own: its search traces the scene's one-step variants on its subset of pixels only
+    # (VariantCache.share); a class passes the cache its images share
+    d = dg.diagnose(scene, rules, target, cache or dg.VariantCache(share=False))
     verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
     g = Grade(scene, scene_file, str(image), verdict, diagnosis=d, target=target, notes=notes)
     g.size_override = size_override
