@@ -154,6 +154,7 @@ class _Search:
         self.steps: list[dict[str, Any]] = []
         self._exponents: dict[Rules, int] = {}
         self._offsets: dict[Rules, float | None] = {}
+        self._either: dict[Rules, np.ndarray | None] = {}  # ``either``'s differences, per rule set
         target._model_shape = (scene.camera.height, scene.camera.width)
 
     def full(self, rules: Rules) -> tuple[np.ndarray | None, Variant]:
@@ -170,10 +171,13 @@ class _Search:
     def either(self, rules: Rules) -> tuple[np.ndarray | None, Variant]:
         """Like ``full``, but a pixel matches if it matches the rules' float64 or float32 image: a float32
         tracer following these rules may draw either where rounding decides (its self-shadowing acne)."""
-        d, v = self.full(rules)
-        self.cache.get(self.scene, rules, f32=True)
+        v = self.cache.get(self.scene, rules, f32=True)
+        if rules in self._either:  # the same renders, written and compared again at every step otherwise
+            return self._either[rules], v
+        d = self.target.difference(v.color, rules)
         if d is not None and v.f32_color is not None:
             d = np.minimum(d, self.target.difference(v.f32_color, rules))
+        self._either[rules] = d
         return d, v
 
     def compare(self, a: Rules, b: Rules) -> tuple[int, int] | None:

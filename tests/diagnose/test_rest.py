@@ -144,14 +144,19 @@ def _plain_image(scene, rules, cls=Plain) -> np.ndarray:
     return bitmap.bitmap(noisy(np.array(colors).reshape(h, w, 3)), rules)
 
 
-def test_a_wrong_diffuse_colour_is_grouped_on_its_shape_where_lit(tmp_path, cache):
-    scene = small_scene("exercise", 64, 64)
-    rules = R.resolve(scene)
+def _mistyped_floor(scene) -> tuple[np.ndarray, int]:
+    """The exercise's model with the floor's diffuse colour 1.5 times the scene's (a bug outside the table),
+    and the floor's index."""
     shapes = list(scene.shapes)
     floor = next(k for k, s in enumerate(shapes) if not isinstance(s, Ball))
     m = shapes[floor].material
     shapes[floor] = replace(shapes[floor], material=replace(m, diffuse=tuple(1.5 * c for c in m.diffuse)))
-    img = _plain_image(replace(scene, shapes=tuple(shapes)), rules)
+    return _plain_image(replace(scene, shapes=tuple(shapes)), R.resolve(scene)), floor
+
+
+def test_a_wrong_diffuse_colour_is_grouped_on_its_shape_where_lit(tmp_path, cache):
+    scene = small_scene("exercise", 64, 64)
+    img, floor = _mistyped_floor(scene)
     g = _grade(tmp_path, scene, img, cache)
     d = g.diagnosis
     assert d.changed == {}, d.changed
@@ -187,12 +192,7 @@ def test_a_ball_that_casts_no_shadow_is_grouped_where_its_shadow_falls(tmp_path,
 def test_probe_says_where_the_image_departs(tmp_path, cache):
     """``probe --image`` at a group's example pixel names the term that differs (the diffuse, 1.5x)."""
     scene = small_scene("exercise", 64, 64)
-    rules = R.resolve(scene)
-    shapes = list(scene.shapes)
-    floor = next(k for k, s in enumerate(shapes) if not isinstance(s, Ball))
-    m = shapes[floor].material
-    shapes[floor] = replace(shapes[floor], material=replace(m, diffuse=tuple(1.5 * c for c in m.diffuse)))
-    img = _plain_image(replace(scene, shapes=tuple(shapes)), rules)
+    img, _ = _mistyped_floor(scene)
     g = _grade(tmp_path, scene, img, cache)
     x, y = g.diagnosis.unexplained[0].example
     run = minirt(*shlex.split(g.probe_command(x, y))[1:])
