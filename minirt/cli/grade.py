@@ -82,7 +82,9 @@ def grade(
 ) -> None:
     """Grade another tracer's image of a scene: is it the exercise's model, and if not, which rule
     settings explain it (searched over every rule; `minirt render SCENE --rule ...` with them reproduces
-    the image).
+    the image). Pixels no rule setting explains are grouped by where they lie (the shape hit, t, lit or
+    in shadow, what a reflection shows, ...), each group with a sentence and a `minirt probe ... --image`
+    command for one of its pixels.
 
     Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
     (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,
