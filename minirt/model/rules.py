@@ -29,22 +29,22 @@ near_root_only = true, where secondary rays always start outside the ball: start
 from a point facing away from the light), near_root_only would not see the ball and every back-face
 self-shadow would be lost; outside, the ball blocks, as under a numeric offset along the normal.
 
-Two rules come from bugs seen in real solutions of the exercise rather than from a reading of it (their
-defaults are the exercise's reading; ``grade`` finds their values from a student's image):
+Two rules come from bugs seen in real solutions rather than from a reading of the exercise (their
+defaults are the exercise's reading; ``grade`` finds their values from a student's image). The source of
+both: a public C++ solution of this exercise (its bitmap.cpp and vector3.cpp, Ray, Ball, Plane, Scene),
+whose ``Scene::TraceRay`` starts its closest-hit search at ``double t = 30000;`` (pixel units), whose
+``Ball::getNormal`` returns ``at - middle`` and whose ``Plane::getNormal`` returns the normal as given.
 
-- ``t_max``: the closest-hit search starts at a finite "infinity" (``double t = 30000;`` in a 2013
-  solution's Scene::Intersect, in pixel units), so hits of camera and reflected rays beyond it are
-  ignored: the far part of a ground plane turns to background at the horizon. Shadow rays keep the
-  shadow_range rule (the light is nearer than any such cut-off in the scenes where it shows). The
-  same finite start is in many course tracers' ``closest_hit`` (``t_min = 1e20``, ``INFINITY`` as a
-  large float).
+- ``t_max``: the closest-hit search starts at a finite "infinity", so hits of camera and reflected rays
+  beyond it are ignored: the far part of a ground plane turns to background at the horizon. Shadow
+  rays keep the shadow_range rule (the light is nearer than any such cut-off in the scenes where it
+  shows).
 - ``raw_normals``: the normal used without normalising it -- a ball's p - c not divided by the radius
-  (the exercise's Appendix 2 gives (p - c) / r, and solutions that write ``GetNormal`` as ``at -
-  center`` drop the division), a plane's normal as written in the scene (the exercise stores a plane
-  as (n, a) without saying n is of unit length). "shading": in the diffuse term s·n; "reflection": in
-  the reflected direction r = d - 2 (d·n) n (the highlight's r·s uses that r as computed; the reflected
-  ray's direction is r normalised, as the exercise's Ray holds a normalised direction); "both". The
-  secondary rays' offset stays along the unit normal.
+  (the exercise's Appendix 2 gives (p - c) / r), a plane's normal as written in the scene (the exercise
+  stores a plane as (n, a) without saying n is of unit length). "shading": in the diffuse term s·n;
+  "reflection": in the reflected direction r = d - 2 (d·n) n (the highlight's r·s uses that r as
+  computed; the reflected ray's direction is r normalised, as that solution's Ray normalises its
+  direction); "both". The secondary rays' offset stays along the unit normal.
 
 Output rules (``OUTPUT_RULES``) say how the 8-bit bitmap is written; the tracer ignores them (see
 minirt.model.bitmap): ``encoding`` "round" (floor(c·255 + 0.5); eth2014: "floor256", min(255,
