@@ -50,8 +50,31 @@ def quantise(c: np.ndarray, encoding: str) -> np.ndarray:
 
 
 def encode(color: np.ndarray, encoding: str = "round", gamma: str = "linear") -> np.ndarray:
-    """(H, W, 3) linear colour before clamping -> (H, W, 3) uint8 in the scene's layout."""
-    return quantise(transfer(color, gamma), encoding)
+    """(H, W, 3) linear colour before clamping -> (H, W, 3) uint8 in the scene's layout.
+
+    The same levels as ``quantise(transfer(color, gamma), encoding)`` for every input, in one scratch
+    buffer: fmax/fmin clamp as nan_to_num then clip do (NaN -> 0, +inf -> 1, -inf -> 0; only the sign of
+    a zero may differ, and every encoding writes either zero as level 0), and the encoding's arithmetic is
+    the same float64 operations in place. A grade encodes whole candidate images dozens of times; the
+    temporaries of nan_to_num, clip and the encodings were most of that time."""
+    c = np.asarray(color, dtype=np.float64)
+    if gamma != "linear":
+        return quantise(transfer(c, gamma), encoding)
+    buf = np.fmax(c, 0.0)
+    np.fmin(buf, 1.0, out=buf)
+    if encoding == "round":
+        buf *= 255.0
+        buf += 0.5
+    elif encoding == "floor256":
+        buf *= 256.0
+    elif encoding == "floor":
+        buf *= 255.0
+    else:
+        raise ValueError(f"unknown encoding {encoding!r}")
+    np.floor(buf, out=buf)
+    if encoding == "floor256":
+        np.minimum(buf, 255.0, out=buf)
+    return buf.astype(np.uint8)
 
 
 def apply_layout(img: np.ndarray, rows: str = "top-down", channels: str = "rgb", transpose: bool = False) -> np.ndarray:
