@@ -19,7 +19,8 @@ Sections (JSON keys; Markdown on stdout in the same order):
   the same class every run), written as PNG; then ``minirt grade --class DIR --out OUT --size 256x256``
   as a whole command. Its verdict counts and how many diagnoses named exactly the injected rules (or
   settings that reproduce the image) are reported beside the time.
-- ``targets``: 800x800 < 10 s cold, < 3 s with the class's cache warm; 200 x 6 at 256x256 < 10 min.
+- ``targets``: 800x800 < 10 s cold, <= 4 s with the kernel cache primed, < 3 s with the class's cache
+  warm; 200 x 6 at 256x256 < 10 min. ``--single-only`` reports the one-image targets it measures.
 
 --quick (tests/package/test_bench.py): 96x96 single image, 3 students at 48x48; structure only, no targets.
 """
@@ -213,13 +214,16 @@ def main() -> None:
             res["class_cache"] = class_cache(tmp, 800)
             res["class"] = whole_class(tmp, a.students, 256)
     if a.single_only:
-        print(json.dumps(res["single"], indent=1))
+        if not a.quick:
+            res["targets"] = {"800x800 warm kernels <= 4 s": res["single"]["warm_kernels_median_s"] <= 4}
+        print(json.dumps(res["single"] | {"targets": res.get("targets", {})}, indent=1))
         if a.out:
             a.out.write_text(json.dumps(res, indent=1) + "\n")
         return
     if not a.quick:
         res["targets"] = {
             "800x800 cold < 10 s": res["single"]["cold_median_s"] < 10,
+            "800x800 warm kernels <= 4 s": res["single"]["warm_kernels_median_s"] <= 4,
             "800x800 with the class's cache warm < 3 s": res["class_cache"]["second_s"] < 3,
             f"{a.students} x 6 at 256x256 < 10 min": res["class"]["grade_s"] < 600,
         }
