@@ -157,7 +157,7 @@ class VariantCache:
             # few thousand of an 800² image, and whole images' rays per camera rule set were an eighth of it
             def margin(part: np.ndarray) -> np.ndarray:
                 o, d = camera.primary_rays(scene, rules, part)
-                with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # per thread: set in each
                     return band.margins(scene, o, d)["margin"]
 
             # A single image's final masks ask for most of the image's pixels under two cameras (~0.6 s of an

@@ -398,3 +398,27 @@ def test_same_under_exercise_pairs(key, big_cache):
     assert max(dg.distinct_pixels(s, name, a, b, big_cache, profile=profile) for s in dg.GRADING_SET) >= 50
     assert dg.tells_apart(name, a, b, big_cache) is None
     assert "shadows itself" in dg.why_same(name, a, b)
+
+
+@pytest.mark.parametrize("stem", ["rules", "shadows"])
+def test_band_in_parts_is_the_band_in_one(stem, monkeypatch):
+    """A single image's large band asks are computed in parts on threads: every ray's margin is the same
+    bits in a part as in the whole (3 parts: boundaries aligned to nothing), so every pixel's flag is what a
+    class's cache (one part) gives."""
+    from minirt.diagnose import variants
+
+    scene = small_scene(stem, 256, 256)
+    monkeypatch.setattr(variants, "_threads", lambda: 3)
+    whole = np.arange(256 * 256)
+    assert whole.size >= variants.BAND_SPLIT_RAYS  # the parts' path is the one taken
+    for ps in R.values("pixel_sample"):
+        rules = replace(R.resolve(scene), pixel_sample=ps)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            m = band.margins(scene, *camera.primary_rays(scene, rules, whole))["margin"]
+            parts = [
+                band.margins(scene, *camera.primary_rays(scene, rules, p))["margin"] for p in np.array_split(whole, 3)
+            ]
+        np.testing.assert_array_equal(np.concatenate(parts), m)
+        one, split = dg.VariantCache(share=True), dg.VariantCache(share=False)
+        np.testing.assert_array_equal(split.band(scene, rules, whole), one.band(scene, rules, whole))
+        np.testing.assert_array_equal(one.band(scene, rules, whole), m < variants.EPS_REL)
