@@ -115,6 +115,12 @@ def _stopped(signum: int) -> None:
 
 
 def main() -> None:
+    # NumPy asks Linux for huge pages for each large array (madvise); where memory is fragmented the kernel
+    # compacts it on the spot, which stalls the first use of every such array: a 200-ball 1024^2 render's
+    # offset-hazard warnings took 1.5-2.5 s instead of 0.45 s on a 2-core VM (benchmarks/README.md, issue
+    # 37). A command touches each array a few times, so it asks for normal pages: NumPy's own switch, read
+    # when NumPy is first imported (below, by the command); a value the user set wins.
+    os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _on_signal)
     try:
