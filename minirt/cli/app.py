@@ -12,6 +12,7 @@ fuzz -- each of which parses its flags, calls the API of its capability and prin
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -114,13 +115,27 @@ def _stopped(signum: int) -> None:
     sys.exit(128 + signum)
 
 
-def main() -> None:
-    # NumPy asks Linux for huge pages for each large array (madvise); where memory is fragmented the kernel
-    # compacts it on the spot, which stalls the first use of every such array: a 200-ball 1024^2 render's
-    # offset-hazard warnings took 1.5-2.5 s instead of 0.45 s on a 2-core VM (benchmarks/README.md, issue
-    # 37). A command touches each array a few times, so it asks for normal pages: NumPy's own switch, read
-    # when NumPy is first imported (below, by the command); a value the user set wins.
+def _normal_pages() -> None:
+    """Ask Linux for normal (4 KiB) pages for this run: no transparent huge pages.
+
+    Dr.Jit and NumPy ask for huge pages for their large buffers (madvise), and where the machine's
+    memory is fragmented the kernel then compacts it on the spot, in the first touch of each buffer:
+    on a 2-core VM a 200-ball 1024^2 render spent 0.4-1.3 s of system time there, and its offset-hazard
+    warnings took 1.5-2.5 s instead of 0.45 s (benchmarks/README.md, issue 37). A command touches each
+    buffer a few times, so huge pages' fewer TLB misses cannot win that back. PR_SET_THP_DISABLE (Linux
+    3.15) applies to this process and what it starts; elsewhere NumPy's own switch (read when NumPy is
+    first imported, by the command) at least keeps NumPy from asking, unless the user set it."""
     os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_thp_disable = 41  # <linux/prctl.h>
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(pr_set_thp_disable, 1, 0, 0, 0)
+
+
+def main() -> None:
+    _normal_pages()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _on_signal)
     try:

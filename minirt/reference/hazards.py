@@ -52,14 +52,18 @@ def _surface(shape, x: np.ndarray) -> np.ndarray:
     return x @ np.asarray(shape.normal) - shape.distance
 
 
-def _secondary(scene: Scene, rules: Rules, res: RenderResult) -> dict[str, np.ndarray]:
+def _secondary(
+    scene: Scene, rules: Rules, res: RenderResult, pixels: np.ndarray | None = None
+) -> dict[str, np.ndarray]:
     """Per primary hit (flat): the point, shading normal, own shape, and the shadow and reflection
-    directions of the secondary rays the render spawns there (mask: whether it spawns them)."""
-    hit = res.hit.reshape(-1)
-    p = res.position.reshape(-1, 3)[hit]
-    n = res.normal.reshape(-1, 3)[hit]
-    sid = res.shape_id.reshape(-1)[hit]
-    _, d = camera.primary_rays(scene, rules, np.flatnonzero(hit))  # the hit pixels' rays, the same bits
+    directions of the secondary rays the render spawns there (mask: whether it spawns them).
+    ``pixels``: the row-major indices of the hit pixels wanted (default: every hit)."""
+    if pixels is None:
+        pixels = np.flatnonzero(res.hit.reshape(-1))
+    p = res.position.reshape(-1, 3)[pixels]
+    n = res.normal.reshape(-1, 3)[pixels]
+    sid = res.shape_id.reshape(-1)[pixels]
+    _, d = camera.primary_rays(scene, rules, pixels)  # the hit pixels' rays, the same bits as the image's
     if rules.two_sided:
         n = np.where((np.einsum("ij,ij->i", d, n) > 0)[:, None], -n, n)
     fx = effects(scene, rules)
@@ -74,14 +78,18 @@ def _secondary(scene: Scene, rules: Rules, res: RenderResult) -> dict[str, np.nd
     return out
 
 
-def _judge(scene: Scene, rules: Rules, g: dict[str, np.ndarray], precision: str) -> dict[str, np.ndarray]:
-    """Per hit (flat) and secondary ray kind: offset below the point's rounding, and other shapes jumped."""
+def _judge(
+    scene: Scene, rules: Rules, g: dict[str, np.ndarray], precision: str, balls: _Balls | None = None
+) -> dict[str, np.ndarray]:
+    """Per hit (flat) and secondary ray kind: offset below the point's rounding, and other shapes jumped.
+    ``balls``: the scene's balls and their index (``_Balls.of``), shared by the calls of one render."""
     off = float(rules.offset)
     u = UNIT_ROUNDOFF[precision]
     rounding = u * np.abs(g["p"]).sum(axis=1)
     below = np.zeros(len(g["p"]), dtype=bool)
     jumped = np.zeros(len(g["p"]), dtype=bool)
-    balls = _Balls.of(scene)  # one index of the balls for both kinds of secondary ray
+    if balls is None:
+        balls = _Balls.of(scene)  # one index of the balls for both kinds of secondary ray
     # The segment p -> p + offset v of each ray kind that is spawned. Along the normal, both kinds start
     # at the same point: it is tested once, where either kind is spawned (the same answer per point).
     segments: list[tuple[np.ndarray, np.ndarray]] = []
@@ -105,6 +113,7 @@ def _judge(scene: Scene, rules: Rules, g: dict[str, np.ndarray], precision: str)
 
 
 CHUNK = 1 << 20  # points per pass of _jumped_tree: bounds its (point, node) pairs whatever the image size
+HAZARD_CHUNK = 1 << 16  # hits judged at a time by offset_warnings: ~20 MB of temporaries, reused
 GRID_CELLS_PER_BALL = 8  # the grid's cells, per ball: a few balls per cell, a few cells per ball
 GRID_CELLS = (64, 1 << 22)  # ... within these bounds (a tiny scene still gets a grid; memory stays bounded)
 GRID_SPREAD = 4  # a point visits at most this many cells on average, a ball is filed in at most this many
@@ -120,13 +129,22 @@ class _Balls(NamedTuple):
     center: np.ndarray
     radius: np.ndarray
     tree: list[Any]  # [] until built, then [tree, order]
+    grid: list[Any]  # [] until built, then [pad, _Grid or None (a grid would not pay)]
 
     @classmethod
     def of(cls, scene: Scene) -> _Balls:
         ids = [k for k, s in enumerate(scene.shapes) if isinstance(s, Ball)]
         center = np.array([scene.shapes[k].center for k in ids], dtype=np.float64).reshape(-1, 3)
         radius = np.array([scene.shapes[k].radius for k in ids], dtype=np.float64)
-        return cls(ids, center, radius, [])
+        return cls(ids, center, radius, [], [])
+
+    def grid_for(self, pad: float) -> _Grid | None:
+        """A grid of the balls' boxes widened by at least ``pad`` (more is as exact: a ball filed where
+        it cannot be crossed is tested and found not crossed). Built once for a render's hits, with
+        headroom, and again only for a chunk of hits that needs a wider pad."""
+        if not self.grid or self.grid[0] < pad:
+            self.grid[:] = [2 * pad, _build_grid(self, 2 * pad)]
+        return self.grid[1]
 
     def bvh(self) -> tuple[Any, Any]:
         if not self.tree:
@@ -184,19 +202,28 @@ def _pad(balls: _Balls, p: np.ndarray, q: np.ndarray) -> float:
     return 16 * UNIT_ROUNDOFF["f64"] * (x_max + reach)
 
 
-def _grid_pairs(balls: _Balls, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(point, ball) pairs, indices into p and into the balls, that include every pair whose segment box
-    meets the ball's box widened by ``_pad`` (some pairs more, never fewer); None where a grid does not
-    pay (``GRID_SPREAD``) or the numbers are not finite (then the tree answers).
+class _Grid(NamedTuple):
+    """Balls filed in the cells of a uniform grid (``_grid_pairs``): the grid's box lo..hi, its cells
+    per axis and their size; the balls of flat cell k are filed[start[k]:start[k + 1]]."""
 
-    The grid: ``res`` cells per axis over the box of every widened ball box, a cell index
-    ``clip(floor((x - lo) / size), 0, res - 1)`` per coordinate. That index never decreases as x grows
-    (a subtraction, a division by a positive number, floor and clip are each monotone, also as rounded),
-    so when a segment's box [a, b] meets a ball's [lo_b, hi_b] (a <= hi_b and b >= lo_b per axis), the
-    cells of the one, index(a) .. index(b), meet those of the other: the ball is filed in a cell the
-    point looks in. A segment box wholly outside the grid's box meets no ball box (exact comparisons)."""
+    lo: np.ndarray
+    hi: np.ndarray
+    res: np.ndarray
+    size: np.ndarray
+    start: np.ndarray
+    filed: np.ndarray
+
+    def index(self, x: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((x - self.lo) / self.size), 0, self.res - 1).astype(np.int64)
+
+    def flat(self, cell: np.ndarray) -> np.ndarray:
+        return (cell[:, 0] * self.res[1] + cell[:, 1]) * self.res[2] + cell[:, 2]
+
+
+def _build_grid(balls: _Balls, pad: float) -> _Grid | None:
+    """The balls' boxes widened by ``pad``, filed in the cells they cover; None where that does not pay
+    (``GRID_SPREAD``) or the numbers are not finite."""
     n = len(balls.ids)
-    pad = _pad(balls, p, q)
     if not math.isfinite(pad):
         return None
     lo_b = balls.center - balls.radius[:, None] - pad
@@ -211,37 +238,47 @@ def _grid_pairs(balls: _Balls, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray
     while res.prod() > 2 * cells:  # a flat box (one side far below the others): coarser, until it fits
         side *= 1.25
         res = np.clip(np.ceil(ext / side), 1, cells).astype(np.int64)
-    size = ext / res
-
-    def index(x: np.ndarray) -> np.ndarray:
-        return np.clip(np.floor((x - glo) / size), 0, res - 1).astype(np.int64)
-
-    # The balls, filed in every cell their widened box covers (CSR: cell -> slots of ``filed``).
-    b0, b1 = index(lo_b), index(hi_b)
-    span = b1 - b0 + 1
+    grid = _Grid(glo, ghi, res, ext / res, np.zeros(int(res.prod()) + 1, dtype=np.int64), np.zeros(0, np.int64))
+    b0 = grid.index(lo_b)
+    span = grid.index(hi_b) - b0 + 1
     per_ball = span.prod(axis=1)
     if per_ball.sum() > GRID_SPREAD * GRID_CELLS_PER_BALL * n + 1024:
         return None
     ball, cell = _expand(b0, span, per_ball)
-    flat = (cell[:, 0] * res[1] + cell[:, 1]) * res[2] + cell[:, 2]
-    by_cell = np.argsort(flat, kind="stable")
-    filed = ball[by_cell]
-    start = np.zeros(int(res.prod()) + 1, dtype=np.int64)
-    np.cumsum(np.bincount(flat, minlength=int(res.prod())), out=start[1:])
+    flat = grid.flat(cell)
+    np.cumsum(np.bincount(flat, minlength=int(res.prod())), out=grid.start[1:])
+    return grid._replace(filed=ball[np.argsort(flat, kind="stable")])
+
+
+def _grid_pairs(balls: _Balls, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(point, ball) pairs, indices into p and into the balls, that include every pair whose segment box
+    meets the ball's box widened by ``_pad`` (some pairs more, never fewer); None where a grid does not
+    pay (``GRID_SPREAD``) or the numbers are not finite (then the tree answers).
+
+    The grid (``_build_grid``): ``res`` cells per axis over the box of every widened ball box, a cell
+    index ``clip(floor((x - lo) / size), 0, res - 1)`` per coordinate. That index never decreases as x
+    grows (a subtraction, a division by a positive number, floor and clip are each monotone, also as
+    rounded), so when a segment's box [a, b] meets a ball's [lo_b, hi_b] (a <= hi_b and b >= lo_b per
+    axis), the cells of the one, index(a) .. index(b), meet those of the other: the ball is filed in a
+    cell the point looks in. A segment box wholly outside the grid's box meets no ball box (exact
+    comparisons)."""
+    grid = balls.grid_for(_pad(balls, p, q))
+    if grid is None:
+        return None
     # The points: the cells their segment's box covers (none outside the grid's box; NaN is never inside).
     seg_lo, seg_hi = np.minimum(p, q), np.maximum(p, q)
-    inside = np.flatnonzero(np.all((seg_hi >= glo) & (seg_lo <= ghi), axis=1))
-    a0, a1 = index(seg_lo[inside]), index(seg_hi[inside])
-    span = a1 - a0 + 1
+    inside = np.flatnonzero(np.all((seg_hi >= grid.lo) & (seg_lo <= grid.hi), axis=1))
+    a0 = grid.index(seg_lo[inside])
+    span = grid.index(seg_hi[inside]) - a0 + 1
     per_point = span.prod(axis=1)
     if per_point.sum() > GRID_SPREAD * len(p) + 1024:
         return None
     point, cell = _expand(a0, span, per_point)
-    flat = (cell[:, 0] * res[1] + cell[:, 1]) * res[2] + cell[:, 2]
-    first, count = start[flat], start[flat + 1] - start[flat]
+    flat = grid.flat(cell)
+    first, count = grid.start[flat], grid.start[flat + 1] - grid.start[flat]
     pp = np.repeat(inside[point], count)
     slot = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(int(count.sum()))
-    return pp, filed[slot]
+    return pp, grid.filed[slot]
 
 
 def _expand(first: np.ndarray, span: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -298,23 +335,33 @@ def offset_warnings(scene: Scene, rules: Rules, res: RenderResult, precision: st
     offset, which is the hit point's error bound itself."""
     if rules.offset == "error-bound" or res.hit is None or not res.hit.any():
         return []
-    g = _secondary(scene, rules, res)
-    if "shadow" not in g and "reflection" not in g:
+    fx = effects(scene, rules)
+    if not (fx.shadows or fx.reflection):  # no secondary rays
         return []
-    j = _judge(scene, rules, g, precision)
+    # The hits a chunk at a time: the same findings per pixel, in working memory that stays in the caches
+    # and is reused chunk after chunk (fresh memory costs a page fault per 4 KiB, slow on a VM).
+    hits = np.flatnonzero(res.hit.reshape(-1))
+    balls = _Balls.of(scene)
+    below = jumped = 0
+    worst = -math.inf
+    for a in range(0, len(hits), HAZARD_CHUNK):
+        j = _judge(scene, rules, _secondary(scene, rules, res, hits[a : a + HAZARD_CHUNK]), precision, balls)
+        below += int(j["below"].sum())
+        jumped += int(j["jumped"].sum())
+        if j["below"].any():
+            worst = max(worst, float(j["rounding"][j["below"]].max()))
     off, lines = float(rules.offset), []
     name = "float32" if precision == "f32" else "float64"
     along = "along the new ray" if rules.offset_along == "ray" else "along the normal"
-    if j["below"].any():
-        worst = float(j["rounding"][j["below"]].max())
+    if below:
         lines.append(
             f"offset {off:g} ({along}) is below the hit point's {name} rounding (up to {worst:.3g}) on "
-            f"{int(j['below'].sum())} pixel(s): their shadow or reflection rays may start behind the surface "
+            f"{below} pixel(s): their shadow or reflection rays may start behind the surface "
             '(acne); the scene\'s scale, not its content, then decides the image (offset = "error-bound" does not)'
         )
-    if j["jumped"].any():
+    if jumped:
         lines.append(
-            f"offset {off:g} ({along}) jumps over another shape's surface on {int(j['jumped'].sum())} pixel(s) "
+            f"offset {off:g} ({along}) jumps over another shape's surface on {jumped} pixel(s) "
             "(a near contact closer than the offset): their shadow or reflection rays start beyond it and miss it"
         )
     return lines

@@ -79,3 +79,19 @@ def test_fuzz_help_names_every_family_and_defect():
     assert tuple(DEFECTS) == fuzz.DEFECT_NAMES
     text = fuzz.fuzz_help()
     assert ", ".join(FAMILIES) in text and ", ".join(DEFECTS) in text
+
+
+def test_a_command_runs_on_normal_pages():
+    """main() turns transparent huge pages off for the run (their on-the-spot compaction stalled a 1024^2
+    render's first touch of each buffer by up to seconds on a VM): Linux's switch, and NumPy's."""
+    code = CHILD.replace(
+        'print("\\nMODULES "',
+        'import os; status = open("/proc/self/status").read() if os.path.exists("/proc/self/status") else ""\n'
+        'print("THP", [ln for ln in status.splitlines() if ln.startswith("THP_enabled")], '
+        'os.environ.get("NUMPY_MADVISE_HUGEPAGE"))\nprint("\\nMODULES "',
+    )
+    p = subprocess.run([sys.executable, "-c", code, '["scenes"]'], capture_output=True, text=True, timeout=120)
+    line = next(ln for ln in p.stdout.splitlines() if ln.startswith("THP "))
+    assert line.endswith(" 0"), line  # NumPy's switch
+    if sys.platform.startswith("linux") and "THP_enabled" in line:  # kernels from 6.0 report it
+        assert "THP_enabled:\\t0" in line, line
