@@ -53,27 +53,33 @@ def _surface(shape, x: np.ndarray) -> np.ndarray:
 
 
 def _secondary(
-    scene: Scene, rules: Rules, res: RenderResult, pixels: np.ndarray | None = None
-) -> dict[str, np.ndarray]:
+    scene: Scene, rules: Rules, res: RenderResult, pixels: np.ndarray | None = None, directions: bool = True
+) -> dict[str, np.ndarray | None]:
     """Per primary hit (flat): the point, shading normal, own shape, and the shadow and reflection
     directions of the secondary rays the render spawns there (mask: whether it spawns them).
-    ``pixels``: the row-major indices of the hit pixels wanted (default: every hit)."""
+    ``pixels``: the row-major indices of the hit pixels wanted (default: every hit). ``directions``:
+    False leaves the two directions out (None; the kinds spawned are still said by their keys): an
+    offset along the normal does not need them."""
     if pixels is None:
         pixels = np.flatnonzero(res.hit.reshape(-1))
     p = res.position.reshape(-1, 3)[pixels]
     n = res.normal.reshape(-1, 3)[pixels]
     sid = res.shape_id.reshape(-1)[pixels]
-    _, d = camera.primary_rays(scene, rules, pixels)  # the hit pixels' rays, the same bits as the image's
+    fx = effects(scene, rules)
+    d = None
+    if rules.two_sided or (directions and fx.reflection):
+        _, d = camera.primary_rays(scene, rules, pixels)  # the hit pixels' rays, the same bits as the image's
     if rules.two_sided:
         n = np.where((np.einsum("ij,ij->i", d, n) > 0)[:, None], -n, n)
-    fx = effects(scene, rules)
-    out = {"p": p, "n": n, "id": sid}
+    out: dict[str, np.ndarray | None] = {"p": p, "n": n, "id": sid}
     if fx.shadows:
-        s = np.asarray(scene.light.position) - p
-        out["shadow"] = s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-300)
+        out["shadow"] = None
+        if directions:
+            s = np.asarray(scene.light.position) - p
+            out["shadow"] = s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-300)
     if fx.reflection:
         kr = np.array([any(c != 0 for c in sh.material.reflection) for sh in scene.shapes], dtype=bool)
-        out["reflection"] = d - 2 * np.einsum("ij,ij->i", d, n)[:, None] * n
+        out["reflection"] = None if d is None else d - 2 * np.einsum("ij,ij->i", d, n)[:, None] * n
         out["reflects"] = kr[sid] if len(sid) else np.zeros(0, dtype=bool)
     return out
 
@@ -345,7 +351,8 @@ def offset_warnings(scene: Scene, rules: Rules, res: RenderResult, precision: st
     below = jumped = 0
     worst = -math.inf
     for a in range(0, len(hits), HAZARD_CHUNK):
-        j = _judge(scene, rules, _secondary(scene, rules, res, hits[a : a + HAZARD_CHUNK]), precision, balls)
+        g = _secondary(scene, rules, res, hits[a : a + HAZARD_CHUNK], directions=rules.offset_along == "ray")
+        j = _judge(scene, rules, g, precision, balls)
         below += int(j["below"].sum())
         jumped += int(j["jumped"].sum())
         if j["below"].any():
