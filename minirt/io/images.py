@@ -230,9 +230,8 @@ def write_exr(path: str | Path, result: RenderResult, stop: threading.Event | No
                 if not out.write_scanlines(y0, y0 + n, 0, _fill(blocks, slice(y0, y0 + n), buf[:n])):
                     raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
         except BaseException:
-            with _quiet_stderr():
-                out.close()
-            raise
+            out.close()  # before the temporary file goes (OpenEXR says nothing of the missing rows; and no
+            raise  # _quiet_stderr here: this may run on the background writer, and fd 2 is the process's)
         if not out.close():
             raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
 
