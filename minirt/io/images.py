@@ -265,30 +265,39 @@ def write_result(
 
 
 def _write_files(
-    result: RenderResult, paths: dict[str, Path], doc: dict[str, Any], rules: Any, stop: threading.Event | None = None
+    result: RenderResult,
+    paths: dict[str, Path],
+    doc: dict[str, Any],
+    rules: Any,
+    stop: threading.Event | None = None,
+    files: tuple[str, ...] = ("png", "exr", "json"),
 ) -> None:
+    """Write ``files`` of a result (those ``paths`` has)."""
     from minirt.model import bitmap
 
-    if "png" in paths:
+    if "png" in files and "png" in paths:
         plain = rules is None or bitmap.is_default(rules)
         write_image(paths["png"], result.color8() if plain else bitmap.bitmap(result.color, rules))
-    if "exr" in paths:
+    if "exr" in files and "exr" in paths:
         write_exr(paths["exr"], result, stop)
-    write_json(paths["json"], doc)
+    if "json" in files:
+        write_json(paths["json"], doc)
 
 
 class _Writer:
-    """The thread of ``background_writes``: writes results in the order given, one at a time."""
+    """The threads of ``background_writes``: two, one result's EXR (the longest) on one while its PNG and
+    JSON go on the other, results in the order given."""
 
     def __init__(self) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
-        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="minirt-writes")
+        self.pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="minirt-writes")
         self.stop = threading.Event()
         self.futures: list[Any] = []
 
     def submit(self, result: RenderResult, paths: dict[str, Path], doc: dict[str, Any], rules: Any) -> None:
-        self.futures.append(self.pool.submit(_write_files, result, paths, doc, rules, self.stop))
+        for files in (("exr",), ("png", "json")):
+            self.futures.append(self.pool.submit(_write_files, result, paths, doc, rules, self.stop, files))
 
     def finish(self, failed: bool) -> None:
         if failed:  # an error or Ctrl-C in the caller: what is not written yet is not written
@@ -306,7 +315,7 @@ _writer: _Writer | None = None
 
 @contextlib.contextmanager
 def background_writes() -> Iterator[None]:
-    """Inside the block, ``write_result`` hands its files to a thread and returns at once; leaving the
+    """Inside the block, ``write_result`` hands its files to two threads and returns at once; leaving the
     block waits for every file and raises the first write's error. The files' encoding and compression
     (OpenImageIO, zlib) run outside Python's lock, so a render's files are written while the command
     goes on: the offset-hazard warnings of a 200-ball 1024^2 render take as long as its EXR
