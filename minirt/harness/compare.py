@@ -77,7 +77,7 @@ def check_backend(
     if pre.verdict == "fail":
         bc.verdict, bc.reason = "fail", f"pre-flight: {pre.reason}"
     else:
-        geom = check_geometry(scene, followed, ref, res)
+        geom = check_geometry(scene, followed, ref, res, refs.rays(followed))
         bc.checks["geometry"] = geom
         bc.checks["shading"] = check_shading(scene, ref, res, geom)
         known = backends.find(name)  # a result no backend made (a test's) has no sample checks
