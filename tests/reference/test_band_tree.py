@@ -24,6 +24,13 @@ from minirt.model.rules import resolve
 from minirt.model.scene import load_scene, parse_scene
 from minirt.reference import band
 
+
+@pytest.fixture(autouse=True)
+def _through_the_tree(monkeypatch):
+    """Every test here takes the tree's path, however few the balls (band.FEW_BALLS)."""
+    monkeypatch.setattr(band, "FEW_BALLS", 0)
+
+
 SCENES = sorted(Path(__file__).parents[1].joinpath("scenes").glob("*.toml"))
 STARTS = ((0.0, 0.0, 0.0), (1e-4, 2e-7, 2e-7), (0.0, 1e-6, 1e-6))
 
@@ -128,3 +135,15 @@ def test_a_check_shares_one_set_of_rays_per_camera_rules():
     other = refs.rays(replace(rules, pixel_sample="corner" if rules.pixel_sample != "corner" else "center"))
     assert other is not refs.rays(rules)
     assert other.balls is refs.rays(rules).balls  # one ball tree per scene
+
+
+def test_few_balls_are_tested_every_one(monkeypatch):
+    """Up to band.FEW_BALLS balls Rays tests every ball: the same arrays as the every-ball path, as ever."""
+    monkeypatch.setattr(band, "FEW_BALLS", 4)
+    sc = load_scene(SCENES[0]).with_overrides(width=24, height=24)
+    o, d = _rays(sc)
+    rays = band.Rays(sc, o, d)
+    assert rays._few()
+    want, got = band._every_ball(sc, o, d, bound=band.BOUND), rays.margins()
+    assert all(want[k].tobytes() == got[k].tobytes() for k in want)
+    assert rays._pairs is None  # no tree was searched
