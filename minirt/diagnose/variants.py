@@ -152,7 +152,7 @@ class VariantCache:
             # few thousand of an 800² image, and whole images' rays per camera rule set were an eighth of it
             o, d = camera.primary_rays(scene, rules, todo)
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-                m = band.margins(scene, o, d)
+                m = band.margins(scene, o, d, bound=EPS_REL)  # exact below EPS_REL: the ball tree
             flag[todo] = m["margin"] < EPS_REL
             known[todo] = True
         return flag[idx]
