@@ -16,12 +16,16 @@ system:
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "minirt needs Python >= 3.11")'
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	# Blender as a Python module (Cycles, the fourth oracle; ~1 GB) in an environment of its own: bpy 5.0.1
-	# needs NumPy < 2, minirt's OpenImageIO and colour-science NumPy >= 2 (README: Install)
+	# needs NumPy < 2, minirt's OpenImageIO and colour-science NumPy >= 2 (README: Install). It installs
+	# beside minirt's own packages (both mostly unpack wheels): set-up takes the longer of the two, not both.
 	$(PYTHON) -m venv $(VENV)/blender
-	$(VENV)/blender/bin/python -m pip install --quiet bpy==5.0.1
+	@$(VENV)/blender/bin/python -m pip install --quiet bpy==5.0.1 > $(VENV)/blender-install.log 2>&1 & bpy=$$!; \
+	echo "$(VENV)/blender/bin/python -m pip install --quiet bpy==5.0.1 (beside the next two)"; \
+	$(BIN)/python -m pip install --quiet --upgrade pip && $(BIN)/python -m pip install --quiet -e '.[dev]'; own=$$?; \
+	wait $$bpy; blender=$$?; \
+	if [ $$blender -ne 0 ]; then cat $(VENV)/blender-install.log; echo "installing bpy failed"; fi; \
+	test $$own -eq 0 && test $$blender -eq 0
 	@touch $(STAMP)
 
 # The main job: every backend on the exercise scene, the comparison report of all bundled scenes, then

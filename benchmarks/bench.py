@@ -262,8 +262,14 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
 def _write_floor(px: int, cfg: Config) -> dict[str, Any]:
     """The memory side of the roofline for ``render()``: one kernel that computes nothing and writes the
     buffers a full f64 render writes, in its layout -- colour, position, normal and five terms as (x, y, z,
-    0) float64 packets (``Tracer._scatter_out``), t as float64, the shape id as int32: 268 bytes a pixel.
-    A render can take no less than the longer of its trace and these writes."""
+    0) float64 packets (``film.scatter_out``), t as float64, the shape id as int32: 268 bytes a pixel.
+    A render can take no less than the longer of its trace and these writes.
+
+    Beside it, "outputs": the same values (x, y, z of each vector, t, the id: 204 bytes a pixel) as the
+    kernel's own outputs, one array a component. Dr.Jit writes outputs with non-temporal stores and packet
+    scatters with ordinary ones (a cache line read for ownership before it is written): the two figures
+    show what the store kind costs, apart from any arithmetic; "cached", the packet scatters' arithmetic
+    without their memory traffic."""
     import drjit as dr
 
     from minirt.model.result import TERMS
@@ -271,24 +277,38 @@ def _write_floor(px: int, cfg: Config) -> dict[str, Any]:
     F64, A4, U32 = dr.llvm.Float64, dr.llvm.Array4f64, dr.llvm.UInt32
     vectors = 3 + len(TERMS)  # colour, position, normal and the terms
 
-    def once() -> float:
-        bufs = [dr.empty(F64, 4 * px) for _ in range(vectors)]
+    def once(kind: str) -> float:
+        bufs = [] if kind == "outputs" else [dr.empty(F64, 4 * px) for _ in range(vectors)]
         dr.eval(bufs)
         i = dr.arange(U32, px)
         x = F64(i) * 1e-6
+        # "cached": the same scatters into the first 1,024 packets, which stay in the L1 cache: their
+        # arithmetic (the packets' transposes and per-lane stores) without the memory traffic
+        at = i & dr.opaque(U32, 1023) if kind == "cached" else i
         t0 = time.perf_counter()
-        for b in bufs:
-            dr.scatter(b, A4(x, x + 1, x + 2, 0.0), i)
         t, ids = x + 3, dr.llvm.Int32(i)
-        dr.eval(t, ids)  # runs the scatters too: one kernel
+        if kind == "outputs":
+            dr.eval([x + k for k in range(3 * vectors)], t, ids)
+        else:
+            for b in bufs:
+                dr.scatter(b, A4(x, x + 1, x + 2, 0.0), at)
+            dr.eval(t, ids)  # runs the scatters too: one kernel
         dr.sync_thread()
         return time.perf_counter() - t0
 
+    kinds = ("packets", "outputs", "cached")
     for _ in range(cfg.warmup):
-        once()
-    st = _stats([once() for _ in range(cfg.reps)], px)
-    nbytes = px * (vectors * 32 + 8 + 4)
-    return {"bytes": nbytes, "median_s": st["median_s"], "gb_s": nbytes / st["median_s"] / 1e9}
+        for kind in kinds:
+            once(kind)
+    runs: dict[str, list[float]] = {kind: [] for kind in kinds}
+    for _ in range(cfg.reps):  # interleaved: the three are compared
+        for kind in kinds:
+            runs[kind].append(once(kind))
+    st, so, sc = (_stats(runs[kind], px) for kind in kinds)
+    nbytes, obytes = px * (vectors * 32 + 8 + 4), px * (vectors * 24 + 8 + 4)
+    outs = {"bytes": obytes, "median_s": so["median_s"], "gb_s": obytes / so["median_s"] / 1e9}
+    return {"bytes": nbytes, "median_s": st["median_s"], "gb_s": nbytes / st["median_s"] / 1e9, "outputs": outs,
+            "cached_median_s": sc["median_s"]}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -720,6 +740,12 @@ def markdown(res: dict[str, Any]) -> str:
               f"only writes them) take {_f(w['median_s'], 4)} s ({_f(w['gb_s'], 3)} GB/s); a render takes at least the "
               f"longer of that and the trace: {_f(floor, 4)} s, {_f(floor / tr64['trace']['median_s'], 3)}x the trace "
               f"(measured: {_f(tr64['render']['median_s'] / tr64['trace']['median_s'], 3)}x)."]  # fmt: skip
+        if "outputs" in w:
+            wo = w["outputs"]
+            L += ["", f"The same values as a kernel's own outputs (non-temporal stores, {wo['bytes'] / 1e6:.0f} MB): "
+                  f"{_f(wo['median_s'], 4)} s ({_f(wo['gb_s'], 3)} GB/s), {_f(w['median_s'] / wo['median_s'], 3)}x "
+                  f"faster than the packet scatters, whose arithmetic alone (into packets that stay in the L1 cache) "
+                  f"takes {_f(w['cached_median_s'], 4)} s."]  # fmt: skip
     if "planar_outputs" in ref["f64"]:
         po = ref["f64"]["planar_outputs"]["median_s"]
         ratio = po / ref["f64"]["trace"]["median_s"]

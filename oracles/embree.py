@@ -355,8 +355,8 @@ class EmbreeOracle(Oracle):
         with np.errstate(divide="ignore", invalid="ignore"):
             tie_rel = np.where(np.isfinite(near) & (near > 0), t_abs / np.maximum(near, 1e-300), np.inf)
         band = (
-            (m["silhouette"] < p["band_abs"])
-            | (m["origin"] < p["origin_band_abs"])
+            measured.below("silhouette", p["band_abs"], h, w)
+            | measured.below("origin", p["origin_band_abs"], h, w)
             | (m["grazing"] < p["grazing_abs"])
             | (m["tie"] < 2 * tie_rel)
         )

@@ -12,6 +12,7 @@ fuzz -- each of which parses its flags, calls the API of its capability and prin
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -114,7 +115,52 @@ def _stopped(signum: int) -> None:
     sys.exit(128 + signum)
 
 
+def _normal_pages() -> None:
+    """Ask Linux for normal (4 KiB) pages for this run: no transparent huge pages.
+
+    Dr.Jit and NumPy ask for huge pages for their large buffers (madvise), and where the machine's
+    memory is fragmented the kernel then compacts it on the spot, in the first touch of each buffer:
+    on a 2-core VM a 200-ball 1024^2 render spent 0.4-1.3 s of system time there, and its offset-hazard
+    warnings took 1.5-2.5 s instead of 0.45 s (benchmarks/README.md, issue 37). A command touches each
+    buffer a few times, so huge pages' fewer TLB misses cannot win that back. PR_SET_THP_DISABLE (Linux
+    3.15) applies to this process and what it starts; elsewhere NumPy's own switch (read when NumPy is
+    first imported, by the command) at least keeps NumPy from asking, unless the user set it."""
+    os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_thp_disable = 41  # <linux/prctl.h>
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(pr_set_thp_disable, 1, 0, 0, 0)
+
+
+# Commands whose process ends without the interpreter's teardown once their work is done: freeing a
+# 1024^2 render's buffers one by one took 0.2-0.4 s of the whole command (the kernel frees them at once).
+EXIT_AT_ONCE = frozenset({"render"})
+
+
+def _exit(code: int) -> None:
+    """sys.exit(code); for a command of EXIT_AT_ONCE run as the program itself (the console script or
+    ``python -m minirt``, not main() called by another program, as the tests do): the streams flushed
+    and the atexit handlers run (the temporary folders go), then os._exit. Every file is written and
+    every thread joined by then (minirt.io.images.background_writes)."""
+    main_module = sys.modules.get("__main__")
+    spec = getattr(main_module, "__spec__", None)
+    program = (spec is not None and spec.name == "minirt.__main__") or (
+        spec is None and os.path.basename(getattr(main_module, "__file__", "") or "") == "minirt"
+    )
+    if program and sys.argv[1:2] and sys.argv[1] in EXIT_AT_ONCE:
+        import atexit
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        atexit._run_exitfuncs()
+        os._exit(code)
+    sys.exit(code)
+
+
 def main() -> None:
+    _normal_pages()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _on_signal)
     try:
@@ -122,7 +168,7 @@ def main() -> None:
         if _stopped_by:
             _stopped(_stopped_by[0])
         sys.stdout.flush()  # a closed pipe shows here, not as a warning at the interpreter's exit
-        sys.exit(rv if isinstance(rv, int) else 0)
+        _exit(rv if isinstance(rv, int) else 0)
     except (PipeClosed, BrokenPipeError):
         # Nobody reads what is left to say: no message, and the status of a command killed by SIGPIPE
         # (141), not 1 (FAIL) or 2 (bad input). Writes are atomic, so every file written is whole.

@@ -38,7 +38,7 @@ VERDICT_STYLE = {"pass": "green", "warn": "yellow", "fail": "bold red", "error":
 def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, scheduler, cache):
     """Shared by `check` and `report`: the flags, each checked in the order bad input is told, then the
     check (minirt.harness.checks) with a progress bar on a terminal. Returns the result, the backends' names
-    and the size."""
+    the size and the scenes (each file parsed once)."""
     from minirt.harness import backends, checks
 
     workers = pool(workers, scheduler, default=1)
@@ -47,7 +47,7 @@ def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, sch
     names = backends.parse_backends(backend)
     backends.require_oracle(names)
     wh = parse_size(size)
-    checks.read_all(files)  # bad input first, before any long work
+    scenes = checks.read_all(files)  # bad input first, before any long work; each file parsed once
     if cache is not None:
         output_folder(cache, "--cache", mode=0o700)
     total = checks.job_count(files, names)
@@ -58,17 +58,19 @@ def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, sch
             if bar:
                 bar.update(task, completed=done, description=f"{terminal_text(scene, 40)}: {name}")
 
-        result = checks.run_checks(files, names, wh, workers=workers, scheduler=scheduler, cache=cache, on_step=step)
+        result = checks.run_checks(
+            files, names, wh, workers=workers, scheduler=scheduler, cache=cache, on_step=step, scenes=scenes
+        )
         if bar:
             bar.update(task, completed=total)
-    return result, names, wh
+    return result, names, wh, scenes
 
 
-def _print_warnings(result, names: list[str], size: tuple[int, int] | None) -> None:
+def _print_warnings(result, names: list[str], size: tuple[int, int] | None, scenes) -> None:
     """The hazard warnings of every checked scene (minirt.harness.checks.hazard_warnings), one line each."""
     from minirt.harness import checks
 
-    for scene_name, line in checks.hazard_warnings(result, names, size):
+    for scene_name, line in checks.hazard_warnings(result, names, size, scenes):
         warn(scene_name, line)
 
 
@@ -135,9 +137,9 @@ def check(
     if json_out != "-":
         output_file(Path(json_out) if json_out else None, "--json")
     output_file(junit, "--junit")
-    result, names, wh = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
+    result, names, wh, scenes = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
     _print_check(result)
-    _print_warnings(result, names, wh)
+    _print_warnings(result, names, wh, scenes)
     if json_out:
         emit_json(json_out, result.as_dict())
     if junit:
@@ -188,9 +190,9 @@ def report(
 
     backends.require_oracle(backends.parse_backends(backend))  # before the folder is made
     output_folder(out_dir)
-    result, names, wh = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
+    result, names, wh, scenes = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
     _print_check(result)
-    _print_warnings(result, names, wh)
+    _print_warnings(result, names, wh, scenes)
     command = "minirt " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["report"] else "minirt report"
     index = write_report(result, out_dir, command=command, sweep=sweep_data, sweep_dir=sweep_dir)
     out.print(f"{result.verdict.upper()}: wrote {terminal_text(index)}")

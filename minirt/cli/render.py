@@ -79,6 +79,7 @@ def render(
 ) -> None:
     """Render a scene (help text: RENDER_HELP, paragraphs Rich wraps to the terminal)."""
     from minirt.harness import backends
+    from minirt.io import images
     from minirt.io import names as naming
     from minirt.reference import hazards
 
@@ -93,6 +94,31 @@ def render(
             f"[bold]{terminal_text(scene.name)}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}"
         )
     results = []
+    # The files are written by a thread of their own while the warnings are worked out (minirt.io.images).
+    with images.background_writes():
+        _render_all(names, scene, rules, precision, samples, timeout, dest, tag, timings, quiet, results)
+        ref = backends.reference_result(results)
+        f32 = [n for n in names if backends.get(n).is_float32({"precision": precision.value})]
+        for line in hazards.scene_warnings(scene, rules, ref, precision.value, f32):
+            warn(scene.name, line)
+    if len(results) > 1:
+        from minirt.pages.sheet import contact_sheet
+
+        sheet = contact_sheet(results, dest / naming.contact_sheet_name(scene, tag))
+        if not quiet:
+            _render_table(results)
+        out.print(f"wrote {terminal_text(dest)}/ ({sheet.name} and {sum(r.ok for r in results)} backend(s))")
+    else:
+        out.print(f"wrote {terminal_text(dest)}/")
+    if not any(r.ok for r in results):
+        raise typer.Exit(2)
+
+
+def _render_all(names, scene, rules, precision, samples, timeout, dest, tag, timings, quiet, results) -> None:
+    """Each backend's render and files, its line printed (into ``results``, in order)."""
+    from minirt.harness import backends
+    from minirt.io import names as naming
+
     with progress_bar(not quiet) as bar:
         for name in names:
             task = bar.add_task(f"{name:<9}", total=1) if bar else None
@@ -115,21 +141,6 @@ def render(
                     _report_render(res, paths)
             else:
                 err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {terminal_text(res.reason)}")
-    ref = backends.reference_result(results)
-    f32 = [n for n in names if backends.get(n).is_float32({"precision": precision.value})]
-    for line in hazards.scene_warnings(scene, rules, ref, precision.value, f32):
-        warn(scene.name, line)
-    if len(results) > 1:
-        from minirt.pages.sheet import contact_sheet
-
-        sheet = contact_sheet(results, dest / naming.contact_sheet_name(scene, tag))
-        if not quiet:
-            _render_table(results)
-        out.print(f"wrote {terminal_text(dest)}/ ({sheet.name} and {sum(r.ok for r in results)} backend(s))")
-    else:
-        out.print(f"wrote {terminal_text(dest)}/")
-    if not any(r.ok for r in results):
-        raise typer.Exit(2)
 
 
 def _report_render(res, paths) -> None:

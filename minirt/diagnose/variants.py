@@ -158,7 +158,7 @@ class VariantCache:
             def margin(part: np.ndarray) -> np.ndarray:
                 o, d = camera.primary_rays(scene, rules, part)
                 with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # per thread: set in each
-                    return band.margins(scene, o, d)["margin"]
+                    return band.margins(scene, o, d, bound=EPS_REL)["margin"]  # exact below EPS_REL: the ball tree
 
             # A single image's final masks ask for most of the image's pixels under two cameras (~0.6 s of an
             # 800² grade): its parts go to threads (NumPy lets go of the GIL in its loops), each ray's margin

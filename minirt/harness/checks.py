@@ -16,6 +16,7 @@ from pathlib import Path
 from minirt.harness import backends
 from minirt.harness import run as harness
 from minirt.harness.results import CheckResult
+from minirt.model.scene import Scene
 
 
 def scene_files(items: Sequence[str | PathLike[str]] | None) -> list[Path]:
@@ -32,12 +33,12 @@ def scene_files(items: Sequence[str | PathLike[str]] | None) -> list[Path]:
     return out
 
 
-def read_all(paths: Sequence[Path]) -> None:
-    """Bad input first, before any long work: every scene file read (SceneError names the file and key)."""
+def read_all(paths: Sequence[Path]) -> list[Scene]:
+    """Bad input first, before any long work: every scene file read (SceneError names the file and key).
+    The scenes, for ``run_checks`` and ``hazard_warnings``: each file parsed once per check."""
     from minirt.model.scene import load_scene
 
-    for p in paths:
-        load_scene(p)
+    return [load_scene(p) for p in paths]
 
 
 def job_count(paths: Sequence[Path], names: Sequence[str]) -> int:
@@ -54,12 +55,13 @@ def run_checks(
     scheduler: str | None = None,
     cache: Path | None = None,
     on_step: Callable[[int, int, str, str], None] | None = None,
+    scenes: Sequence[Scene] | None = None,
 ) -> CheckResult:
     """Render and compare every scene file with the backends (minirt.harness.run.run: ``workers``
     processes, a Dask ``scheduler`` or a ``cache`` folder make each (scene, oracle) one job).
     ``on_step(done, total, scene, backend)``: ``done`` of ``total`` (job_count) steps are behind -- in
     this process a backend of a scene is starting, on workers a job has finished (they finish in any
-    order, so each counts one)."""
+    order, so each counts one). ``scenes``: the files' scenes as ``read_all`` parsed them (else parsed here)."""
     tick = None
     if on_step is not None:
         total = job_count(paths, names)
@@ -72,18 +74,25 @@ def run_checks(
             finished += 1
             on_step(finished if jobs_mode else i * oracle_count + j, total, scene, name)
 
-    return harness.run(paths, names, size, tick, workers=workers, scheduler=scheduler, cache=cache)
+    return harness.run(paths, names, size, tick, workers=workers, scheduler=scheduler, cache=cache, scenes=scenes)
 
 
-def hazard_warnings(result: CheckResult, names: Sequence[str], size: tuple[int, int] | None) -> list[tuple[str, str]]:
+def hazard_warnings(
+    result: CheckResult,
+    names: Sequence[str],
+    size: tuple[int, int] | None,
+    scenes: Sequence[Scene] | None = None,
+) -> list[tuple[str, str]]:
     """The hazard warnings of every checked scene (minirt.reference.hazards.scene_warnings), on its
     reference render under the scene's own rules, for the float32 backends among ``names``: (scene name,
-    line) pairs, scene by scene."""
+    line) pairs, scene by scene. ``scenes``: the checked files' scenes as ``read_all`` parsed them, in
+    order (else parsed again)."""
     from minirt.reference import hazards
 
     out: list[tuple[str, str]] = []
-    for sc in result.scenes:
-        scene, rules = harness._scene_and_rules(sc.path or sc.file, size)
+    for i, sc in enumerate(result.scenes):
+        given = None if scenes is None else scenes[i]
+        scene, rules = harness._scene_and_rules(sc.path or sc.file, size, given)
         f32 = [n for n in sc.backends if n in names and backends.get(n).is_float32({})]
         out += [(scene.name, line) for line in hazards.scene_warnings(scene, rules, sc.reference, "f64", f32)]
     return out

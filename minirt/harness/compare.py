@@ -77,7 +77,10 @@ def check_backend(
     if pre.verdict == "fail":
         bc.verdict, bc.reason = "fail", f"pre-flight: {pre.reason}"
     else:
-        geom = check_geometry(scene, followed, ref, res)
+        # the primary rays' margins, shared by the scene's oracles (a stand-in cache, the campaign's defective
+        # reference, has none: check_geometry makes them)
+        rays = refs.rays(followed) if isinstance(refs, ReferenceCache) else None
+        geom = check_geometry(scene, followed, ref, res, rays)
         bc.checks["geometry"] = geom
         bc.checks["shading"] = check_shading(scene, ref, res, geom)
         known = backends.find(name)  # a result no backend made (a test's) has no sample checks

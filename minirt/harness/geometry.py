@@ -58,15 +58,22 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.einsum("...i,...i", a, b)))
 
 
-def check_geometry(scene: Scene, rules: Rules, ref: RenderResult, res: RenderResult) -> Check:
-    o, d = camera.primary_rays(scene, rules)
-    margins = band.margins(scene, o, d)
+def check_geometry(
+    scene: Scene, rules: Rules, ref: RenderResult, res: RenderResult, rays: band.Rays | None = None
+) -> Check:
+    """``rays``: the primary rays under ``rules`` with their margins (minirt.reference.band.Rays), shared by
+    every oracle of a check whose rules give the same rays (minirt.harness.references); made here if None."""
+    if rays is None:
+        rays = band.Rays(scene, *camera.primary_rays(scene, rules))
+    margins = rays.margins(bound=band.BOUND)
     tol = geometry_tolerance(
         res,
         ref,
         margins,
-        start=lambda **kw: band.start_band(scene, o, d, **kw),
-        scaled=lambda **scales: band.margins(scene, o, d, **scales),
+        start=rays.start_band,
+        scaled=lambda **scales: rays.margins(**scales, bound=1.0),  # compared with 1 (Margins.per_shape_band)
+        bound=band.BOUND,
+        widen=lambda eps: rays.margins(bound=eps),
     )
     mism = ref.hit != res.hit
     inside, outside = mism & tol.band, mism & ~tol.band

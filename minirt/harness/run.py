@@ -34,8 +34,9 @@ def scene_label(path: str | Path) -> str:
     return p.stem if p.is_absolute() and p.suffix == ".toml" and p.parent == BUNDLED else str(path)
 
 
-def _scene_and_rules(path: str | Path, size: tuple[int, int] | None) -> tuple[Scene, Rules]:
-    scene = load_scene(path)
+def _scene_and_rules(path: str | Path, size: tuple[int, int] | None, scene: Scene | None = None) -> tuple[Scene, Rules]:
+    """The file's scene (``scene``: already parsed from it) at ``size`` and its rules."""
+    scene = load_scene(path) if scene is None else scene
     if size:
         scene = scene.with_overrides(width=size[0], height=size[1])
     return scene, resolve(scene)
@@ -83,9 +84,11 @@ def run(
     workers: int = 1,
     scheduler: str | None = None,
     cache: Path | None = None,
+    scenes: list[Scene] | None = None,
 ) -> CheckResult:
-    """Check every scene file against the backends. ``progress(i, scene, backend, j, n)``: scene i's
-    backend j of n is starting (in this process) or has finished (on workers).
+    """Check every scene file against the backends (``scenes``: the files already parsed, in order).
+    ``progress(i, scene, backend, j, n)``: scene i's backend j of n is starting (in this process) or has
+    finished (on workers).
 
     ``workers`` > 1 or a Dask ``scheduler``: each (scene, oracle) is one job of minirt.jobs.batch, run on that
     many local worker processes or on the cluster's workers; the job carries the scene file's text, so
@@ -93,7 +96,8 @@ def run(
     ``cache``: a folder of job results (minirt.jobs.cache, data only) keyed by the scene's text and name, the
     size, the oracle and the versions; a job it holds is not run again (jobs run one by one here then, without
     POV-Ray's renders started ahead)."""
-    loaded = [_scene_and_rules(p, size) for p in paths]  # each file parsed once, for every use below
+    # each file parsed once, for every use below
+    loaded = [_scene_and_rules(p, size, None if scenes is None else scenes[i]) for i, p in enumerate(paths)]
     _fits_in_memory([s for s, _ in loaded], names, 0 if scheduler else workers if workers > 1 else 0)
     if workers > 1 or scheduler is not None or cache is not None:
         return _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache)

@@ -10,6 +10,7 @@ beside its derivations. Shading and statistical thresholds are the harness's own
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -95,10 +96,13 @@ def geometry_tolerance(
     margins: dict[str, np.ndarray],
     start: Callable[..., np.ndarray] | None = None,
     scaled: Callable[..., dict[str, np.ndarray]] | None = None,
+    bound: float = math.inf,
+    widen: Callable[[float], dict[str, np.ndarray]] | None = None,
 ) -> GeometryTolerance:
     """The backend's own translation of its recorded precision into per-pixel tolerances (each oracle's
     ``geometry_tolerance``, beside its derivations; minirt.model.backend.Margins says what ``margins``,
-    ``start`` and ``scaled`` are). A result no registered backend made gets the generic translation."""
-    measured = Margins(margins, start, scaled)
+    ``start``, ``scaled``, ``bound`` and ``widen`` are). A result no registered backend made gets the generic
+    translation."""
+    measured = Margins(margins, start, scaled, bound, widen)
     b = backends.find(result.backend)
     return b.geometry_tolerance(result, ref, measured) if b else generic_tolerance(result, ref, measured)

@@ -9,6 +9,7 @@ import re
 import shutil
 import stat
 import tempfile
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -78,22 +79,32 @@ def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, 
             return False
 
         stack.push(abandon)
+
+        def opened(key: str, channels: int, fmt: Any, names: list[str] | None) -> Any:
+            tmp, out = outs[key]
+            if out is None:
+                out = oiio.ImageOutput.create(str(tmp))
+                if out is None or not out.open(str(tmp), _spec(width, height, channels, fmt, tmp, names)):
+                    why = oiio.geterror() if out is None else out.geterror()
+                    raise MinirtError(f"{paths[key]}: cannot write image: {why}")
+                outs[key] = (tmp, out)
+            return out
+
+        def put(key: str, out: Any, y: int, a: np.ndarray) -> None:
+            if not out.write_scanlines(y, y + len(a), 0, a):
+                raise MinirtError(f"{paths[key]}: cannot write image: {out.geterror()}")
+
+        buf = None  # the EXR's rows, converted a block at a time (write_exr): no whole-tile float32 copy
         for y0, tile in tiles:
-            blocks = {"png": (tile.color8(), None), "exr": exr_channels(tile)}
-            for key, (data, names) in blocks.items():
-                tmp, out = outs[key]
-                a = np.ascontiguousarray(data)
-                fmt = oiio.UINT8 if a.dtype == np.uint8 else oiio.FLOAT
-                if a.dtype != np.uint8:
-                    a = a.astype(np.float32, copy=False)
-                if out is None:
-                    out = oiio.ImageOutput.create(str(tmp))
-                    if out is None or not out.open(str(tmp), _spec(width, height, a.shape[-1], fmt, tmp, names)):
-                        why = oiio.geterror() if out is None else out.geterror()
-                        raise MinirtError(f"{paths[key]}: cannot write image: {why}")
-                    outs[key] = (tmp, out)
-                if not out.write_scanlines(y0, y0 + tile.height, 0, a):
-                    raise MinirtError(f"{paths[key]}: cannot write image: {out.geterror()}")
+            c8 = np.ascontiguousarray(tile.color8())
+            put("png", opened("png", c8.shape[-1], oiio.UINT8, None), y0, c8)
+            blocks, names = _exr_layout(tile)
+            exr = opened("exr", len(names), oiio.FLOAT, names)
+            if buf is None:
+                buf = np.empty((min(EXR_BLOCK_ROWS, height), width, len(names)), np.float32)
+            for y in range(0, tile.height, len(buf)):
+                n = min(len(buf), tile.height - y)
+                put("exr", exr, y0 + y, _fill(blocks, slice(y, y + n), buf[:n]))
             last = tile
         for key, (_, out) in outs.items():
             if out is None or not out.close():
@@ -136,12 +147,11 @@ def _read(path: str | Path, fmt) -> tuple[np.ndarray, list[str]]:
         inp.close()
 
 
-def exr_channels(result: RenderResult) -> tuple[np.ndarray, list[str]]:
-    """All of a result's buffers as one multi-channel float32 image (the EXR layout, which stores
-    float32): each buffer converted straight into its channel, one pass, no float64 stack in between
-    -- the same values (one rounding from float64 either way) in a third of the time and memory
-    (2048^2: 2.2 s -> 0.4 s; the stack and its conversion were most of a large render's time)."""
-    blocks: list[np.ndarray] = []  # (H, W, k): a vector goes in as one block, 3x faster than by plane
+def _exr_layout(result: RenderResult) -> tuple[list[Callable[[slice], np.ndarray]], list[str]]:
+    """The EXR's channels: their names, and per block of channels (a vector is one block, 3x faster to
+    convert than plane by plane) a function giving its rows (a slice) as an (n, W, k) array -- a view of
+    the buffer where there is one, so a block of rows is converted without a whole-image copy."""
+    blocks: list[Callable[[slice], np.ndarray]] = []
     names: list[str] = []
 
     def add(prefix: str, a: np.ndarray | None, comps: str = "RGB") -> None:
@@ -150,30 +160,84 @@ def exr_channels(result: RenderResult) -> tuple[np.ndarray, list[str]]:
         a = np.asarray(a)
         if a.ndim == 2:
             names.append(prefix)
-            a = a[..., None]
+            blocks.append(lambda rows: a[rows, :, None])
         else:
-            a = a[..., : len(comps)]
             names.extend(f"{prefix}.{comp}" if prefix else comp for comp in comps)
-        blocks.append(a)
+            blocks.append(lambda rows: a[rows, :, : len(comps)])
 
     add("", result.color)
     if result.hit is not None:
-        add("hit", result.hit)
-        add("id", result.shape_id.astype(np.float64))  # exact, then rounded once like every channel
-        add("t", np.where(result.hit, result.t, 0.0))  # 0 on a miss: EXR readers choke on inf
+        hit, ids, t = result.hit, result.shape_id, result.t
+        names.append("hit")
+        blocks.append(lambda rows: hit[rows, :, None])
+        names.append("id")  # exact in float64, then rounded once like every channel
+        blocks.append(lambda rows: ids[rows, :, None].astype(np.float64))
+        names.append("t")  # 0 on a miss: EXR readers choke on inf
+        blocks.append(lambda rows: np.where(hit[rows], t[rows], 0.0)[..., None])
         add("P", result.position, "XYZ")
         add("N", result.normal, "XYZ")
     for term in TERMS:
         add(term, result.terms.get(term))
     for key in sorted(result.aux):
         add(f"aux.{key}", result.aux[key], "XYZ")
-    out = np.empty((*blocks[0].shape[:2], len(names)), np.float32)
+    return blocks, names
+
+
+def _fill(blocks: list[Callable[[slice], np.ndarray]], rows: slice, out: np.ndarray) -> np.ndarray:
+    """The rows' channels converted straight into ``out`` ((n, W, channels) float32), block by block."""
     i = 0
     with np.errstate(over="ignore"):  # a value beyond float32 (a colour of 1e308) is stored as inf, quietly:
-        for a in blocks:  # the scene allows it, and NumPy's RuntimeWarning is no message for a user
+        for block in blocks:  # the scene allows it, and NumPy's RuntimeWarning is no message for a user
+            a = block(rows)
             out[..., i : i + a.shape[-1]] = a
             i += a.shape[-1]
-    return out, names
+    return out
+
+
+def exr_channels(result: RenderResult) -> tuple[np.ndarray, list[str]]:
+    """All of a result's buffers as one multi-channel float32 image (the EXR layout, which stores
+    float32): each buffer converted straight into its channel, one pass, no float64 stack in between
+    -- the same values (one rounding from float64 either way) in a third of the time and memory
+    (2048^2: 2.2 s -> 0.4 s; the stack and its conversion were most of a large render's time)."""
+    blocks, names = _exr_layout(result)
+    h, w = blocks[0](slice(None)).shape[:2]
+    return _fill(blocks, slice(0, h), np.empty((h, w, len(names)), np.float32)), names
+
+
+# Rows of the EXR converted and handed to OpenImageIO at a time: a multiple of the 16-row blocks its zip
+# compression works in (each handed over whole, compressed on OpenEXR's threads), and small enough (64 rows
+# of a 1024-wide render's 27 channels: 7 MB) to stay in the caches and to be the only float32 copy there is.
+EXR_BLOCK_ROWS = 64
+
+
+def write_exr(path: str | Path, result: RenderResult, stop: threading.Event | None = None) -> None:
+    """Write a result's buffers as `path`, an EXR (``exr_channels``' layout), a block of rows at a time
+    (``EXR_BLOCK_ROWS``): the same file as ``write_image(path, *exr_channels(result))`` without the
+    whole-image float32 copy. ``stop``: when set, the write is abandoned between blocks (no file)."""
+    path = Path(path)
+    blocks, names = _exr_layout(result)
+    h, w = blocks[0](slice(None)).shape[:2]
+    buf = np.empty((min(EXR_BLOCK_ROWS, h), w, len(names)), np.float32)
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), _spec(w, h, len(names), oiio.FLOAT, path, names)):
+            raise MinirtError(f"{path}: cannot write image: {oiio.geterror() if out is None else out.geterror()}")
+        try:
+            for y0 in range(0, h, len(buf)):
+                if stop is not None and stop.is_set():
+                    raise _Abandoned(path)
+                n = min(len(buf), h - y0)
+                if not out.write_scanlines(y0, y0 + n, 0, _fill(blocks, slice(y0, y0 + n), buf[:n])):
+                    raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+        except BaseException:
+            out.close()  # before the temporary file goes (OpenEXR says nothing of the missing rows; and no
+            raise  # _quiet_stderr here: this may run on the background writer, and fd 2 is the process's)
+        if not out.close():
+            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+
+
+class _Abandoned(Exception):
+    """A background write given up because the run is stopping (its file is not made)."""
 
 
 def write_result(
@@ -181,22 +245,94 @@ def write_result(
 ) -> dict[str, Path]:
     """Write `stem.png` (the 8-bit bitmap, written as ``rules``' output rules say: encoding, gamma,
     layout; minirt.model.bitmap), `stem.exr` (every buffer, in the scene's layout) and `stem.json` (metadata;
-    with ``timings`` also the run's timings, which makes it differ from run to run)."""
-    from minirt.model import bitmap
+    with ``timings`` also the run's timings, which makes it differ from run to run).
 
+    Inside ``background_writes()`` the paths are returned at once and the files written by a thread of
+    their own, while the caller goes on (the hazard warnings, the next backend)."""
     out_dir = Path(out_dir)
     paths: dict[str, Path] = {}
     if result.color is not None:
         paths["png"] = out_dir / f"{stem}.png"
+    if result.hit is not None or result.color is not None:
+        paths["exr"] = out_dir / f"{stem}.exr"
+    paths["json"] = out_dir / f"{stem}.json"
+    doc = sidecar(result, timings)  # now: the caller may add to the metadata once this returns
+    if _writer is None:
+        _write_files(result, paths, doc, rules)
+    else:
+        _writer.submit(result, paths, doc, rules)
+    return paths
+
+
+def _write_files(
+    result: RenderResult,
+    paths: dict[str, Path],
+    doc: dict[str, Any],
+    rules: Any,
+    stop: threading.Event | None = None,
+    files: tuple[str, ...] = ("png", "exr", "json"),
+) -> None:
+    """Write ``files`` of a result (those ``paths`` has)."""
+    from minirt.model import bitmap
+
+    if "png" in files and "png" in paths:
         plain = rules is None or bitmap.is_default(rules)
         write_image(paths["png"], result.color8() if plain else bitmap.bitmap(result.color, rules))
-    if result.hit is not None or result.color is not None:
-        data, names = exr_channels(result)
-        paths["exr"] = out_dir / f"{stem}.exr"
-        write_image(paths["exr"], data, names)
-    paths["json"] = out_dir / f"{stem}.json"
-    write_json(paths["json"], sidecar(result, timings))
-    return paths
+    if "exr" in files and "exr" in paths:
+        write_exr(paths["exr"], result, stop)
+    if "json" in files:
+        write_json(paths["json"], doc)
+
+
+class _Writer:
+    """The threads of ``background_writes``: two, one result's EXR (the longest) on one while its PNG and
+    JSON go on the other, results in the order given."""
+
+    def __init__(self) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="minirt-writes")
+        self.stop = threading.Event()
+        self.futures: list[Any] = []
+
+    def submit(self, result: RenderResult, paths: dict[str, Path], doc: dict[str, Any], rules: Any) -> None:
+        for files in (("exr",), ("png", "json")):
+            self.futures.append(self.pool.submit(_write_files, result, paths, doc, rules, self.stop, files))
+
+    def finish(self, failed: bool) -> None:
+        if failed:  # an error or Ctrl-C in the caller: what is not written yet is not written
+            self.stop.set()
+        self.pool.shutdown(wait=True, cancel_futures=failed)
+        if failed:  # the caller's error is the one to report
+            return
+        for f in self.futures:
+            if f.exception() is not None:
+                raise f.exception()
+
+
+_writer: _Writer | None = None
+
+
+@contextlib.contextmanager
+def background_writes() -> Iterator[None]:
+    """Inside the block, ``write_result`` hands its files to two threads and returns at once; leaving the
+    block waits for every file and raises the first write's error. The files' encoding and compression
+    (OpenImageIO, zlib) run outside Python's lock, so a render's files are written while the command
+    goes on: the offset-hazard warnings of a 200-ball 1024^2 render take as long as its EXR
+    (benchmarks/README.md). An error or Ctrl-C in the block abandons the writes not yet done (no file
+    appears half-written: each is atomic)."""
+    global _writer
+    if _writer is not None:  # nested: the outer block waits
+        yield
+        return
+    _writer = _Writer()
+    failed = True
+    try:
+        yield
+        failed = False
+    finally:
+        writer, _writer = _writer, None
+        writer.finish(failed)
 
 
 def sidecar(result: RenderResult, timings: bool = False) -> dict[str, Any]:

@@ -55,15 +55,26 @@ class Margins:
     """What the harness measured of the checked rays, for a backend to turn into its tolerance.
 
     ``margins``: minirt.reference.band.margins of the reference's primary rays, flat per ray (margin,
-    origin, silhouette, grazing, tie, near, id_tie, hit_nd, hit_cos, origin_norm). ``start(t_min=,
-    plane_err=, ball_err=)``: minirt.reference.band.start_band on the same rays, the rays whose "does this
-    candidate count" decision lies within the backend's position error of its minimum distance (None: no
-    such band). ``scaled(scale=, origin_scale=, inside_scale=, tie_scale=)``: the margins with per-shape
-    scales, for a backend that records them (None: the scene-wide threshold)."""
+    origin, silhouette, grazing, tie, near, id_tie, hit_nd, hit_cos, origin_norm); ``margin``, ``origin`` and
+    ``silhouette`` exact below ``bound`` and inf elsewhere (the rest exact): compare them with a threshold
+    through ``below``, which widens the bound when the threshold is larger (``widen(eps)``: the margins
+    exact below eps). ``start(t_min=, plane_err=, ball_err=)``: minirt.reference.band.start_band on the same
+    rays, the rays whose "does this candidate count" decision lies within the backend's position error of
+    its minimum distance (None: no such band). ``scaled(scale=, origin_scale=, inside_scale=, tie_scale=)``:
+    the margins with per-shape scales, exact below 1 (what ``per_shape_band`` compares), for a backend that
+    records them (None: the scene-wide threshold)."""
 
     margins: dict[str, np.ndarray]
     start: Callable[..., np.ndarray] | None = None
     scaled: Callable[..., dict[str, np.ndarray]] | None = None
+    bound: float = math.inf
+    widen: Callable[[float], dict[str, np.ndarray]] | None = None
+
+    def below(self, key: str, eps: float, h: int, w: int) -> np.ndarray:
+        """(H, W) bool: ``margins[key] < eps``, exact whatever eps (``margin``, ``origin``, ``silhouette``
+        are known exactly only below ``bound``: a larger eps asks ``widen`` for them)."""
+        m = self.margins if eps <= self.bound or self.widen is None else self.widen(eps)
+        return m[key].reshape(h, w) < eps
 
     def image(self, h: int, w: int) -> dict[str, np.ndarray]:
         return {k: v.reshape(h, w) for k, v in self.margins.items()}
@@ -107,9 +118,9 @@ def tolerance_inputs(
 def generic_tolerance(result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
     """The tolerance of a backend that records only generic keys in ``meta["precision"]`` (``band_eps``,
     ``t_rel``, ``t_abs``, ``normal_deg``), or a result no registered backend made (a test's)."""
-    h, w, p, m, t_ref = tolerance_inputs(result, ref, measured)
+    h, w, p, _, t_ref = tolerance_inputs(result, ref, measured)
     eps = p.get("band_eps", 1e-6)
-    band = m["margin"] < eps
+    band = measured.below("margin", eps, h, w)
     t_abs = p.get("t_rel", 1e-6) * t_ref + p.get("t_abs", 0.0)
     nd = np.full((h, w), p.get("normal_deg", 1e-3))
     why = {"band": f"margin < {eps:.3g}", "t": "t_rel*t + t_abs from the backend", "normal": "normal_deg"}

@@ -34,7 +34,10 @@ tests read.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -76,8 +79,37 @@ class Tree:
         return len(self.count)
 
 
+_BUILT: OrderedDict[bytes, tuple[Tree, np.ndarray]] = OrderedDict()  # the last few trees built, by their balls
+_BUILT_KEEP = 4
+_BUILT_LOCK = threading.Lock()
+
+
 def build(center: np.ndarray, radius: np.ndarray) -> tuple[Tree, np.ndarray]:
-    """A BVH over balls (center (n, 3), radius (n,)): the tree and the ball order it indexes.
+    """A BVH over balls (center (n, 3), radius (n,)): the tree and the ball order it indexes (``_build``),
+    read-only. The last few are kept by their balls' bytes: a check builds one scene's tree for every
+    render and margin of it (the rule diagnosis' 136 variant renders of a 10,000-ball scene: 19 s of its
+    check), and the same balls give the same tree."""
+    c = np.ascontiguousarray(center, dtype=np.float64)
+    r = np.ascontiguousarray(radius, dtype=np.float64)
+    key = hashlib.blake2b(repr((c.shape, r.shape)).encode() + c.tobytes() + r.tobytes(), digest_size=20).digest()
+    with _BUILT_LOCK:
+        got = _BUILT.get(key)
+        if got is not None:
+            _BUILT.move_to_end(key)
+            return got
+    tree, order = _build(c, r)
+    for a in (*vars(tree).values(), order):
+        if isinstance(a, np.ndarray):
+            a.setflags(write=False)
+    with _BUILT_LOCK:
+        _BUILT[key] = (tree, order)
+        while len(_BUILT) > _BUILT_KEEP:
+            _BUILT.popitem(last=False)
+    return tree, order
+
+
+def _build(center: np.ndarray, radius: np.ndarray) -> tuple[Tree, np.ndarray]:
+    """The BVH over balls (center (n, 3), radius (n,)): the tree and the ball order it indexes.
 
     Node by node the definition is: a node holds balls order[start:end]; more than LEAF of them are split
     at the middle after a stable sort of their centres along the axis where the centres spread most,

@@ -52,82 +52,129 @@ def _surface(shape, x: np.ndarray) -> np.ndarray:
     return x @ np.asarray(shape.normal) - shape.distance
 
 
-def _secondary(scene: Scene, rules: Rules, res: RenderResult) -> dict[str, np.ndarray]:
+def _secondary(
+    scene: Scene, rules: Rules, res: RenderResult, pixels: np.ndarray | None = None, directions: bool = True
+) -> dict[str, np.ndarray | None]:
     """Per primary hit (flat): the point, shading normal, own shape, and the shadow and reflection
-    directions of the secondary rays the render spawns there (mask: whether it spawns them)."""
-    hit = res.hit.reshape(-1)
-    p = res.position.reshape(-1, 3)[hit]
-    n = res.normal.reshape(-1, 3)[hit]
-    sid = res.shape_id.reshape(-1)[hit]
-    _, d = camera.primary_rays(scene, rules)
-    d = d[hit]
+    directions of the secondary rays the render spawns there (mask: whether it spawns them).
+    ``pixels``: the row-major indices of the hit pixels wanted (default: every hit). ``directions``:
+    False leaves the two directions out (None; the kinds spawned are still said by their keys): an
+    offset along the normal does not need them."""
+    if pixels is None:
+        pixels = np.flatnonzero(res.hit.reshape(-1))
+    p = res.position.reshape(-1, 3)[pixels]
+    n = res.normal.reshape(-1, 3)[pixels]
+    sid = res.shape_id.reshape(-1)[pixels]
+    fx = effects(scene, rules)
+    d = None
+    if rules.two_sided or (directions and fx.reflection):
+        _, d = camera.primary_rays(scene, rules, pixels)  # the hit pixels' rays, the same bits as the image's
     if rules.two_sided:
         n = np.where((np.einsum("ij,ij->i", d, n) > 0)[:, None], -n, n)
-    fx = effects(scene, rules)
-    out = {"p": p, "n": n, "id": sid}
+    out: dict[str, np.ndarray | None] = {"p": p, "n": n, "id": sid}
     if fx.shadows:
-        s = np.asarray(scene.light.position) - p
-        out["shadow"] = s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-300)
+        out["shadow"] = None
+        if directions:
+            s = np.asarray(scene.light.position) - p
+            out["shadow"] = s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-300)
     if fx.reflection:
         kr = np.array([any(c != 0 for c in sh.material.reflection) for sh in scene.shapes], dtype=bool)
-        out["reflection"] = d - 2 * np.einsum("ij,ij->i", d, n)[:, None] * n
+        out["reflection"] = None if d is None else d - 2 * np.einsum("ij,ij->i", d, n)[:, None] * n
         out["reflects"] = kr[sid] if len(sid) else np.zeros(0, dtype=bool)
     return out
 
 
-def _judge(scene: Scene, rules: Rules, g: dict[str, np.ndarray], precision: str) -> dict[str, np.ndarray]:
-    """Per hit (flat) and secondary ray kind: offset below the point's rounding, and other shapes jumped."""
+def _judge(
+    scene: Scene, rules: Rules, g: dict[str, np.ndarray], precision: str, balls: _Balls | None = None
+) -> dict[str, np.ndarray]:
+    """Per hit (flat) and secondary ray kind: offset below the point's rounding, and other shapes jumped.
+    ``balls``: the scene's balls and their index (``_Balls.of``), shared by the calls of one render."""
     off = float(rules.offset)
     u = UNIT_ROUNDOFF[precision]
     rounding = u * np.abs(g["p"]).sum(axis=1)
     below = np.zeros(len(g["p"]), dtype=bool)
     jumped = np.zeros(len(g["p"]), dtype=bool)
-    balls = _ball_tree(scene)  # one tree for both kinds of secondary ray
+    if balls is None:
+        balls = _Balls.of(scene)  # one index of the balls for both kinds of secondary ray
+    # The segment p -> p + offset v of each ray kind that is spawned. Along the normal, both kinds start
+    # at the same point: it is tested once, where either kind is spawned (the same answer per point).
+    segments: list[tuple[np.ndarray, np.ndarray]] = []
     for kind in ("shadow", "reflection"):
         if kind not in g:
             continue
         spawn = g.get("reflects", np.ones(len(g["p"]), dtype=bool)) if kind == "reflection" else True
+        spawn = np.broadcast_to(spawn, len(g["p"]))
         v = g[kind] if rules.offset_along == "ray" else g["n"]
         normal_part = off * np.abs(np.einsum("ij,ij->i", v, g["n"]))
         below |= spawn & (normal_part < rounding)
-        jumped |= spawn & _jumped(scene, g["p"], g["p"] + off * v, g["id"], balls)
+        if segments and rules.offset_along != "ray":
+            segments[0] = (segments[0][0] | spawn, v)
+        else:
+            segments.append((spawn, v))
+    for spawn, v in segments:
+        at = np.flatnonzero(spawn)
+        p = g["p"][at]
+        jumped[at] |= _jumped(scene, p, p + off * v[at], g["id"][at], balls)
     return {"below": below, "jumped": jumped, "rounding": rounding}
 
 
-CHUNK = 1 << 20  # points per pass of _jumped: bounds its (point, node) pairs whatever the image size
+CHUNK = 1 << 20  # points per pass of _jumped_tree: bounds its (point, node) pairs whatever the image size
+HAZARD_CHUNK = 1 << 16  # hits judged at a time by offset_warnings: ~20 MB of temporaries, reused
+GRID_CELLS_PER_BALL = 8  # the grid's cells, per ball: a few balls per cell, a few cells per ball
+GRID_CELLS = (64, 1 << 22)  # ... within these bounds (a tiny scene still gets a grid; memory stays bounded)
+GRID_SPREAD = 4  # a point visits at most this many cells on average, a ball is filed in at most this many
+# times GRID_CELLS_PER_BALL cells on average; beyond that (huge offsets, balls far larger than their
+# neighbours' spacing) the grid would cost more than the tree, which then answers instead
 
 
 class _Balls(NamedTuple):
-    """The scene's balls for ``_jumped``: shape ids, centres, radii, and minirt.reference.accel.build's tree and order
-    (both None when there are no balls)."""
+    """The scene's balls for ``_jumped``: shape ids, centres, radii, and (built when first needed)
+    minirt.reference.accel.build's tree and order (None when there are no balls)."""
 
     ids: list[int]
     center: np.ndarray
     radius: np.ndarray
-    tree: Any
-    order: Any
+    tree: list[Any]  # [] until built, then [tree, order]
+    grid: list[Any]  # [] until built, then [pad, _Grid or None (a grid would not pay)]
 
+    @classmethod
+    def of(cls, scene: Scene) -> _Balls:
+        ids = [k for k, s in enumerate(scene.shapes) if isinstance(s, Ball)]
+        center = np.array([scene.shapes[k].center for k in ids], dtype=np.float64).reshape(-1, 3)
+        radius = np.array([scene.shapes[k].radius for k in ids], dtype=np.float64)
+        return cls(ids, center, radius, [], [])
 
-def _ball_tree(scene: Scene) -> _Balls:
-    from minirt.reference import accel  # deferred: accel imports Dr.Jit, which only this part of hazards needs
+    def grid_for(self, pad: float) -> _Grid | None:
+        """A grid of the balls' boxes widened by at least ``pad`` (more is as exact: a ball filed where
+        it cannot be crossed is tested and found not crossed). Built once for a render's hits, with
+        headroom, and again only for a chunk of hits that needs a wider pad."""
+        if not self.grid or self.grid[0] < pad:
+            self.grid[:] = [2 * pad, _build_grid(self, 2 * pad)]
+        return self.grid[1]
 
-    ids = [k for k, s in enumerate(scene.shapes) if isinstance(s, Ball)]
-    center = np.array([scene.shapes[k].center for k in ids], dtype=np.float64).reshape(-1, 3)
-    radius = np.array([scene.shapes[k].radius for k in ids], dtype=np.float64)
-    tree, order = accel.build(center, radius) if ids else (None, None)
-    return _Balls(ids, center, radius, tree, order)
+    def bvh(self) -> tuple[Any, Any]:
+        if not self.tree:
+            from minirt.reference import accel  # deferred: accel imports Dr.Jit, which only the tree needs
+
+            self.tree.extend(accel.build(self.center, self.radius) if self.ids else (None, None))
+        return self.tree[0], self.tree[1]
 
 
 def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray, balls: _Balls | None = None) -> np.ndarray:
     """Per point: whether the segment p -> q crosses the surface of a shape other than its own (sid), i.e.
     the shape's implicit function, as computed, changes sign between p and q.
 
-    Planes are tested at every point. Balls only where the segment's box meets the ball's box in the BVH
-    of minirt.reference.accel, widened by ``pad``: outside it the ball's implicit function is > pad at both ends
-    (|x - C| - r is at least the distance to the box), and its computed value errs by a few roundings of
-    |x| + |C| + r, far less than pad = 16 u (max|x| + max(|C| + r)), so it is positive at both ends and the
-    sign cannot change. The answer is the one testing every ball gives (tests/reference/test_hazards.py), at a
-    cost that grows with the balls near each point instead of all of them (1,024 balls at 512²: 17 s -> 0.2 s).
+    Planes are tested at every point. Balls only where the segment's box meets the ball's box widened by
+    ``pad``: outside it the ball's implicit function is > pad at both ends (|x - C| - r is at least the
+    distance to the box), and its computed value errs by a few roundings of |x| + |C| + r, far less than
+    pad = 16 u (max|x| + max(|C| + r)), so it is positive at both ends and the sign cannot change. Which
+    boxes meet is found on a uniform grid over the balls' widened boxes (``_grid_pairs``: each point looks
+    in the cells its segment's box covers, a few balls each), else through the BVH of
+    minirt.reference.accel (``_jumped_tree``). Either way the balls not tested are only balls whose sign
+    cannot change, and the balls tested are tested with the same arithmetic, so the answer is the one
+    testing every ball gives (tests/reference/test_hazards.py), at a cost that grows with the balls near
+    each point instead of all of them (200 balls at 1024^2: 1.8 s by testing every ball's box through the
+    tree, 0.1 s on the grid; benchmarks/README.md).
     """
     out = np.zeros(len(p), dtype=bool)
     with np.errstate(invalid="ignore"):
@@ -135,10 +182,129 @@ def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray, balls: 
             if not isinstance(shape, Ball):
                 out |= (sid != k) & (np.sign(_surface(shape, p)) != np.sign(_surface(shape, q)))
     if balls is None:
-        balls = _ball_tree(scene)
+        balls = _Balls.of(scene)
     if not balls.ids or not len(p):
         return out
-    center, radius, tree, order = balls.center, balls.radius, balls.tree, balls.order
+    found = _grid_pairs(balls, p, q)
+    if found is None:
+        return out | _jumped_tree(balls, p, q, sid)
+    pp, bb = found
+    shape_of = np.asarray(balls.ids)
+    keep = sid[pp] != shape_of[bb]  # a point's own ball is not tested (as with the tree)
+    pp, bb = pp[keep], bb[keep]
+    c, r = balls.center[bb], balls.radius[bb]
+    with np.errstate(invalid="ignore"):
+        fp = np.linalg.norm(p[pp] - c, axis=-1) - r
+        fq = np.linalg.norm(q[pp] - c, axis=-1) - r
+    crossed = np.sign(fp) != np.sign(fq)
+    out |= np.bincount(pp[crossed], minlength=len(p)) > 0
+    return out
+
+
+def _pad(balls: _Balls, p: np.ndarray, q: np.ndarray) -> float:
+    """How far a ball's box is widened (``_jumped``): 16 u (max|x| + max(|C| + r)) over these points."""
+    x_max = float(max(np.abs(p).sum(axis=1).max(), np.abs(q).sum(axis=1).max()))
+    reach = float((np.linalg.norm(balls.center, axis=1) + balls.radius).max())
+    return 16 * UNIT_ROUNDOFF["f64"] * (x_max + reach)
+
+
+class _Grid(NamedTuple):
+    """Balls filed in the cells of a uniform grid (``_grid_pairs``): the grid's box lo..hi, its cells
+    per axis and their size; the balls of flat cell k are filed[start[k]:start[k + 1]]."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    res: np.ndarray
+    size: np.ndarray
+    start: np.ndarray
+    filed: np.ndarray
+
+    def index(self, x: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((x - self.lo) / self.size), 0, self.res - 1).astype(np.int64)
+
+    def flat(self, cell: np.ndarray) -> np.ndarray:
+        return (cell[:, 0] * self.res[1] + cell[:, 1]) * self.res[2] + cell[:, 2]
+
+
+def _build_grid(balls: _Balls, pad: float) -> _Grid | None:
+    """The balls' boxes widened by ``pad``, filed in the cells they cover; None where that does not pay
+    (``GRID_SPREAD``) or the numbers are not finite."""
+    n = len(balls.ids)
+    if not math.isfinite(pad):
+        return None
+    lo_b = balls.center - balls.radius[:, None] - pad
+    hi_b = balls.center + balls.radius[:, None] + pad
+    glo, ghi = lo_b.min(axis=0), hi_b.max(axis=0)
+    ext = ghi - glo
+    if not (np.isfinite(ext).all() and (ext > 0).all()):
+        return None
+    cells = min(max(GRID_CELLS_PER_BALL * n, GRID_CELLS[0]), GRID_CELLS[1])
+    side = (float(np.prod(ext)) / cells) ** (1 / 3)
+    res = np.clip(np.ceil(ext / side), 1, cells).astype(np.int64)
+    while res.prod() > 2 * cells:  # a flat box (one side far below the others): coarser, until it fits
+        side *= 1.25
+        res = np.clip(np.ceil(ext / side), 1, cells).astype(np.int64)
+    grid = _Grid(glo, ghi, res, ext / res, np.zeros(int(res.prod()) + 1, dtype=np.int64), np.zeros(0, np.int64))
+    b0 = grid.index(lo_b)
+    span = grid.index(hi_b) - b0 + 1
+    per_ball = span.prod(axis=1)
+    if per_ball.sum() > GRID_SPREAD * GRID_CELLS_PER_BALL * n + 1024:
+        return None
+    ball, cell = _expand(b0, span, per_ball)
+    flat = grid.flat(cell)
+    np.cumsum(np.bincount(flat, minlength=int(res.prod())), out=grid.start[1:])
+    return grid._replace(filed=ball[np.argsort(flat, kind="stable")])
+
+
+def _grid_pairs(balls: _Balls, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(point, ball) pairs, indices into p and into the balls, that include every pair whose segment box
+    meets the ball's box widened by ``_pad`` (some pairs more, never fewer); None where a grid does not
+    pay (``GRID_SPREAD``) or the numbers are not finite (then the tree answers).
+
+    The grid (``_build_grid``): ``res`` cells per axis over the box of every widened ball box, a cell
+    index ``clip(floor((x - lo) / size), 0, res - 1)`` per coordinate. That index never decreases as x
+    grows (a subtraction, a division by a positive number, floor and clip are each monotone, also as
+    rounded), so when a segment's box [a, b] meets a ball's [lo_b, hi_b] (a <= hi_b and b >= lo_b per
+    axis), the cells of the one, index(a) .. index(b), meet those of the other: the ball is filed in a
+    cell the point looks in. A segment box wholly outside the grid's box meets no ball box (exact
+    comparisons)."""
+    grid = balls.grid_for(_pad(balls, p, q))
+    if grid is None:
+        return None
+    # The points: the cells their segment's box covers (none outside the grid's box; NaN is never inside).
+    seg_lo, seg_hi = np.minimum(p, q), np.maximum(p, q)
+    inside = np.flatnonzero(np.all((seg_hi >= grid.lo) & (seg_lo <= grid.hi), axis=1))
+    a0 = grid.index(seg_lo[inside])
+    span = grid.index(seg_hi[inside]) - a0 + 1
+    per_point = span.prod(axis=1)
+    if per_point.sum() > GRID_SPREAD * len(p) + 1024:
+        return None
+    point, cell = _expand(a0, span, per_point)
+    flat = grid.flat(cell)
+    first, count = grid.start[flat], grid.start[flat + 1] - grid.start[flat]
+    pp = np.repeat(inside[point], count)
+    slot = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(int(count.sum()))
+    return pp, grid.filed[slot]
+
+
+def _expand(first: np.ndarray, span: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row i's cells first[i] + (0 .. span[i] - 1) per axis (count[i] = their product), as (row, cell)."""
+    row = np.repeat(np.arange(len(count)), count)
+    k = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    s = span[row]
+    dz = k % s[:, 2]
+    k //= s[:, 2]
+    dy = k % s[:, 1]
+    dx = k // s[:, 1]
+    return row, first[row] + np.stack([dx, dy, dz], axis=1)
+
+
+def _jumped_tree(balls: _Balls, p: np.ndarray, q: np.ndarray, sid: np.ndarray) -> np.ndarray:
+    """``_jumped``'s balls found through the BVH: each segment's box tested against the nodes' boxes
+    widened by the pad, top down, breadth first (the grid's fallback)."""
+    out = np.zeros(len(p), dtype=bool)
+    center, radius = balls.center, balls.radius
+    tree, order = balls.bvh()
     shape_of = np.asarray(balls.ids)[order]  # ball slot of the tree -> shape id
     for a in range(0, len(p), CHUNK):
         pc, qc, ic = p[a : a + CHUNK], q[a : a + CHUNK], sid[a : a + CHUNK]
@@ -175,23 +341,34 @@ def offset_warnings(scene: Scene, rules: Rules, res: RenderResult, precision: st
     offset, which is the hit point's error bound itself."""
     if rules.offset == "error-bound" or res.hit is None or not res.hit.any():
         return []
-    g = _secondary(scene, rules, res)
-    if "shadow" not in g and "reflection" not in g:
+    fx = effects(scene, rules)
+    if not (fx.shadows or fx.reflection):  # no secondary rays
         return []
-    j = _judge(scene, rules, g, precision)
+    # The hits a chunk at a time: the same findings per pixel, in working memory that stays in the caches
+    # and is reused chunk after chunk (fresh memory costs a page fault per 4 KiB, slow on a VM).
+    hits = np.flatnonzero(res.hit.reshape(-1))
+    balls = _Balls.of(scene)
+    below = jumped = 0
+    worst = -math.inf
+    for a in range(0, len(hits), HAZARD_CHUNK):
+        g = _secondary(scene, rules, res, hits[a : a + HAZARD_CHUNK], directions=rules.offset_along == "ray")
+        j = _judge(scene, rules, g, precision, balls)
+        below += int(j["below"].sum())
+        jumped += int(j["jumped"].sum())
+        if j["below"].any():
+            worst = max(worst, float(j["rounding"][j["below"]].max()))
     off, lines = float(rules.offset), []
     name = "float32" if precision == "f32" else "float64"
     along = "along the new ray" if rules.offset_along == "ray" else "along the normal"
-    if j["below"].any():
-        worst = float(j["rounding"][j["below"]].max())
+    if below:
         lines.append(
             f"offset {off:g} ({along}) is below the hit point's {name} rounding (up to {worst:.3g}) on "
-            f"{int(j['below'].sum())} pixel(s): their shadow or reflection rays may start behind the surface "
+            f"{below} pixel(s): their shadow or reflection rays may start behind the surface "
             '(acne); the scene\'s scale, not its content, then decides the image (offset = "error-bound" does not)'
         )
-    if j["jumped"].any():
+    if jumped:
         lines.append(
-            f"offset {off:g} ({along}) jumps over another shape's surface on {int(j['jumped'].sum())} pixel(s) "
+            f"offset {off:g} ({along}) jumps over another shape's surface on {jumped} pixel(s) "
             "(a near contact closer than the offset): their shadow or reflection rays start beyond it and miss it"
         )
     return lines

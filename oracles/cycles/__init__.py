@@ -416,9 +416,10 @@ class CyclesOracle(Oracle):
             plane_abs[ref.shape_id == int(key.removeprefix("shape"))] = pl["abs_error"]
         ties = None
         eps = p["band_k"] * p["band_eps"]
-        band = m["margin"] < eps
         if measured.scaled is not None and p.get("band_scale"):
             band, ties = measured.per_shape_band(p, h, w)
+        else:
+            band = measured.below("margin", eps, h, w)
         # Whether a candidate counts (t > 0, or beyond the near clip): a plane's quad lies within its
         # normal_error of the plane, and Cycles' ray starts within origin_err of the reference's, plus the
         # reference origin's own rounding to float32 (4 u32 |o|); a ball's origin band covers its own.

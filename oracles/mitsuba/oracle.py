@@ -91,8 +91,6 @@ class MitsubaOracle(Oracle):
         ties = None
         eps = p["band_k"] * p["band_eps"]
         plane_abs = max([pl.get("abs_error", 0.0) for pl in result.meta.get("planes", {}).values()] or [0.0])
-        # A shadow or hit decision moved by the rectangle's absolute error: relative to the smallest radius.
-        band = m["margin"] < eps
         # Rays starting on a plane (t ~ 0): Mitsuba 3 has no minimum distance (Ray3f carries maxt only), and
         # whether its rectangle lies in front of the origin is decided in float32: the error of the origin's
         # signed distance from the rectangle (its normal_error, older documents: its abs_error), plus the
@@ -106,6 +104,8 @@ class MitsubaOracle(Oracle):
         # each shape's own band (oracles.mitsuba.band_scales)
         if measured.scaled is not None and p.get("band_scale"):
             band, ties = measured.per_shape_band(p, h, w)
+        else:  # a shadow or hit decision moved by the rectangle's absolute error: relative to the smallest radius
+            band = measured.below("margin", eps, h, w)
         band = band | starts
         # A plane's t = n·(Q - o)/(n·d): the rectangle's absolute error and the float32 rounding of the ray's
         # direction (dir_err) move t by (plane_abs + t dir_err)/|n·d| -- large where the ray grazes the plane.

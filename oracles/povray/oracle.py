@@ -129,7 +129,7 @@ class PovrayOracle(Oracle):
             band, ties = measured.per_shape_band(p, h, w)
             band = band | starts
         else:
-            band = (m["margin"] < eps) | starts
+            band = measured.below("margin", eps, h, w) | starts
         # POV-Ray drops hits beyond MAX_DISTANCE 1e7 from its ray's origin (a pinhole ray's origin is the
         # camera, up to max_distance_lift before the harness's): where the nearest candidate lies that far,
         # POV-Ray misses what the reference hits -- a decision it cannot make, like its minimum distance

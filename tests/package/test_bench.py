@@ -71,6 +71,9 @@ def test_reference_and_numpy(quick):
         for kind in ("trace", "render", "render_checked"):
             _stats_ok(res["reference"][prec][kind])
     _stats_ok(res["reference"]["f64"]["planar_outputs"])  # the render's floor, beside the render
+    writes = res["reference"]["writes"]  # the write-only kernel: packet scatters, outputs, their arithmetic
+    assert writes["outputs"]["bytes"] < writes["bytes"]  # outputs need no fourth (zero) component
+    assert all(_positive(x) for x in (writes["gb_s"], writes["outputs"]["gb_s"], writes["cached_median_s"]))
     smp = res["reference"]["samples"]
     _stats_ok(smp["render"])
     assert smp["spp"] == 16 and smp["width"] >= 4

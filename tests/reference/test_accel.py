@@ -221,3 +221,18 @@ def test_against_the_plain_transcription_2000_balls():
     assert fast.hit.mean() > 0.5
     assert not ((diff > 1e-9) & ~fragile).any()
     assert math.isfinite(float(diff.max()))
+
+
+def test_a_tree_is_built_once_for_the_same_balls_and_kept_read_only():
+    """accel.build keeps the last few trees by their balls' bytes: the same balls give the same (read-only)
+    tree without building it again; other balls another tree."""
+    rng = np.random.default_rng(11)
+    center, radius = rng.uniform(-5, 5, (300, 3)), rng.uniform(0.1, 1.0, 300)
+    tree, order = accel.build(center, radius)
+    again, order2 = accel.build(center.copy(), radius.copy())
+    assert again is tree and order2 is order
+    assert not tree.lo.flags.writeable and not order.flags.writeable
+    moved = center.copy()
+    moved[0, 0] += 1e-12
+    other, _ = accel.build(moved, radius)
+    assert other is not tree and not np.array_equal(other.lo, tree.lo)

@@ -1,0 +1,97 @@
+"""Start-up: a command imports only what it runs. `minirt --help` and every `minirt CMD --help` are text,
+so they import no renderer (Dr.Jit, Mitsuba), no job system (Dask) and none of the capabilities behind
+the commands (the campaign, the harness, the reference tracer, NumPy's users): each of those costs a
+tenth of a second or more at every start (benchmarks/README.md, issue 37, has the figures)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+import typer
+
+from minirt.cli import fuzz
+from minirt.cli.app import app
+
+COMMANDS = sorted(typer.main.get_command(app).commands)
+
+# Run in a fresh interpreter (this one has imported everything), as the console script does; print the
+# modules loaded once the help is out.
+CHILD = """
+import json, sys
+sys.argv = ["minirt", *json.loads(sys.argv[1])]
+from minirt.cli.app import main
+try:
+    main()
+except SystemExit:
+    pass
+print("\\nMODULES " + json.dumps(sorted(sys.modules)))
+"""
+
+# Libraries no help text needs (top-level package names).
+HEAVY = {"drjit", "mitsuba", "dask", "distributed", "numpy", "scipy", "PIL", "OpenImageIO", "trimesh", "bpy"}
+# The minirt modules a help text may load: the command line itself and what it prints with.
+LIGHT = {"minirt", "minirt.version", "minirt.errors", "minirt.io", "minirt.io.untrusted"}
+
+
+def loaded_by(*args: str) -> tuple[str, set[str]]:
+    p = subprocess.run(
+        [sys.executable, "-c", CHILD, json.dumps(args)], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert "MODULES " in p.stdout, p.stderr
+    text, _, mods = p.stdout.rpartition("MODULES ")
+    return text, set(json.loads(mods))
+
+
+@pytest.mark.parametrize("args", [("--help",), *((c, "--help") for c in COMMANDS)], ids=" ".join)
+def test_help_imports_no_command_module(args):
+    text, mods = loaded_by(*args)
+    assert "Usage" in text  # the help was printed (not an error before it)
+    heavy = sorted(m for m in mods if m.split(".")[0] in HEAVY)
+    assert not heavy, f"minirt {' '.join(args)} imports {heavy}"
+    core = sorted(m for m in mods if m.startswith("minirt") and not m.startswith("minirt.cli") and m not in LIGHT)
+    assert not core, f"minirt {' '.join(args)} imports {core}"
+
+
+def test_the_check_can_fail():
+    """The child sees an import a help text should not make (here: the campaign, as the fuzz help once did)."""
+    _, mods = loaded_by("--help")
+    assert "minirt.campaign" not in mods
+    p = subprocess.run(
+        [sys.executable, "-c", "import minirt.campaign.campaign\n" + CHILD, '["--help"]'],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert "minirt.campaign" in json.loads(p.stdout.rpartition("MODULES ")[2])
+
+
+def test_fuzz_help_names_every_family_and_defect():
+    """The fuzz help writes the names out (importing the campaign for them cost the help 0.1 s): the same
+    names, in the same order, as the campaign's."""
+    from minirt.campaign.campaign import DEFECTS
+    from minirt.campaign.families import FAMILIES
+
+    assert tuple(FAMILIES) == fuzz.FAMILY_NAMES
+    assert tuple(DEFECTS) == fuzz.DEFECT_NAMES
+    text = fuzz.fuzz_help()
+    assert ", ".join(FAMILIES) in text and ", ".join(DEFECTS) in text
+
+
+def test_a_command_runs_on_normal_pages():
+    """main() turns transparent huge pages off for the run (their on-the-spot compaction stalled a 1024^2
+    render's first touch of each buffer by up to seconds on a VM): Linux's switch, and NumPy's."""
+    code = CHILD.replace(
+        'print("\\nMODULES "',
+        'import os; status = open("/proc/self/status").read() if os.path.exists("/proc/self/status") else ""\n'
+        'print("THP", [ln for ln in status.splitlines() if ln.startswith("THP_enabled")], '
+        'os.environ.get("NUMPY_MADVISE_HUGEPAGE"))\nprint("\\nMODULES "',
+    )
+    p = subprocess.run([sys.executable, "-c", code, '["scenes"]'], capture_output=True, text=True, timeout=120)
+    line = next(ln for ln in p.stdout.splitlines() if ln.startswith("THP "))
+    assert line.endswith(" 0"), line  # NumPy's switch
+    if sys.platform.startswith("linux") and "THP_enabled" in line:  # kernels from 6.0 report it
+        assert "THP_enabled:\\t0" in line, line
