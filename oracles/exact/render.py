@@ -1,0 +1,213 @@
+"""Pixels of the exact model: each at rising precision until every decision is certified and its colour
+known to ``COLOR_ABS``; the chosen pixels of an image, in this process or on a pool of processes; the
+buffers of a RenderResult from them.
+
+A pixel is tried at each precision of ``PRECISIONS`` in turn (minirt.oracles.exact.model raises
+``Uncertain`` at a decision it cannot certify); one whose decisions stay uncertain at the last is an
+exact tie, flagged (``aux["exact_tie"]``) with the decision named, and its buffers hold the values of its
+last attempt with that decision taken by the interval's midpoint -- for the picture only, never judged.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+from flint import arb, fmpq
+
+from minirt.model.result import TERMS
+from minirt.model.rules import Rules
+from minirt.model.scene import Scene
+from minirt.oracles.exact.model import Level, Model, Uncertain, q, set_precision
+
+# Working precisions, bits, tried in turn. 128 certifies nearly every pixel of a campaign scene (binary64
+# inputs need 106 bits for an exact product, and a far ball's discriminant cancels ~log2(|C|/r)^2 bits
+# more); a decision still uncertain at 1,024 bits -- 300 decimal digits, beyond any cancellation scenes
+# within 1e-100 .. 1e100 can cause save an exact one -- is an exact tie.
+PRECISIONS = (128, 256, 512, 1024)
+# Colours to 2^-40 absolute: 2^-32 of an 8-bit level, so the level of every colour not within 2^-40 of a
+# rounding threshold is certain.
+COLOR_ABS = 2.0**-40
+_COLOR_ARB = arb(COLOR_ABS)
+
+
+@dataclass
+class Pixel:
+    """One pixel's certified values (midpoints of intervals narrower than the stated bounds)."""
+
+    index: int
+    shape_id: int = -1
+    t: float = math.inf
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    normal: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    color: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    terms: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    color_rad: float = 0.0  # the largest radius of a colour channel's interval
+    t_rel: float = 0.0  # the t interval's radius over |t|
+    bits: int = 0  # the precision that certified it (the last tried, for a tie)
+    tie: str = ""  # the decision no precision certified ("": none)
+    levels: int = 0  # levels of the ray tree traced
+
+
+def _mid(x: arb) -> float:
+    return float(x.mid())
+
+
+def _vec(v) -> tuple[float, float, float]:
+    return (_mid(v[0]), _mid(v[1]), _mid(v[2]))
+
+
+class PixelTracer:
+    """The exact model of one scene under one set of rules, pixel by pixel (a Model per precision)."""
+
+    def __init__(self, scene: Scene, rules: Rules):
+        self.scene, self.rules = scene, rules
+        self._models: dict[int, Model] = {}
+        self.depth = scene.max_depth
+
+    def model(self, bits: int) -> Model:
+        set_precision(bits)
+        if bits not in self._models:
+            self._models[bits] = Model(self.scene, self.rules)
+        return self._models[bits]
+
+    def position(self, index: int, u: float, v: float) -> tuple[fmpq, fmpq]:
+        """The image-plane position (in pixels) of pixel ``index``'s ray at sub-pixel (u, v), exactly:
+        (x + u) + dx, (y + v) + dy (minirt.model.camera's arithmetic, without its rounding)."""
+        y, x = divmod(index, self.scene.camera.width)
+        sx, sy = self.rules.pixel_shift
+        return fmpq(x) + q(u) + q(sx), fmpq(y) + q(v) + q(sy)
+
+    def levels(self, index: int, u: float, v: float, bits: int) -> tuple[Model, list[Level], object]:
+        """The ray tree of one ray at one precision (``Uncertain`` where a decision is not certified):
+        its model, its levels and its colour."""
+        m = self.model(bits)
+        o, d = m.primary(*self.position(index, u, v))
+        hit, oa, da = m.closest_primary(o, d)
+        levels: list[Level] = []
+        color = m.trace(hit, oa, da, self.depth, levels)
+        return m, levels, color
+
+    def pixel(self, index: int, u: float, v: float) -> Pixel:
+        """One ray, certified: at each precision in turn until every decision is and the colour is known to
+        COLOR_ABS; a tie where the last precision still cannot."""
+        why = ""
+        for bits in PRECISIONS:
+            try:
+                _, levels, color = self.levels(index, u, v, bits)
+            except Uncertain as e:
+                why = e.what
+                continue
+            rad = max(float(c.rad()) for c in color)
+            if rad <= COLOR_ABS:
+                return self._pixel(index, levels, color, bits, "")
+            why = "a colour gate (s·n or r·s under clamp) at its threshold"
+        return self._tie(index, u, v, why)
+
+    def _tie(self, index: int, u: float, v: float, why: str) -> Pixel:
+        """The values of an exact tie for the picture: the last precision with every uncertain decision
+        taken by its interval's midpoint."""
+        bits = PRECISIONS[-1]
+        set_precision(bits)
+        m = Model(self.scene, self.rules, guess=True)
+        o, d = m.primary(*self.position(index, u, v))
+        hit, oa, da = m.closest_primary(o, d)
+        levels: list[Level] = []
+        color = m.trace(hit, oa, da, self.depth, levels)
+        return self._pixel(index, levels, color, bits, why or "undecided")
+
+    def _pixel(self, index: int, levels: list[Level], color, bits: int, tie: str) -> Pixel:
+        first = levels[0]
+        px = Pixel(index=index, bits=bits, tie=tie, levels=len(levels))
+        px.color = _vec(color)
+        px.color_rad = max(float(c.rad()) for c in color)
+        if first.hit is not None:
+            px.shape_id = first.hit.shape
+            px.t = _mid(first.hit.t)
+            px.t_rel = float(first.hit.t.rad()) / max(abs(px.t), 1e-300)
+            px.position = _vec(first.p)
+            px.normal = _vec(first.n)
+            px.terms = {k: _vec(v) for k, v in first.terms.items()}
+        elif self.rules.background == "on-miss":
+            px.terms = {"background": px.color}
+        return px
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Pixels for one worker: the scene and rules, the pixels' indices and sub-pixel positions."""
+
+    scene: Scene
+    rules: Rules
+    indices: tuple[int, ...]
+    uv: tuple[tuple[float, float], ...]
+
+
+def run_batch(batch: Batch) -> list[Pixel]:
+    tracer = PixelTracer(batch.scene, batch.rules)
+    return [tracer.pixel(i, u, v) for i, (u, v) in zip(batch.indices, batch.uv, strict=True)]
+
+
+def trace_pixels(
+    scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarray, workers: int = 1, progress=None
+) -> list[Pixel]:
+    """Every given pixel (row-major indices, sub-pixel positions (N, 2)), in order: in this process, or in
+    ``workers`` processes, the pixels dealt out in interleaved batches (neighbouring pixels cost alike)."""
+    idx = [int(i) for i in indices]
+    pos = [(float(u), float(v)) for u, v in uv]
+    if workers <= 1 or len(idx) < 64:
+        tracer = PixelTracer(scene, rules)
+        out = []
+        for n, (i, (u, v)) in enumerate(zip(idx, pos, strict=True)):
+            out.append(tracer.pixel(i, u, v))
+            if progress and (n + 1) % 256 == 0:
+                progress(n + 1, len(idx))
+        return out
+    parts = max(workers * 4, 1)
+    batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts])) for k in range(parts)]
+    got: dict[int, Pixel] = {}
+    done = 0
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for part in pool.map(run_batch, batches):
+            for px in part:
+                got[px.index] = px
+            done += len(part)
+            if progress:
+                progress(done, len(idx))
+    return [got[i] for i in idx]
+
+
+def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str, np.ndarray]:
+    """Image buffers (H, W[, 3]) from the traced pixels; pixels not traced: a miss, colour 0, not rendered."""
+    n = w * h
+    sid = np.full(n, -1, dtype=np.int32)
+    t = np.full(n, np.inf)
+    pos, nrm, col = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    rendered, tie = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    bits, crad, trel = np.zeros(n, dtype=np.int32), np.zeros(n), np.zeros(n)
+    term = {k: np.zeros((n, 3)) for k in TERMS}
+    for px in pixels:
+        i = px.index
+        sid[i], t[i], pos[i], nrm[i], col[i] = px.shape_id, px.t, px.position, px.normal, px.color
+        rendered[i], tie[i], bits[i], crad[i], trel[i] = True, bool(px.tie), px.bits, px.color_rad, px.t_rel
+        for k, v in px.terms.items():
+            term[k][i] = v
+    hit = sid >= 0
+    out = {
+        "shape_id": sid.reshape(h, w),
+        "hit": hit.reshape(h, w),
+        "t": np.where(hit, t, np.inf).reshape(h, w),
+        "position": pos.reshape(h, w, 3),
+        "normal": nrm.reshape(h, w, 3),
+        "color": col.reshape(h, w, 3),
+        "rendered": rendered.reshape(h, w),
+        "exact_tie": tie.reshape(h, w),
+        "certified_bits": bits.reshape(h, w),
+        "color_rad": crad.reshape(h, w),
+        "t_rel_rad": trel.reshape(h, w),
+    }
+    if terms:
+        out["terms"] = {k: v.reshape(h, w, 3) for k, v in term.items() if v.any()}
+    return out
