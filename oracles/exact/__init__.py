@@ -186,9 +186,15 @@ class ExactOracle(Oracle):
             band, ties = measured.per_shape_band(p, h, w)
         else:
             band, ties = m["margin"] < p.get("band_eps", 1e-12), None
-        own = result.aux.get("exact_tie", np.zeros((h, w), dtype=bool)) | ~result.aux.get(
-            "rendered", np.ones((h, w), dtype=bool)
-        )
+        aux = result.aux
+        rendered = aux.get("rendered", np.ones((h, w), dtype=bool))
+        # not judged: this oracle's exact ties, the pixels it did not trace, and those whose decisions are not
+        # robust (minirt.oracles.exact.model: a decision within the slack of flipping, the reference's own
+        # rounding may take it either way -- a shadow edge through a pixel that the reference's edge classes,
+        # made from its own decisions, cannot see)
+        own = aux.get("exact_tie", np.zeros((h, w), dtype=bool)) | ~rendered
+        if "robust" in aux:
+            own = own | (rendered & ~aux["robust"])
         band = band | starts | own
         # t: the reference's root or quotient errs by REF_ULPS u (R + |C| + r + t) over the cosine of the hit
         # (a ball's discriminant error over its square root, sqrt(disc) = r cos; a plane's numerator over |n·d|)
@@ -198,23 +204,33 @@ class ExactOracle(Oracle):
             size[ref.shape_id == k] = s
         with np.errstate(divide="ignore"):
             t_abs = REF_ULPS * U64 * (reach + size + t_ref) / np.maximum(m["hit_cos"], 1e-300)
+        if "t_lo" in aux:  # and never below the robust interval's reach from the certified t
+            with np.errstate(invalid="ignore"):
+                reach_t = np.maximum(aux["t_hi"] - result.t, result.t - aux["t_lo"])
+            t_abs = np.where(np.isfinite(reach_t), np.maximum(t_abs, reach_t), t_abs)
         radius = np.ones((h, w))
         for k, r in enumerate(p.get("radii", [])):
             radius[ref.shape_id == k] = r if r else np.inf
         # normal: a ball's (p - C)/r turns by the hit point's error over r; a plane's is the scene's, rounded
         with np.errstate(invalid="ignore"):
             nd = np.degrees(np.minimum(np.pi, REF_ULPS * U64 + (t_abs + REF_ULPS * U64 * (reach + size)) / radius))
+        if "normal_lo" in aux:
+            spread = np.degrees(2 * np.linalg.norm(aux["normal_hi"] - aux["normal_lo"], axis=-1))
+            nd = np.maximum(nd, spread)
         why = {
             "band": "the reference's own float64 error bound: a margin below each shape's scale "
             f"{REF_ULPS:g} u (R + |C| + r)/r (ball), {REF_ULPS:g} u (|a| + 2R + 1) (plane), or a candidate hit "
-            f"with t cos within {start:.3g} of 0; plus this oracle's exact ties and pixels not traced",
-            "t": f"|dt| <= {REF_ULPS:g} u (R + size + t)/cos at the hit (the reference's roots and quotients)",
-            "normal": f"{REF_ULPS:g} u + the hit point's error over the radius (balls)",
+            f"with t cos within {start:.3g} of 0; plus this oracle's exact ties, pixels not traced and pixels whose "
+            "decisions are not robust (within 2^-40 of flipping)",
+            "t": f"|dt| <= {REF_ULPS:g} u (R + size + t)/cos at the hit (the reference's roots and quotients), or the "
+            "robust interval's reach",
+            "normal": f"{REF_ULPS:g} u + the hit point's error over the radius (balls), or the robust interval's",
         }
         summary = {
             "band_eps": float(max(p.get("band_scale") or [0.0])),
             "exact_ties": int(result.aux.get("exact_tie", np.zeros(1, dtype=bool)).sum()),
-            "not_traced": int((~result.aux.get("rendered", np.ones(1, dtype=bool))).sum()),
+            "not_traced": int((~rendered).sum()),
+            "not_robust": int((rendered & ~aux.get("robust", rendered)).sum()),
             "start_band_pixels": int(starts.sum()),
         }
         return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary, ties=ties)
@@ -274,7 +290,8 @@ class ExactOracle(Oracle):
         seconds = time.perf_counter() - t0
         ties = [{"pixel": int(px.index), "decision": px.tie} for r in results for px in r if px.tie]
         bits = np.concatenate([[px.bits for px in r] for r in results]) if pixels.size else np.zeros(0)
-        aux = {k: buf[k] for k in ("rendered", "exact_tie", "certified_bits", "color_rad", "t_rel_rad")}
+        aux = {k: buf[k] for k in ("rendered", "exact_tie", "certified_bits", "color_rad", "t_rel_rad", "robust",
+                                   "t_lo", "t_hi", "color_lo", "color_hi", "normal_lo", "normal_hi")}  # fmt: skip
         # The model's colour is negative where the rules leave s·n or (r·s)^e unclamped (profile exercise);
         # the harness's pre-flight takes a negative colour for a broken renderer, and every check reads the
         # 8-bit image, clamp(c, 0, 1): the colour is given from 0 up, the model's own in aux "color_exact".

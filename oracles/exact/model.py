@@ -33,7 +33,8 @@ The model, rule by rule (minirt.model.rules; the reference, minirt.reference, do
   does not count. "error-bound": pbrt-v4's bound on the hit point's rounding, gamma(6)(r + |p|) for a
   ball, gamma(4)(|a| + |p| + |o|) for a plane (gamma(n) = n u/(1 - n u), u = 2^-53, exactly), along the
   shading normal to the side the new ray leaves to (outward from a ball under near_root_only), of the
-  exact hit point: the model's offset, without the rounding it bounds.
+  exact hit point: the model's offset, without the rounding it bounds. The side of its own surface such
+  an origin lies on is known by construction (the offset's purpose), and taken as known.
 - shadow_range "to-light": an occluder counts only if its first valid root is < |L - p|.
 - two_sided: the shading normal faces the ray (flipped where d·n > 0; 0 is not > 0).
 - Shading: ambient + (lit) lc dc (s·n, or max(s·n, 0) under clamp = true) + (lit, gates) lc sc
@@ -42,6 +43,13 @@ The model, rule by rule (minirt.model.rules; the reference, minirt.reference, do
   takes both branches (the interval's union): a term that is 0 either way, or whose two values are
   within the colour's tolerance, needs no decision. The light exactly at the hit point: unlit.
 - Reflection: up to the scene's max_depth levels, where the hit material reflects.
+
+Robust evaluation (``slack``): the same model with every ray's origin and direction, every hit point and
+each plane's a widened by a relative error ``slack`` (minirt.oracles.exact.render.SLACK, thousands of times a
+float64 tracer's rounding of them). Where every decision is still certified, any tracer whose errors stay
+within the slack makes the exact model's decisions, and its t, normal and colour lie within the widened
+intervals: the reference differing there is certified wrong. Where a decision is not, the pixel is not
+robust: the reference's own rounding may flip it, and it is not judged.
 """
 
 from __future__ import annotations
@@ -153,11 +161,14 @@ class Model:
     """The scene's numbers at one working precision (``ctx.prec`` set by the caller) and the model's
     evaluation of a ray tree (``trace_primary``)."""
 
-    def __init__(self, scene: Scene, rules: Rules, guess: bool = False):
-        """``guess``: take every uncertain decision by its interval's midpoint (a tie's picture, never judged)."""
+    def __init__(self, scene: Scene, rules: Rules, guess: bool = False, slack: float = 0.0):
+        """``guess``: take every uncertain decision by its interval's midpoint (a tie's picture, never judged).
+        ``slack``: the robust evaluation (module docstring): every ray's origin and direction and every hit
+        point widened by this relative error, and each plane's a; 0: the exact model."""
         self.scene, self.rules = scene, rules
         self.sign = midpoint_sign if guess else sign
         self.guess = guess
+        self.slack = slack
         zero = arb(0)
         self.zero3: Vec = (zero, zero, zero)
         self.balls: dict[int, tuple[Vec, arb, arb, tuple[fmpq, ...], fmpq]] = {}
@@ -171,7 +182,8 @@ class Model:
                 nq = tuple(q(c) for c in s.normal)
                 n = tuple(arb(c) for c in s.normal)
                 unit = scale(n, 1 / norm(n))
-                self.planes[k] = (n, arb(s.distance), unit, nq, q(s.distance))
+                a = arb(s.distance) if not slack else arb(s.distance, slack * abs(s.distance))
+                self.planes[k] = (n, a, unit, nq, q(s.distance))
         self.mat = [
             {k: tuple(arb(c) for c in getattr(s.material, k)) for k in ("ambient", "diffuse", "specular", "reflection")}
             for s in scene.shapes
@@ -185,11 +197,21 @@ class Model:
             for s in scene.shapes
         ]  # fmt: skip
         self.bg: Vec = tuple(arb(c) for c in scene.background)
+        keys = [self.key(k, 0) for k in range(len(scene.shapes))]
+        self.same = [[j for j, kj in enumerate(keys) if kj == kk] for kk in keys]
         self.exponent = rules.specular_exponent
         off = rules.offset
         self.offset = None if off == "error-bound" else arb(off)
-        self.offset_zero = off != "error-bound" and off == 0
+        self.offset_zero = off != "error-bound" and off == 0 and not slack
         self.g6, self.g4 = arb(gamma(6)), arb(gamma(4))
+
+    def owned(self, own: tuple[int, int] | None) -> dict[int, int]:
+        """Shape -> what is known of a ray's origin against it (``offset_origin``): the shape it leaves and
+        every shape given with the same numbers (the same surface)."""
+        if own is None:
+            return {}
+        k, side = own
+        return {j: side for j in self.same[k]}
 
     def key(self, k: int, branch: int) -> tuple:
         """What a candidate's t is a function of, beside the ray: equal keys, equal t (module docstring)."""
@@ -237,7 +259,18 @@ class Model:
             cands.append((arb(s) * lv, k, qsign(den), s, self.key(k, 0)))
         oa: Vec = tuple(arb(x) for x in o)
         d = tuple(arb(x) / lv for x in v)
+        if self.slack:  # the robust evaluation: the ray widened, its decisions made on the widened ray
+            oa, d = self.widen(oa), self.widen(d, unit=True)
+            return self.closest(oa, d, None), oa, d
         return self._nearest(cands), oa, d
+
+    def widen(self, v: Vec, unit: bool = False) -> Vec:
+        """v with every component widened by slack times |v|_inf (or, for a unit vector, by slack)."""
+        if not self.slack:
+            return v
+        size = 1.0 if unit else max(abs(float(c.mid())) + float(c.rad()) for c in v)
+        e = arb(0, self.slack * size)
+        return (v[0] + e, v[1] + e, v[2] + e)
 
     def _nearest(self, cands) -> Hit | None:
         """The candidate with the least t; an exact tie keeps the lower shape id (decided where both t are
@@ -266,16 +299,17 @@ class Model:
         return None if best is None else Hit(best[1], best[0], best[2])
 
     # ---- secondary rays, arb ------------------------------------------------------------------
-    def ball_first(self, k: int, o: Vec, w: Vec, own: bool) -> tuple[arb, int] | None:
+    def ball_first(self, k: int, o: Vec, w: Vec, own: int | None = None) -> tuple[arb, int] | None:
         """The first valid root (t > 0; the near one, else under near_root_only false the far one) of the ray
         o + t w (w unit) at ball k and the sign of w·n there (-1 the near root, 1 the far one), None on a
-        miss. ``own``: o lies exactly on this ball (an offset of 0)."""
+        miss. ``own`` (the ray leaves this ball): 0, o lies exactly on it (an offset of 0); 1 or -1, o lies
+        outside or inside it by construction (the error-bound offset's side), whatever o's interval says."""
         center, _, r2, _, _ = self.balls[k]
         f = sub(o, center)
         b = dot(f, w)
         g = sub(f, scale(w, b))
         disc = r2 - dot(g, g)
-        if own:  # c = 0 exactly: roots 0 (never counts) and -2 b
+        if own == 0:  # c = 0 exactly: roots 0 (never counts) and -2 b
             if self.rules.near_root_only:
                 return None
             return (-2 * b, 1) if self.sign(b, f"own ball {k}'s far root") < 0 else None
@@ -283,7 +317,8 @@ class Model:
         if ds < 0:
             return None
         c = dot(f, f) - r2
-        cs, bs = self.sign(c, f"ray origin on ball {k}"), self.sign(b, f"ball {k}: b")
+        cs = own if own is not None else self.sign(c, f"ray origin on ball {k}")
+        bs = self.sign(b, f"ball {k}: b")
         sq = disc.sqrt()
         if cs > 0 and bs < 0:
             return -b - sq, -1
@@ -291,53 +326,63 @@ class Model:
             return -b + sq, 1
         return None
 
-    def plane_t(self, k: int, o: Vec, w: Vec, own: bool) -> tuple[arb, int] | None:
+    def plane_t(self, k: int, o: Vec, w: Vec, own: int | None = None) -> tuple[arb, int] | None:
+        """t of the ray at plane k and the sign of w·n, None on a miss; ``own``: as for ``ball_first`` (1: o
+        lies on the side n points to)."""
         n, a, _, _, _ = self.planes[k]
-        if own:
+        if own == 0:
             return None
         den = dot(n, w)
         ds = self.sign(den, f"plane {k}: n·d")
         if ds == 0:
             return None
         num = a - dot(n, o)
-        ns = self.sign(num, f"plane {k}: ray origin on the plane")
+        ns = -own if own is not None else self.sign(num, f"plane {k}: ray origin on the plane")
         if ns * ds <= 0:
             return None
         return num / den, ds
 
-    def closest(self, o: Vec, w: Vec, own: int | None) -> Hit | None:
+    def closest(self, o: Vec, w: Vec, own: tuple[int, int] | None) -> Hit | None:
+        """The closest hit of the ray (o, w); ``own``: (the shape it leaves, ``ball_first``'s own) or None."""
+        mine = self.owned(own)
         cands = []
         for k in self.balls:
-            got = self.ball_first(k, o, w, own == k)
+            got = self.ball_first(k, o, w, mine.get(k))
             if got is not None:  # d·n at the hit: (b + t)/r, the sign of the root's branch
                 cands.append((got[0], k, got[1], None, self.key(k, got[1])))
         for k in self.planes:
-            got = self.plane_t(k, o, w, own == k)
+            got = self.plane_t(k, o, w, mine.get(k))
             if got is not None:
                 cands.append((got[0], k, got[1], None, self.key(k, 0)))
         return self._nearest(cands)
 
-    def blocked(self, o: Vec, s: Vec, light_dist: arb, own: int | None) -> bool:
-        """Is the shadow ray (o, s) blocked (rule shadow_range)?"""
+    def blocked(self, o: Vec, s: Vec, light_dist: arb, own: tuple[int, int] | None) -> bool:
+        """Is the shadow ray (o, s) blocked (rule shadow_range)? ``own``: as for ``closest``."""
+        mine = self.owned(own)
         to_light = self.rules.shadow_range != "any"
         for k in self.balls:
-            got = self.ball_first(k, o, s, own == k)
+            got = self.ball_first(k, o, s, mine.get(k))
             if got is not None and (not to_light or self.sign(light_dist - got[0], f"ball {k} against the light") > 0):
                 return True
         for k in self.planes:
-            got = self.plane_t(k, o, s, own == k)
+            got = self.plane_t(k, o, s, mine.get(k))
             if got is not None and (not to_light or self.sign(light_dist - got[0], f"plane {k} against the light") > 0):
                 return True
         return False
 
     # ---- shading --------------------------------------------------------------------------------
-    def offset_origin(self, p: Vec, ns: Vec, err: arb | None, direction: Vec, outward: bool) -> Vec:
+    def offset_origin(
+        self, k: int, p: Vec, ns: Vec, flip: int, err: arb | None, direction: Vec, outward: bool
+    ) -> tuple[Vec, tuple[int, int] | None]:
+        """The secondary ray's origin from the hit point p on shape k (shading normal ns = flip n), and what is
+        known of it by construction: (k, 0) on the surface exactly (an offset of 0), (k, side) on the side the
+        error-bound offset put it (1: the side n points to), or None (computed from the origin)."""
         rules = self.rules
         if self.offset is not None:
             along = direction if rules.offset_along == "ray" else ns
-            return add(p, scale(along, self.offset))
+            return add(p, scale(along, self.offset)), ((k, 0) if self.offset_zero else None)
         side = 1 if outward else (-1 if self.sign(dot(ns, direction), "side of the secondary ray") < 0 else 1)
-        return add(p, scale(ns, side * err))
+        return add(p, scale(ns, side * err)), (k, side * flip)
 
     def trace(self, hit: Hit | None, o: Vec, d: Vec, depth_left: int, levels: list[Level] | None) -> Vec:
         """The colour of the ray (o, d) whose closest hit is ``hit``; ``levels``: each level appended."""
@@ -348,7 +393,7 @@ class Model:
                 levels.append(Level(None))
             return self.bg if bg_rule == "on-miss" else self.zero3
         k = hit.shape
-        p = add(o, scale(d, hit.t))
+        p = self.widen(add(o, scale(d, hit.t)))
         if k in self.balls:
             center, r, _, _, _ = self.balls[k]
             n = scale(sub(p, center), 1 / r)
@@ -356,16 +401,15 @@ class Model:
         else:
             n = self.planes[k][2]
             err = self.g4 * (abs(self.planes[k][1]) + norm(p) + norm(o)) if self.offset is None else None
-        ns = n
+        ns, flip = n, 1
         if rules.two_sided and hit.dn_sign > 0:
-            ns = scale(n, -1)
+            ns, flip = scale(n, -1), -1
         mat = self.mat[k]
         terms: dict[str, Vec] = {"ambient": mat["ambient"]}
         local = mat["ambient"]
         dn = dot(d, ns)
-        refl = sub(d, scale(ns, 2 * dn))
+        refl = self.widen(sub(d, scale(ns, 2 * dn)), unit=True)
         outward = self.offset is None and rules.near_root_only and k in self.balls
-        own = k if self.offset_zero else None
         lit = None
         if self.lit_color[k]:
             to_light = sub(self.light, p)
@@ -373,10 +417,10 @@ class Model:
             if self.sign(light_dist, "light at the hit point") == 0:
                 lit, s, sn = False, self.zero3, arb(0)
             else:
-                s = scale(to_light, 1 / light_dist)
+                s = self.widen(scale(to_light, 1 / light_dist), unit=True)
                 sn = dot(s, ns)
-                so = self.offset_origin(p, ns, err, s, outward)
-                lit = not self.blocked(so, s, light_dist, own)
+                so, own = self.offset_origin(k, p, ns, flip, err, s, outward)
+                lit = not self.blocked(self.widen(so), s, light_dist, own)
             zero = self.zero3
             if lit:
                 fac = sn
@@ -398,7 +442,8 @@ class Model:
         if levels is not None:
             levels.append(level)
         if depth_left > 0 and self.reflective[k]:
-            ro = self.offset_origin(p, ns, err, refl, outward)
+            ro, own = self.offset_origin(k, p, ns, flip, err, refl, outward)
+            ro = self.widen(ro)
             nxt = self.closest(ro, refl, own)
             child = self.trace(nxt, ro, refl, depth_left - 1, levels)
         terms["reflection"] = mul3(mat["reflection"], child)

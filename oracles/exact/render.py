@@ -30,7 +30,11 @@ PRECISIONS = (128, 256, 512, 1024)
 # Colours to 2^-40 absolute: 2^-32 of an 8-bit level, so the level of every colour not within 2^-40 of a
 # rounding threshold is certain.
 COLOR_ABS = 2.0**-40
-_COLOR_ARB = arb(COLOR_ABS)
+# The robust evaluation's relative widening of every ray, hit point and plane offset (model docstring):
+# 2^-40, 8,192 times float64's unit round-off -- above what a float64 tracer's chain of a few dozen roundings
+# per level can reach (the reference's bounds: minirt.oracles.exact.band_scales, 32 u), below anything a
+# picture shows.
+SLACK = 2.0**-40
 
 
 @dataclass
@@ -49,6 +53,10 @@ class Pixel:
     bits: int = 0  # the precision that certified it (the last tried, for a tie)
     tie: str = ""  # the decision no precision certified ("": none)
     levels: int = 0  # levels of the ray tree traced
+    robust: bool = False  # every decision certified under SLACK too (then the bounds below hold)
+    t_bounds: tuple[float, float] = (math.inf, math.inf)
+    color_bounds: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * 3, (0.0,) * 3)
+    normal_bounds: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * 3, (0.0,) * 3)
 
 
 def _mid(x: arb) -> float:
@@ -59,12 +67,20 @@ def _vec(v) -> tuple[float, float, float]:
     return (_mid(v[0]), _mid(v[1]), _mid(v[2]))
 
 
+def _bounds(v) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Lower and upper bounds of each component, rounded outwards to binary64."""
+    lo = tuple(math.nextafter(float(c.lower()), -math.inf) for c in v)
+    hi = tuple(math.nextafter(float(c.upper()), math.inf) for c in v)
+    return lo, hi
+
+
 class PixelTracer:
     """The exact model of one scene under one set of rules, pixel by pixel (a Model per precision)."""
 
     def __init__(self, scene: Scene, rules: Rules):
         self.scene, self.rules = scene, rules
         self._models: dict[int, Model] = {}
+        self._robust: Model | None = None
         self.depth = scene.max_depth
 
     def model(self, bits: int) -> Model:
@@ -102,9 +118,31 @@ class PixelTracer:
                 continue
             rad = max(float(c.rad()) for c in color)
             if rad <= COLOR_ABS:
-                return self._pixel(index, levels, color, bits, "")
+                return self.robust(self._pixel(index, levels, color, bits, ""), u, v)
             why = "a colour gate (s·n or r·s under clamp) at its threshold"
         return self._tie(index, u, v, why)
+
+    def robust(self, px: Pixel, u: float, v: float) -> Pixel:
+        """The pixel's robust bounds (model docstring, ``SLACK``), where its decisions are robust."""
+        set_precision(PRECISIONS[0])
+        if self._robust is None:
+            self._robust = Model(self.scene, self.rules, slack=SLACK)
+        m = self._robust
+        try:
+            o, d = m.primary(*self.position(px.index, u, v))
+            hit, oa, da = m.closest_primary(o, d)
+            levels: list[Level] = []
+            color = m.trace(hit, oa, da, self.depth, levels)
+        except Uncertain:
+            return px
+        first = levels[0]
+        px.robust = True
+        px.color_bounds = _bounds(color)
+        if first.hit is not None:
+            lo, hi = _bounds((first.hit.t,))
+            px.t_bounds = (lo[0], hi[0])
+            px.normal_bounds = _bounds(first.n)
+        return px
 
     def _tie(self, index: int, u: float, v: float, why: str) -> Pixel:
         """The values of an exact tie for the picture: the last precision with every uncertain decision
@@ -185,7 +223,9 @@ def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str
     sid = np.full(n, -1, dtype=np.int32)
     t = np.full(n, np.inf)
     pos, nrm, col = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
-    rendered, tie = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    rendered, tie, robust = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    t_b, c_lo, c_hi = np.full((n, 2), np.inf), np.zeros((n, 3)), np.zeros((n, 3))
+    n_lo, n_hi = np.zeros((n, 3)), np.zeros((n, 3))
     bits, crad, trel = np.zeros(n, dtype=np.int32), np.zeros(n), np.zeros(n)
     term = {k: np.zeros((n, 3)) for k in TERMS}
     for px in pixels:
@@ -194,6 +234,8 @@ def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str
         rendered[i], tie[i], bits[i], crad[i], trel[i] = True, bool(px.tie), px.bits, px.color_rad, px.t_rel
         for k, v in px.terms.items():
             term[k][i] = v
+        robust[i], t_b[i], (c_lo[i], c_hi[i]), (n_lo[i], n_hi[i]) = (
+            px.robust, px.t_bounds, px.color_bounds, px.normal_bounds)  # fmt: skip
     hit = sid >= 0
     out = {
         "shape_id": sid.reshape(h, w),
@@ -207,6 +249,13 @@ def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str
         "certified_bits": bits.reshape(h, w),
         "color_rad": crad.reshape(h, w),
         "t_rel_rad": trel.reshape(h, w),
+        "robust": robust.reshape(h, w),
+        "t_lo": t_b[:, 0].reshape(h, w),
+        "t_hi": t_b[:, 1].reshape(h, w),
+        "color_lo": c_lo.reshape(h, w, 3),
+        "color_hi": c_hi.reshape(h, w, 3),
+        "normal_lo": n_lo.reshape(h, w, 3),
+        "normal_hi": n_hi.reshape(h, w, 3),
     }
     if terms:
         out["terms"] = {k: v.reshape(h, w, 3) for k, v in term.items() if v.any()}
