@@ -163,19 +163,24 @@ def disputed_pixels(checks: dict[str, Check], ref: RenderResult) -> np.ndarray:
     return out
 
 
-def review(bc, scene: Scene, rules: Rules, certified: str | None = None):
+def review(bc, scene: Scene, rules: Rules, certified: str | None = None, renders: dict | None = None):
     """A float oracle's check (minirt.harness.results.BackendCheck) with the judge's ruling: a FAIL of its
     geometry or shading stands only where the reference is certified wrong; where the judge settles the
     disagreement for the reference it is the oracle's imprecision (a WARN saying so). Other verdicts, a
     check that failed elsewhere (pre-flight, samples) and a certified oracle's own check are returned as
-    they are. The ruling is kept as the check "judge" (figures and masks)."""
+    they are. The ruling is kept as the check "judge" (figures and masks). ``renders``: a dict the certified
+    renders are kept in, by rules, to be reused by the next review of the same scene."""
     certified = certified or certified_oracle()
     failing = [k for k, c in bc.checks.items() if c.verdict == "fail"]
     if bc.verdict != "fail" or certified is None or is_certified(bc.backend) or bc.reference is None:
         return bc
     if not failing or any(k not in ("geometry", "shading") for k in failing):
         return bc
-    exact = render_certified(scene, backends.rules_for(bc.backend, rules), certified)
+    followed = backends.rules_for(bc.backend, rules)
+    renders = {} if renders is None else renders
+    if followed not in renders:
+        renders[followed] = render_certified(scene, followed, certified)
+    exact = renders[followed]
     if exact is None:
         return bc
     r = rule(bc.reference, exact, disputed_pixels(bc.checks, bc.reference))

@@ -322,6 +322,15 @@ class ExactOracle(Oracle):
                             position=buf["position"], normal=buf["normal"], color=color,
                             terms=buf.get("terms", {}), aux=aux, meta=meta)  # fmt: skip
 
+    def probe(self, scene: Scene, rules: Rules, x: int, y: int) -> dict[str, Any]:
+        """Pixel (x, y)'s certified ray tree (minirt.oracles.exact.render.PixelTracer.describe): what `minirt
+        probe --certified` shows beside the reference's."""
+        from minirt.oracles.exact.render import PixelTracer
+
+        uv = 0.0 if rules.pixel_sample == "corner" else 0.5
+        out = PixelTracer(scene, rules).describe(y * scene.camera.width + x, uv, uv)
+        return {"backend": NAME, "version": version_line(), **out}
+
     @staticmethod
     def precision(scene: Scene, rules: Rules) -> dict[str, Any]:
         """What ``geometry_tolerance`` reads: the reference's error bound's inputs."""

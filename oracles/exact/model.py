@@ -63,6 +63,7 @@ from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
 
 U64 = fmpq(1, 2**53)
+OFFSET_SURE = 32  # see Model.offset_sure
 
 
 class Uncertain(Exception):
@@ -380,9 +381,31 @@ class Model:
         rules = self.rules
         if self.offset is not None:
             along = direction if rules.offset_along == "ray" else ns
-            return add(p, scale(along, self.offset)), ((k, 0) if self.offset_zero else None)
+            origin = add(p, scale(along, self.offset))
+            if self.offset_zero:
+                return origin, (k, 0)
+            if rules.offset_along == "normal" and self.offset_sure(k, p, flip):
+                return origin, (k, flip)
+            return origin, None
         side = 1 if outward else (-1 if self.sign(dot(ns, direction), "side of the secondary ray") < 0 else 1)
         return add(p, scale(ns, side * err)), (k, side * flip)
+
+    def offset_sure(self, k: int, p: Vec, flip: int) -> bool:
+        """Does a numeric offset along the shading normal put the origin on its side (flip: 1 the side n points
+        to) of shape k by construction? Exactly: always, except into a ball by more than its diameter. Robust:
+        also only when the offset exceeds OFFSET_SURE u (|p| + |C| + r) -- a float64 tracer's error of its hit
+        point across the surface (about 4 u of those sizes: the point's rounding, f = p - C's) 8 times over."""
+        off = float(self.offset.mid())
+        size = abs(float(self.planes[k][1].mid())) if k in self.planes else 0.0
+        if k in self.balls:
+            s = self.scene.shapes[k]
+            if flip < 0 and off >= 2 * s.radius:
+                return False
+            size = math.hypot(*s.center) + s.radius
+        if not self.slack:
+            return True
+        reach = max(abs(float(c.mid())) + float(c.rad()) for c in p) * math.sqrt(3)
+        return off > OFFSET_SURE * float(U64) * (reach + size)
 
     def trace(self, hit: Hit | None, o: Vec, d: Vec, depth_left: int, levels: list[Level] | None) -> Vec:
         """The colour of the ray (o, d) whose closest hit is ``hit``; ``levels``: each level appended."""

@@ -30,11 +30,13 @@ PRECISIONS = (128, 256, 512, 1024)
 # Colours to 2^-40 absolute: 2^-32 of an 8-bit level, so the level of every colour not within 2^-40 of a
 # rounding threshold is certain.
 COLOR_ABS = 2.0**-40
-# The robust evaluation's relative widening of every ray, hit point and plane offset (model docstring):
-# 2^-40, 8,192 times float64's unit round-off -- above what a float64 tracer's chain of a few dozen roundings
-# per level can reach (the reference's bounds: minirt.oracles.exact.band_scales, 32 u), below anything a
-# picture shows.
-SLACK = 2.0**-40
+# The robust evaluation's relative widening of every ray, hit point and plane offset (model docstring), a
+# unit round-off for the intervals: each quantity computed from widened inputs carries SLACK times the sizes
+# it is computed from, as the reference's carries u times them. 2^-44 = 512 u: measured on generated scenes
+# (tests/campaign/test_judge.py), the reference's largest error against the interval's reach was 1/4 of it at
+# 2^-46 (a planet's t: |f| 7e7, 1.1e-6 against 4.2e-6) and exceeded it at 2^-48; 512 u keeps 16 times that.
+# A smaller widening settles more pixels (a far cluster whose 1e-6 offset is below 2^-44 |p| is not settled).
+SLACK = 2.0**-44
 
 
 @dataclass
@@ -143,6 +145,43 @@ class PixelTracer:
             px.t_bounds = (lo[0], hi[0])
             px.normal_bounds = _bounds(first.n)
         return px
+
+    def describe(self, index: int, u: float, v: float) -> dict:
+        """One ray's certified ray tree, level by level, as the probe shows it: each level's hit (shape, t as
+        an interval, point, normal), lit or not, terms and colour; the precision that certified it, or the
+        tie; and whether the pixel is robust, with its colour bounds."""
+        px = self.pixel(index, u, v)
+        bits = px.bits
+        if px.tie:
+            set_precision(bits)
+            m = Model(self.scene, self.rules, guess=True)
+            o, d = m.primary(*self.position(index, u, v))
+            hit, oa, da = m.closest_primary(o, d)
+            levels: list[Level] = []
+            color = m.trace(hit, oa, da, self.depth, levels)
+        else:
+            _, levels, color = self.levels(index, u, v, bits)
+        out_levels = []
+        for depth, lvl in enumerate(levels):
+            entry: dict = {"depth": depth, "hit": None}
+            if lvl.hit is not None:
+                lo, hi = _bounds((lvl.hit.t,))
+                entry["hit"] = {"id": lvl.hit.shape, "t": _mid(lvl.hit.t), "t_interval": [lo[0], hi[0]],
+                                "point": list(_vec(lvl.p)), "normal": list(_vec(lvl.n))}  # fmt: skip
+                entry["lit"] = lvl.lit
+                entry["terms"] = {k: list(_vec(v)) for k, v in lvl.terms.items()}
+                entry["color"] = list(_vec(lvl.color))
+            out_levels.append(entry)
+        lo, hi = px.color_bounds
+        return {
+            "bits": bits,
+            "tie": px.tie or None,
+            "color": list(_vec(color)),
+            "color_radius": px.color_rad,
+            "robust": px.robust,
+            "robust_color": [list(lo), list(hi)] if px.robust else None,
+            "levels": out_levels,
+        }
 
     def _tie(self, index: int, u: float, v: float, why: str) -> Pixel:
         """The values of an exact tie for the picture: the last precision with every uncertain decision
