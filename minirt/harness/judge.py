@@ -13,10 +13,10 @@ the colour (``aux`` "robust", "t_lo", "t_hi", "normal_lo", "normal_hi", "color_l
   there: its disagreement is its own (``review``).
 
 Pixels that are not robust (a decision within the widening of flipping), exact ties and pixels not traced
-are not settled: neither the reference nor the oracle is blamed there. ``review`` turns a float oracle's
-FAIL into a WARN when the judge certifies the reference everywhere it can: a FAIL stands only where the
-reference is certified wrong. ``certify`` gives the certified oracle's own check the same verdict: FAIL
-exactly when the reference is certified wrong somewhere.
+are not settled: neither the reference nor the oracle is blamed there. ``review`` makes a float oracle's
+check FAIL where the judge certifies the reference wrong, and its FAIL a WARN where the judge certifies the
+reference everywhere it can: a FAIL stands only where the reference is certified wrong. ``certify`` gives
+the certified oracle's own check the same verdict: FAIL exactly when the reference is certified wrong.
 """
 
 from __future__ import annotations
@@ -164,17 +164,18 @@ def disputed_pixels(checks: dict[str, Check], ref: RenderResult) -> np.ndarray:
 
 
 def review(bc, scene: Scene, rules: Rules, certified: str | None = None, renders: dict | None = None):
-    """A float oracle's check (minirt.harness.results.BackendCheck) with the judge's ruling: a FAIL of its
-    geometry or shading stands only where the reference is certified wrong; where the judge settles the
-    disagreement for the reference it is the oracle's imprecision (a WARN saying so). Other verdicts, a
-    check that failed elsewhere (pre-flight, samples) and a certified oracle's own check are returned as
-    they are. The ruling is kept as the check "judge" (figures and masks). ``renders``: a dict the certified
-    renders are kept in, by rules, to be reused by the next review of the same scene."""
+    """A float oracle's check (minirt.harness.results.BackendCheck) with the judge's ruling under the rules the
+    oracle follows: where the judge certifies the reference wrong the check FAILs, whatever the oracle's own
+    bands let through; otherwise a FAIL of its geometry or shading is the oracle's imprecision where the judge
+    settles the disagreement for the reference (a WARN saying so). A skip or an error, a check that failed
+    elsewhere (pre-flight, samples) and a certified oracle's own check are returned as they are. The ruling
+    is kept as the check "judge" (figures and masks). ``renders``: a dict the certified renders are kept
+    in, by rules, to be reused by the next review of the same scene."""
     certified = certified or certified_oracle()
     failing = [k for k, c in bc.checks.items() if c.verdict == "fail"]
-    if bc.verdict != "fail" or certified is None or is_certified(bc.backend) or bc.reference is None:
+    if bc.verdict not in ("pass", "warn", "fail") or certified is None or is_certified(bc.backend):
         return bc
-    if not failing or any(k not in ("geometry", "shading") for k in failing):
+    if bc.reference is None or any(k not in ("geometry", "shading") for k in failing):
         return bc
     followed = backends.rules_for(bc.backend, rules)
     renders = {} if renders is None else renders
@@ -186,9 +187,14 @@ def review(bc, scene: Scene, rules: Rules, certified: str | None = None, renders
     r = rule(bc.reference, exact, disputed_pixels(bc.checks, bc.reference))
     images = {"reference_wrong": r.reference_wrong, "oracle_imprecise": r.oracle_wrong, "settled": r.settled}
     if r.reference_wrong.any():
-        reason = f"{certified}: the reference certified wrong at {int(r.reference_wrong.sum())} pixel(s)"
+        # certified wrong: a FAIL, whatever the oracle's own check could see (a change inside its bands)
+        where = ", ".join(f"{k} {n}" for k, n in r.kinds.items() if n)
+        reason = f"the reference certified wrong at {int(r.reference_wrong.sum())} pixel(s) ({where}) by {certified}"
         bc.checks["judge"] = Check("fail", r.figures(), reason, images=images)
-        bc.reason = f"{bc.reason}; judge: {reason}"
+        bc.reason = f"judge: {reason}" + (f"; {bc.reason}" if bc.reason else "")
+        bc.verdict = "fail"
+        return bc
+    if bc.verdict != "fail":
         return bc
     n, unsettled = int(r.oracle_wrong.sum()), int((r.disputed & ~r.settled).sum())
     reason = (f"{bc.backend}'s imprecision: it disagrees with the reference at {int(r.disputed.sum())} pixel(s); "
