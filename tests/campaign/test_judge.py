@@ -123,3 +123,34 @@ material = "m"
     r = judge.rule(ReferenceCache(scene).get(rules, samples=1), exact)
     assert not r.settled[3, 2] and r.settled[0, 0]
     assert np.array_equal(r.reference_wrong, np.zeros_like(r.reference_wrong))
+
+
+def test_a_change_inside_a_float_oracles_tolerance_fails_where_the_judge_certifies_it():
+    # light-moved on grazing_31337_0 changes only Mitsuba's diffuse term (its rules, its model), within
+    # Mitsuba's own tolerance: its check passes; the judge, under Mitsuba's rules, certifies the moved light's
+    # colours wrong -- a FAIL
+    ((_, _, text),) = [s for s in scenes(3, 31337, ["random", "start", "grazing"], (24, 24)) if s[1] == "grazing"]
+    scene = parse_scene(text, "grazing_31337_0.toml")
+    rules = resolve(scene)
+    bad = _DefectiveReference(scene, DEFECTS["light-moved"])
+    bc = check_backend(scene, rules, "mitsuba", bad, explain=False)
+    assert bc.verdict != "fail"
+    bc = judge.review(bc, scene, rules)
+    assert bc.verdict == "fail" and bc.reason.startswith("judge: the reference certified wrong")
+    assert bc.checks["judge"].figures["reference_wrong_by_kind"]["color"] > 0
+
+
+def test_probe_shows_the_certified_values_beside_the_references():
+    from support.inproc import minirt
+
+    p = minirt("probe", "exercise", "100", "140", "--width", "256", "--height", "256", "--certified", "--json")
+    assert p.returncode == 0, p.stderr
+    import json
+
+    d = json.loads(p.stdout)
+    c = d["certified"]
+    assert c["backend"] == CERTIFIED and c["bits"] == PRECISIONS[0] and c["robust"] and c["tie"] is None
+    assert [lvl["hit"]["id"] for lvl in c["levels"] if lvl["hit"]] == [0, 1]
+    assert max(abs(a - b) for a, b in zip(c["color"], d["color"], strict=True)) < 1e-12
+    text = minirt("probe", "exercise", "100", "140", "--certified").stdout
+    assert f"certified ({CERTIFIED}, certified at 128 bits):" in text and "robust" in text
