@@ -4,7 +4,8 @@ A certified oracle is a backend whose decisions are the exact model's (``certifi
 registry by that capability, never by name). Its render carries, per pixel, whether the pixel is *robust*
 -- every decision of its ray tree certified even with every ray, hit point and plane widened by far more
 than float64's rounding -- and the bounds any tracer within that widening must give: t, the normal and
-the colour (``aux`` "robust", "t_lo", "t_hi", "normal_lo", "normal_hi", "color_lo", "color_hi"). There:
+the colour (``aux`` "robust", "t_lo", "t_hi", "normal_lo", "normal_hi", "color_lo", "color_hi"); t and the
+normal also where only the primary ray's decisions are robust ("robust_geometry"). There:
 
 - the reference is *certified wrong* (``reference_errors``) where its hit/miss or shape id differs from the
   certified one, or its t, normal or 8-bit colour lies outside those bounds (the colour widened by
@@ -98,7 +99,10 @@ def reference_errors(ref: RenderResult, exact: RenderResult) -> tuple[np.ndarray
     certified wrong, and how many of those per kind (module docstring)."""
     a = exact.aux
     h, w = ref.height, ref.width
-    settled = a.get("rendered", np.ones((h, w), dtype=bool)) & a["robust"] & ~a.get("exact_tie", np.zeros((h, w), bool))
+    traced = a.get("rendered", np.ones((h, w), dtype=bool)) & ~a.get("exact_tie", np.zeros((h, w), bool))
+    settled = traced & a["robust"]
+    # the primary ray's decisions may be robust where a deeper one is not: hit, id, t and normal settled there
+    geometry = traced & a.get("robust_geometry", a["robust"])
     hit = ref.hit != exact.hit
     ids = ref.hit & exact.hit & (ref.shape_id != exact.shape_id)
     both = ref.hit & exact.hit & ~ids
@@ -113,7 +117,7 @@ def reference_errors(ref: RenderResult, exact: RenderResult) -> tuple[np.ndarray
     wrong = np.zeros((h, w), dtype=bool)
     kinds = {}
     for k in KINDS:
-        m = settled & masks[k]
+        m = (settled if k == "color" else geometry) & masks[k]
         kinds[k] = int(m.sum())
         wrong |= m
     return settled, wrong, kinds

@@ -46,6 +46,9 @@ from minirt.model.scene import Ball, Scene
 from minirt.oracles.base import Oracle
 
 NAME = "exact"
+# The per-pixel buffers a render adds (minirt.oracles.exact.render.buffers; the judge reads the robust ones)
+AUX = ("rendered", "exact_tie", "certified_bits", "color_rad", "t_rel_rad", "robust", "robust_geometry",
+       "t_lo", "t_hi", "color_lo", "color_hi", "normal_lo", "normal_hi")  # fmt: skip
 WHOLE_IMAGE_PIXELS = 512 * 512
 SAMPLE_PIXELS = 4096
 SAMPLE_SEED = 38
@@ -290,8 +293,7 @@ class ExactOracle(Oracle):
         seconds = time.perf_counter() - t0
         ties = [{"pixel": int(px.index), "decision": px.tie} for r in results for px in r if px.tie]
         bits = np.concatenate([[px.bits for px in r] for r in results]) if pixels.size else np.zeros(0)
-        aux = {k: buf[k] for k in ("rendered", "exact_tie", "certified_bits", "color_rad", "t_rel_rad", "robust",
-                                   "t_lo", "t_hi", "color_lo", "color_hi", "normal_lo", "normal_hi")}  # fmt: skip
+        aux = {k: buf[k] for k in AUX}
         # The model's colour is negative where the rules leave s·n or (r·s)^e unclamped (profile exercise);
         # the harness's pre-flight takes a negative colour for a broken renderer, and every check reads the
         # 8-bit image, clamp(c, 0, 1): the colour is given from 0 up, the model's own in aux "color_exact".

@@ -407,6 +407,15 @@ class Model:
         reach = max(abs(float(c.mid())) + float(c.rad()) for c in p) * math.sqrt(3)
         return off > OFFSET_SURE * float(U64) * (reach + size)
 
+    def frame(self, hit: Hit, o: Vec, d: Vec) -> tuple[Vec, Vec]:
+        """The hit point p = o + t d and the hit shape's own normal there: (p - C)/r, or the plane's n/|n|."""
+        k = hit.shape
+        p = self.widen(add(o, scale(d, hit.t)))
+        if k in self.balls:
+            center, r, _, _, _ = self.balls[k]
+            return p, scale(sub(p, center), 1 / r)
+        return p, self.planes[k][2]
+
     def trace(self, hit: Hit | None, o: Vec, d: Vec, depth_left: int, levels: list[Level] | None) -> Vec:
         """The colour of the ray (o, d) whose closest hit is ``hit``; ``levels``: each level appended."""
         rules = self.rules
@@ -416,13 +425,10 @@ class Model:
                 levels.append(Level(None))
             return self.bg if bg_rule == "on-miss" else self.zero3
         k = hit.shape
-        p = self.widen(add(o, scale(d, hit.t)))
+        p, n = self.frame(hit, o, d)
         if k in self.balls:
-            center, r, _, _, _ = self.balls[k]
-            n = scale(sub(p, center), 1 / r)
-            err = self.g6 * (r + norm(p)) if self.offset is None else None
+            err = self.g6 * (self.balls[k][1] + norm(p)) if self.offset is None else None
         else:
-            n = self.planes[k][2]
             err = self.g4 * (abs(self.planes[k][1]) + norm(p) + norm(o)) if self.offset is None else None
         ns, flip = n, 1
         if rules.two_sided and hit.dn_sign > 0:

@@ -55,7 +55,8 @@ class Pixel:
     bits: int = 0  # the precision that certified it (the last tried, for a tie)
     tie: str = ""  # the decision no precision certified ("": none)
     levels: int = 0  # levels of the ray tree traced
-    robust: bool = False  # every decision certified under SLACK too (then the bounds below hold)
+    robust: bool = False  # every decision certified under SLACK too (then the colour bounds hold)
+    robust_geometry: bool = False  # the primary ray's decisions certified under SLACK (then t and normal bounds)
     t_bounds: tuple[float, float] = (math.inf, math.inf)
     color_bounds: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * 3, (0.0,) * 3)
     normal_bounds: tuple[tuple[float, ...], tuple[float, ...]] = ((0.0,) * 3, (0.0,) * 3)
@@ -130,20 +131,22 @@ class PixelTracer:
         if self._robust is None:
             self._robust = Model(self.scene, self.rules, slack=SLACK)
         m = self._robust
-        try:
+        try:  # the primary ray's decisions: hit, shape, t and normal (the geometry buffers)
             o, d = m.primary(*self.position(px.index, u, v))
             hit, oa, da = m.closest_primary(o, d)
-            levels: list[Level] = []
-            color = m.trace(hit, oa, da, self.depth, levels)
         except Uncertain:
             return px
-        first = levels[0]
+        px.robust_geometry = True
+        if hit is not None:
+            lo, hi = _bounds((hit.t,))
+            px.t_bounds = (lo[0], hi[0])
+            px.normal_bounds = _bounds(m.frame(hit, oa, da)[1])
+        try:  # and every decision below it: the colour
+            color = m.trace(hit, oa, da, self.depth, [])
+        except Uncertain:
+            return px
         px.robust = True
         px.color_bounds = _bounds(color)
-        if first.hit is not None:
-            lo, hi = _bounds((first.hit.t,))
-            px.t_bounds = (lo[0], hi[0])
-            px.normal_bounds = _bounds(first.n)
         return px
 
     def describe(self, index: int, u: float, v: float) -> dict:
@@ -263,6 +266,7 @@ def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str
     t = np.full(n, np.inf)
     pos, nrm, col = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
     rendered, tie, robust = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    robust_geometry = np.zeros(n, dtype=bool)
     t_b, c_lo, c_hi = np.full((n, 2), np.inf), np.zeros((n, 3)), np.zeros((n, 3))
     n_lo, n_hi = np.zeros((n, 3)), np.zeros((n, 3))
     bits, crad, trel = np.zeros(n, dtype=np.int32), np.zeros(n), np.zeros(n)
@@ -275,6 +279,7 @@ def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str
             term[k][i] = v
         robust[i], t_b[i], (c_lo[i], c_hi[i]), (n_lo[i], n_hi[i]) = (
             px.robust, px.t_bounds, px.color_bounds, px.normal_bounds)  # fmt: skip
+        robust_geometry[i] = px.robust_geometry
     hit = sid >= 0
     out = {
         "shape_id": sid.reshape(h, w),
@@ -289,6 +294,7 @@ def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str
         "color_rad": crad.reshape(h, w),
         "t_rel_rad": trel.reshape(h, w),
         "robust": robust.reshape(h, w),
+        "robust_geometry": robust_geometry.reshape(h, w),
         "t_lo": t_b[:, 0].reshape(h, w),
         "t_hi": t_b[:, 1].reshape(h, w),
         "color_lo": c_lo.reshape(h, w, 3),
