@@ -18,10 +18,13 @@ Conventions bridged (none: this is the model the reference tracer computes in fl
   offset from the exact hit point); an offset of 0 starts a ray exactly on its surface, where a root
   t = 0 does not count.
 - Every rule is followed (``supported`` is empty); the output rules are the bitmap's, as for every backend.
-- Pixels: the whole image up to ``WHOLE_IMAGE_PIXELS`` (64^2, a campaign's sizes); a larger image a
-  stratified sample of ``SAMPLE_PIXELS`` (one pixel of each block, deterministic), plus the pixels
-  ``options["pixels"]`` names (row-major indices: those another oracle left inconclusive), or every pixel
-  with ``options["pixels"] = "all"``. A pixel not traced is in ``aux["rendered"]`` false and not judged.
+- Pixels: the whole image up to ``WHOLE_IMAGE_PIXELS`` (512^2: ~10 s at 40 us a ray; campaign sizes are
+  64^2 at most); a larger image a stratified sample of ``SAMPLE_PIXELS`` (one pixel of each block,
+  deterministic), plus the pixels ``options["pixels"]`` names (row-major indices: those another oracle
+  left inconclusive), or every pixel with ``options["pixels"] = "all"``. A pixel not traced is in
+  ``aux["rendered"]`` false and not judged.
+- Robust bounds (``aux`` "robust", "robust_geometry", "t_lo" ... "color_hi"): the model again with every
+  ray, hit point and plane widened (minirt.oracles.exact.model), what minirt.harness.judge rules with.
 - Tolerance (``geometry_tolerance``): zero on decisions, except where the *reference's* float64 error
   bound lets its own decision flip -- the band is the reference's, per shape (``band_scales``) -- and the
   reference's error bound on t and normals: the reference's stability is what this oracle judges.

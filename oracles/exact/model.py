@@ -503,9 +503,3 @@ def _gate3(x: arb, yes: Vec, no: Vec) -> Vec:
 
 def set_precision(bits: int) -> None:
     ctx.prec = bits
-
-
-def finite(x: arb) -> float:
-    """The midpoint as the nearest binary64."""
-    v = float(x.mid())
-    return v if math.isfinite(v) else math.nan
