@@ -103,11 +103,21 @@ class PixelTracer:
         """The ray tree of one ray at one precision (``Uncertain`` where a decision is not certified):
         its model, its levels and its colour."""
         m = self.model(bits)
+        return (m, *self.run(m, index, u, v))
+
+    def run(self, m: Model, index: int, u: float, v: float) -> tuple[list[Level], object]:
+        """The ray tree of one ray in model ``m``: its levels and its colour."""
         o, d = m.primary(*self.position(index, u, v))
         hit, oa, da = m.closest_primary(o, d)
         levels: list[Level] = []
         color = m.trace(hit, oa, da, self.depth, levels)
-        return m, levels, color
+        return levels, color
+
+    def guessed(self, index: int, u: float, v: float) -> tuple[list[Level], object]:
+        """A tie's ray tree for the picture: the last precision, every uncertain decision taken by its
+        interval's midpoint."""
+        set_precision(PRECISIONS[-1])
+        return self.run(Model(self.scene, self.rules, guess=True), index, u, v)
 
     def pixel(self, index: int, u: float, v: float) -> Pixel:
         """One ray, certified: at each precision in turn until every decision is and the colour is known to
@@ -155,15 +165,7 @@ class PixelTracer:
         tie; and whether the pixel is robust, with its colour bounds."""
         px = self.pixel(index, u, v)
         bits = px.bits
-        if px.tie:
-            set_precision(bits)
-            m = Model(self.scene, self.rules, guess=True)
-            o, d = m.primary(*self.position(index, u, v))
-            hit, oa, da = m.closest_primary(o, d)
-            levels: list[Level] = []
-            color = m.trace(hit, oa, da, self.depth, levels)
-        else:
-            _, levels, color = self.levels(index, u, v, bits)
+        levels, color = self.guessed(index, u, v) if px.tie else self.levels(index, u, v, bits)[1:]
         out_levels = []
         for depth, lvl in enumerate(levels):
             entry: dict = {"depth": depth, "hit": None}
@@ -189,14 +191,8 @@ class PixelTracer:
     def _tie(self, index: int, u: float, v: float, why: str) -> Pixel:
         """The values of an exact tie for the picture: the last precision with every uncertain decision
         taken by its interval's midpoint."""
-        bits = PRECISIONS[-1]
-        set_precision(bits)
-        m = Model(self.scene, self.rules, guess=True)
-        o, d = m.primary(*self.position(index, u, v))
-        hit, oa, da = m.closest_primary(o, d)
-        levels: list[Level] = []
-        color = m.trace(hit, oa, da, self.depth, levels)
-        return self._pixel(index, levels, color, bits, why or "undecided")
+        levels, color = self.guessed(index, u, v)
+        return self._pixel(index, levels, color, PRECISIONS[-1], why or "undecided")
 
     def _pixel(self, index: int, levels: list[Level], color, bits: int, tie: str) -> Pixel:
         first = levels[0]

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.exact_cases import FLOOR, TANGENT_BALL, exact_case
 
 from minirt.campaign.campaign import DEFECTS, _DefectiveReference, scenes
 from minirt.harness import backends, judge
@@ -94,30 +95,7 @@ def test_no_correct_reference_is_blamed():
 
 def test_a_pixel_within_the_widening_is_not_settled():
     # the shadow ray's tangent ball (test_oracle_exact): an exact tie, and so never settled
-    text = """
-[camera]
-distance = 1.0
-width = 4
-height = 4
-[light]
-position = [0.0, 9.0, 3.0]
-[materials.m]
-ambient = [0.1, 0.1, 0.1]
-diffuse = [0.5, 0.5, 0.5]
-[model]
-ray_origin = "camera"
-[[shapes]]
-type = "plane"
-normal = [0.0, 1.0, 0.0]
-distance = -1.0
-material = "m"
-[[shapes]]
-type = "ball"
-center = [1.0, 4.0, 3.0]
-radius = 1.0
-material = "m"
-"""
-    scene = parse_scene(text, "t.toml")
+    scene = exact_case(f"{FLOOR}\n{TANGENT_BALL}")
     rules = resolve(scene)
     exact = judge.render_certified(scene, rules)
     r = judge.rule(ReferenceCache(scene).get(rules, samples=1), exact)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from flint import fmpq
+from support.exact_cases import FLOOR, TANGENT_BALL, exact_case
 
 from minirt.campaign.campaign import DEFECTS, _DefectiveReference
 from minirt.harness import backends
@@ -18,26 +19,14 @@ from minirt.harness.compare import check_backend
 from minirt.harness.references import ReferenceCache
 from minirt.model.bundled import find_scene
 from minirt.model.rules import PROFILES, Rules, resolve
-from minirt.model.scene import load_scene, parse_scene
+from minirt.model.scene import load_scene
 from minirt.oracles import get
 from minirt.oracles.exact import WHOLE_IMAGE_PIXELS, choose_pixels, stratified
 from minirt.oracles.exact.render import PRECISIONS, PixelTracer
 
-HEADER = """
-[camera]
-distance = 1.0
-width = 4
-height = 4
-[light]
-position = [0.0, 9.0, 3.0]
-[materials.m]
-ambient = [0.1, 0.1, 0.1]
-diffuse = [0.5, 0.5, 0.5]
-"""
 
-
-def _scene(shapes: str, model: str = 'ray_origin = "camera"', header: str = HEADER):
-    return parse_scene(f"{header}\n[model]\n{model}\n{shapes}", "test.toml")
+def _scene(shapes: str, model: str = 'ray_origin = "camera"'):
+    return exact_case(shapes, model)
 
 
 def _exact(scene, rules=None, **options):
@@ -61,8 +50,7 @@ def test_a_shadow_ray_exactly_tangent_to_a_ball_is_a_tie_not_a_guess():
     # pixel (2, 3) meets the floor y = -1 at (0, -1, 3) exactly; the light (0, 9, 3) straight above; the shadow
     # ray runs along +y and touches the ball (1, 4, 3), r = 1 at (0, 4, 3): an exact tangent, lit or not is the
     # sign of a discriminant that is exactly 0 -- undecidable in intervals at any precision: a tie
-    floor = '[[shapes]]\ntype = "plane"\nnormal = [0.0, 1.0, 0.0]\ndistance = -1.0\nmaterial = "m"'
-    ball = '[[shapes]]\ntype = "ball"\ncenter = [1.0, 4.0, 3.0]\nradius = 1.0\nmaterial = "m"'
+    floor, ball = FLOOR, TANGENT_BALL
     scene = _scene(f"{floor}\n{ball}", 'ray_origin = "camera"\noffset = 0.0')
     res = _exact(scene)
     assert res.shape_id[3, 2] == 0 and res.position[3, 2].tolist() == [0.0, -1.0, 3.0]
