@@ -250,11 +250,15 @@ class Job:
     defects: tuple[str, ...] = ()
 
 
+JUDGE = "judge"  # the certified oracle's version line, under this key of ``job_key``'s versions
+
+
 def job_key(job: Job, versions: dict[str, str]) -> str:
     """The cache key: SHA-256 over everything the job's result depends on (module docstring)."""
     return digest(
         {"text": job.text, "backend": job.backend, "defects": list(job.defects),
-         "minirt": versions["minirt"], "drjit": versions["drjit"], "oracle": versions.get(job.backend, "")}
+         "minirt": versions["minirt"], "drjit": versions["drjit"], "oracle": versions.get(job.backend, ""),
+         "judge": versions.get(JUDGE, "")}
     )  # fmt: skip
 
 
@@ -501,7 +505,11 @@ def run(
     from minirt.jobs.cache import Cache
 
     t0 = time.perf_counter()
-    v = versions(campaign.backends)
+    from minirt.harness.judge import certified_oracle
+
+    certified = certified_oracle()  # the judge every job goes before: its version is part of each job's key
+    v = versions([*campaign.backends, *([certified] if certified else [])])
+    v[JUDGE] = v.get(certified, "") if certified else ""
     # an error may be passing (a dead worker, a renderer missing here): never stored, redone next time
     store = None if cache is None else Cache(cache, lambda j: job_key(j, v), CODEC, _not_error, label="fuzz cache")
     campaign.outcomes = [None] * (campaign.count * len(campaign.backends))
