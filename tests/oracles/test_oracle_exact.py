@@ -141,3 +141,15 @@ def test_bad_options_are_an_error_result(options):
 def test_found_by_capability_not_by_name():
     certified = [n for n in backends.oracle_names() if getattr(backends.get(n), "certified", False)]
     assert certified == ["exact"]
+
+
+def test_several_samples_take_the_references_own_sub_pixel_positions():
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=12, height=12, samples=4)
+    rules = resolve(scene)
+    res = _exact(scene, rules, samples=4)
+    ref = backends.render("reference", scene, rules)
+    assert res.meta["settings"]["samples_cast"] == 4 and not res.aux["exact_tie"].any()
+    # the same rays (binary64 sub-pixel offsets, taken exactly), so the same mean colour to float64's rounding
+    assert np.abs(res.aux["color_exact"] - ref.color).max() < 1e-12
+    one = _exact(scene, rules)
+    assert np.abs(one.aux["color_exact"] - ref.color).max() > 1e-3  # one ray per pixel is another picture
