@@ -16,6 +16,7 @@ REGISTRY: dict[str, str] = {
     "povray": "minirt.oracles.povray:PovrayOracle",
     "embree": "minirt.oracles.embree:EmbreeOracle",
     "cycles": "minirt.oracles.cycles:CyclesOracle",
+    "exact": "minirt.oracles.exact:ExactOracle",
 }
 
 

@@ -25,6 +25,12 @@ over the scenes where the defect changes the image for some oracle; caught means
 changes failed. ``rate_judged`` counts only the changes that oracle's check can see: on the pixels it
 judges (outside its bands, depth ties and edges), beyond its per-pixel t and normal tolerances there,
 in scenes it can judge (its check of the correct reference conclusive).
+
+**The judge of last resort** (minirt.harness.judge). Every check, of the correct reference and of each
+defective one, goes before a certified oracle when the registry has one: a float oracle's FAIL stands
+only where the judge certifies the reference wrong (elsewhere its disagreement is its own imprecision: a
+WARN, the ruling in its evidence), and the certified oracle's own check FAILs exactly where the reference
+is certified wrong -- at every pixel whose decisions are robust, edges and bands included.
 """
 
 from __future__ import annotations
@@ -244,22 +250,36 @@ class Job:
     defects: tuple[str, ...] = ()
 
 
+JUDGE = "judge"  # the certified oracle's version line, under this key of ``job_key``'s versions
+
+
 def job_key(job: Job, versions: dict[str, str]) -> str:
     """The cache key: SHA-256 over everything the job's result depends on (module docstring)."""
     return digest(
         {"text": job.text, "backend": job.backend, "defects": list(job.defects),
-         "minirt": versions["minirt"], "drjit": versions["drjit"], "oracle": versions.get(job.backend, "")}
+         "minirt": versions["minirt"], "drjit": versions["drjit"], "oracle": versions.get(job.backend, ""),
+         "judge": versions.get(JUDGE, "")}
     )  # fmt: skip
 
 
 def run_job(job: Job) -> dict[str, Any]:
     """One (scene, oracle) check and its defect checks, as a plain dict (what the cache stores).
     Non-PASS verdicts carry their evidence: the check's JSON and the two images as PNG bytes."""
-    from minirt.harness import backends
+    from minirt.harness import backends, judge
     from minirt.harness import compare as harness
 
     t0 = time.perf_counter()
     scene, rules, refs, bc = harness.check_text(job.text, f"{job.scene}.toml", job.backend, explain=False)
+    certified, renders = judge.certified_oracle(), {}
+
+    def judged_check(c):
+        """The judge of last resort on a check (minirt.harness.judge): a certified oracle's verdict is the
+        judge's; a float oracle's FAIL stands only where the reference is certified wrong."""
+        if judge.is_certified(job.backend):
+            return judge.certify(c)
+        return judge.review(c, scene, rules, certified, renders)
+
+    bc = judged_check(bc)
     out: dict[str, Any] = {
         "scene": job.scene, "family": job.family, "backend": job.backend, "verdict": bc.verdict,
         "inconclusive": bc.inconclusive, "reason": bc.reason,
@@ -282,7 +302,7 @@ def run_job(job: Job) -> dict[str, Any]:
             model = backends.get(job.backend).shading_model
             changed = changes(clean, got, model)
             dc = (
-                harness.check_backend(scene, rules, job.backend, bad, rendered=bc.result, explain=False)
+                judged_check(harness.check_backend(scene, rules, job.backend, bad, rendered=bc.result, explain=False))
                 if changed
                 else None
             )
@@ -485,7 +505,11 @@ def run(
     from minirt.jobs.cache import Cache
 
     t0 = time.perf_counter()
-    v = versions(campaign.backends)
+    from minirt.harness.judge import certified_oracle
+
+    certified = certified_oracle()  # the judge every job goes before: its version is part of each job's key
+    v = versions([*campaign.backends, *([certified] if certified else [])])
+    v[JUDGE] = v.get(certified, "") if certified else ""
     # an error may be passing (a dead worker, a renderer missing here): never stored, redone next time
     store = None if cache is None else Cache(cache, lambda j: job_key(j, v), CODEC, _not_error, label="fuzz cache")
     campaign.outcomes = [None] * (campaign.count * len(campaign.backends))

@@ -37,6 +37,9 @@ FUZZ_HELP = "\n\n".join([
     "is refused before it starts.",
     "--defects also checks each oracle against the reference with an injected bug (defects: {defects}): "
     "a defect that changes a scene's image must make some oracle FAIL there; the catch rate is reported.",
+    "With a certified oracle installed, every check goes before it (the judge of last resort): a FAIL stands "
+    "only where exact arithmetic certifies the reference wrong, and an oracle's disagreement it settles for "
+    "the reference is that oracle's imprecision (a WARN, said in its evidence).",
     "Every non-PASS keeps its scene file, the check's JSON and both images in OUT. Writes OUT/fuzz.json "
     "(and --json). Exit status: 0 nothing failed, 1 a check failed, 2 a backend error or bad input.",
 ])  # fmt: skip

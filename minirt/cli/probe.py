@@ -1,6 +1,6 @@
 """``minirt probe``: one pixel traced step by step -- its ray, every shape's intersection, the shadow ray,
 the shading terms, the reflections and the secondary rays' offset -- and, with --image, another tracer's
-value there beside the reference's.
+value there beside the reference's; with --certified, the exact model's (a certified oracle's).
 
 minirt.reference.probe does the tracing; this module prints what it found.
 """
@@ -40,6 +40,9 @@ def probe(
     precision: Annotated[Precision, typer.Option("--precision")] = Precision.f64,
     profile: ProfileOpt = None,
     rule: RuleOpt = None,
+    certified: Annotated[
+        bool, typer.Option("--certified", help="Also the certified (exact arithmetic) values of the pixel.")
+    ] = False,
 ) -> None:
     """Trace one pixel step by step: ray, every shape's intersection, shadow ray, terms, reflections.
 
@@ -59,6 +62,10 @@ def probe(
     p = run_probe(scene, rules, x, y, precision.value)
     if target is not None:
         p["image"] = image_pixel(scene, p, target, rules, notes)
+    if certified:
+        from minirt.cli.certified import certified_probe
+
+        p["certified"] = certified_probe(scene, rules, x, y)
     if as_json:
         emit_json("-", p)
         return
@@ -135,3 +142,7 @@ def _print_probe(p: dict[str, Any]) -> None:
         out.print(terminal_text(f"your image: {yours} [{im['format']}]  reference: {ref} -> {diff}"))
         if im.get("departs"):
             out.print(terminal_text(f"where it departs: {im['departs']}"))
+    if p.get("certified"):
+        from minirt.cli.certified import print_certified
+
+        print_certified(p["certified"])

@@ -7,7 +7,8 @@ geometry is decided and statistically where a renderer samples, with verdicts.
   (8-bit levels and colour differences), stochastic (per-pixel Welch tests for sampled images),
   references and attribution (the reference's renders, which rules explain a difference), compare (one
   backend against the reference), run (scenes x backends as jobs, cached), checks (what the command line
-  and the API share), junit;
+  and the API share), junit, judge (a certified oracle's ruling on the reference, the campaign's judge of
+  last resort);
 - tolerances: every threshold with its derivation, and the way to each backend's own geometry tolerance.
 
 May import: minirt.diagnose, minirt.reference, minirt.oracles and below -- never pages, grading,

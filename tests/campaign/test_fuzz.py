@@ -225,6 +225,7 @@ def test_job_key_changes_with_what_the_result_depends_on():
     assert k != campaign.job_key(campaign.Job("s", "random", "text", "mitsuba", ()), v)
     assert k != campaign.job_key(campaign.Job("s", "random", "text", "povray", ("t-scaled",)), v)
     assert k != campaign.job_key(j, {**v, "povray": "3.8"})
+    assert k != campaign.job_key(j, {**v, campaign.JUDGE: "another certified oracle"})  # the judge it goes before
     assert k != campaign.job_key(j, {**v, "minirt": "b"})
 
 

@@ -169,7 +169,7 @@ def test_the_reference_alone_has_nothing_to_compare_with(command, tmp_path):
             "-q", cwd=Path(__file__).resolve().parents[2])  # fmt: skip
     assert p.returncode == 2 and p.stderr.strip().splitlines() == [
         "minirt: error: --backend reference: no oracle to compare with (give one or more of mitsuba, povray, "
-        "embree, cycles, or all)"
+        "embree, cycles, exact, or all)"
     ], p.stderr
     assert not (tmp_path / "o").exists()
 

@@ -12,6 +12,7 @@ import pytest
 from support.evidence import dump_check
 from support.scenes import SHINY, ball, plane, scene_text, write_scene
 
+from minirt.harness import backends
 from minirt.harness.run import check_scene
 from minirt.oracles import names as oracle_names
 
@@ -173,7 +174,8 @@ def test_a_planet_sized_ground_is_inconclusive_for_the_float32_oracles(tmp_path)
     sc = check_scene(path, ["reference", *oracle_names()])
     for name, b in sc.backends.items():
         fig = b.checks["geometry"].figures["inconclusive"]
-        if name == "povray":
+        # POV-Ray decides in double precision; a certified oracle's band is the reference's own float64 one
+        if name == "povray" or getattr(backends.get(name), "certified", False):
             assert b.verdict == "pass" and not b.inconclusive, b.reason
             assert fig["band_fraction"] < 0.1 and fig["judged_pixels"] > 0.9 * fig["hit_pixels"]
             continue

@@ -1,0 +1,155 @@
+"""The exact oracle (python-flint ball arithmetic): certified decisions on constructed tangent and tie cases,
+the reference judged with zero tolerance on decisions, and a known-wrong reference caught.
+
+The constructed scenes put the decisive quantity exactly at 0 in rational arithmetic on binary64 numbers
+(an axis ray tangent to a ball, a plane through a ray's origin, a ball given twice), so what the oracle
+must say is known without it; the reference's float64 answers there are whatever its rounding gives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from flint import fmpq
+from support.exact_cases import FLOOR, TANGENT_BALL, exact_case
+
+from minirt.campaign.campaign import DEFECTS, _DefectiveReference
+from minirt.harness import backends
+from minirt.harness.compare import check_backend
+from minirt.harness.references import ReferenceCache
+from minirt.model.bundled import find_scene
+from minirt.model.rules import PROFILES, Rules, resolve
+from minirt.model.scene import load_scene
+from minirt.oracles import get
+from minirt.oracles.exact import WHOLE_IMAGE_PIXELS, choose_pixels, stratified
+from minirt.oracles.exact.render import PRECISIONS, PixelTracer
+
+
+def _scene(shapes: str, model: str = 'ray_origin = "camera"'):
+    return exact_case(shapes, model)
+
+
+def _exact(scene, rules=None, **options):
+    res = get("exact").render(scene, rules or resolve(scene), options)
+    assert res.ok, res.reason
+    return res
+
+
+def test_a_tangent_primary_ray_is_a_certified_hit():
+    # pixel (2, 2)'s corner ray from the camera (0, 0, -1) runs along +z; the ball (1, 0, 5), r = 1 touches it
+    # at (0, 0, 5): discriminant exactly 0, which counts as a hit at t = 6 -- decided exactly, no tie
+    scene = _scene('[[shapes]]\ntype = "ball"\ncenter = [1.0, 0.0, 5.0]\nradius = 1.0\nmaterial = "m"')
+    res = _exact(scene)
+    assert res.hit[2, 2] and res.t[2, 2] == 6.0
+    assert not res.aux["exact_tie"].any()
+    assert res.aux["certified_bits"][2, 2] == PRECISIONS[0]
+    assert not res.hit[2, 1]  # the pixel to its left: its ray bends away from the ball
+
+
+def test_a_shadow_ray_exactly_tangent_to_a_ball_is_a_tie_not_a_guess():
+    # pixel (2, 3) meets the floor y = -1 at (0, -1, 3) exactly; the light (0, 9, 3) straight above; the shadow
+    # ray runs along +y and touches the ball (1, 4, 3), r = 1 at (0, 4, 3): an exact tangent, lit or not is the
+    # sign of a discriminant that is exactly 0 -- undecidable in intervals at any precision: a tie
+    floor, ball = FLOOR, TANGENT_BALL
+    scene = _scene(f"{floor}\n{ball}", 'ray_origin = "camera"\noffset = 0.0')
+    res = _exact(scene)
+    assert res.shape_id[3, 2] == 0 and res.position[3, 2].tolist() == [0.0, -1.0, 3.0]
+    assert res.aux["exact_tie"][3, 2] and res.aux["certified_bits"][3, 2] == PRECISIONS[-1]
+    assert "ball 1" in res.meta["ties"][0]["decision"] and res.meta["ties"][0]["pixel"] == 14
+    # moved by one binary64 step the shadow ray misses it, certified
+    moved = _scene(f"{floor}\n{ball.replace('radius = 1.0', 'radius = 0.9999999999999999')}",
+                   'ray_origin = "camera"\noffset = 0.0')  # fmt: skip
+    got = _exact(moved)
+    assert not got.aux["exact_tie"].any() and got.terms["diffuse"][3, 2].max() > 0
+
+
+def test_an_offset_of_zero_starts_on_the_surface_exactly():
+    # the floor point's shadow ray starts on the floor itself (offset 0): its root t = 0 does not count, so the
+    # point is lit -- certified (a computed origin would put the floor's own root at +-0 forever)
+    scene = _scene('[[shapes]]\ntype = "plane"\nnormal = [0.0, 1.0, 0.0]\ndistance = -1.0\nmaterial = "m"',
+                   'ray_origin = "camera"\noffset = 0.0')  # fmt: skip
+    res = _exact(scene)
+    assert not res.aux["exact_tie"].any()
+    assert (res.terms["diffuse"][res.hit] > 0).all()
+
+
+def test_a_ray_starting_on_a_plane_misses_it_exactly():
+    # the plane y = 1/4 holds the image-plane origin of row 1 ((-y/4 + 1/2) = 1/4), whose rays leave it upwards:
+    # t = 0 exactly, no hit -- decided at the first precision (an interval around the origin never would be)
+    scene = _scene('[[shapes]]\ntype = "plane"\nnormal = [0.0, 1.0, 0.0]\ndistance = 0.25\nmaterial = "m"',
+                   'ray_origin = "image-plane"')  # fmt: skip
+    res = _exact(scene)
+    assert not res.hit[1].any() and not res.aux["exact_tie"].any()
+    assert (res.aux["certified_bits"][1] == PRECISIONS[0]).all()
+
+
+def test_a_shape_given_twice_keeps_the_lower_id():
+    ball = '[[shapes]]\ntype = "ball"\ncenter = [0.0, 0.0, 3.0]\nradius = 1.0\nmaterial = "m"'
+    res = _exact(_scene(f"{ball}\n{ball}"))
+    assert res.hit.any() and (res.shape_id[res.hit] == 0).all() and not res.aux["exact_tie"].any()
+
+
+@pytest.mark.parametrize("profile", list(PROFILES))
+def test_every_profile_passes_on_a_bundled_scene(profile):
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=24, height=24, profile=profile)
+    rules = resolve(scene)
+    bc = check_backend(scene, rules, "exact", ReferenceCache(scene), explain=False)
+    assert bc.verdict == "pass", bc.reason
+    geom = bc.checks["geometry"].figures
+    assert geom["band_pixels"] < 0.05 * geom["pixels"]  # conclusive: nearly every pixel judged
+
+
+def test_a_known_wrong_reference_is_caught():
+    scene = load_scene(find_scene("shadows")).with_overrides(width=24, height=24)
+    rules = resolve(scene)
+    for name in ("no-shadows", "light-moved", "t-scaled"):
+        bad = _DefectiveReference(scene, DEFECTS[name])
+        bc = check_backend(scene, rules, "exact", bad, explain=False)
+        assert bc.verdict == "fail", (name, bc.reason)
+
+
+def test_rays_are_the_exercises_exact_ones_not_the_references():
+    # a pixel shift and a sub-pixel position the reference rounds: the exact origin is (x + u + dx)/W - 1/2
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=3, height=3)
+    rules = Rules(pixel_shift=(0.1, 0.0), pixel_sample="center")
+    tracer = PixelTracer(scene, rules)
+    fx, fy = tracer.position(4, 0.5, 0.5)
+    m = tracer.model(PRECISIONS[0])
+    o, _ = m.primary(fx, fy)
+
+    assert o[0] == (fmpq(1) + fmpq(1, 2) + fmpq(3602879701896397, 2**55)) / 3 - fmpq(1, 2)
+
+
+def test_pixels_chosen_for_large_images():
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=1024, height=1024)
+    chosen = choose_pixels(scene, [5, 7])
+    assert {5, 7} <= set(chosen.tolist()) and len(chosen) < 2 * 4096
+    assert np.array_equal(stratified(1024, 1024), stratified(1024, 1024))  # deterministic
+    small = load_scene(find_scene("three_balls")).with_overrides(width=64, height=64)
+    assert len(choose_pixels(small, None)) == 64 * 64 <= WHOLE_IMAGE_PIXELS
+    res = _exact(load_scene(find_scene("three_balls")).with_overrides(width=16, height=16), pixels=[3, 200])
+    assert res.aux["rendered"].sum() == 2
+
+
+@pytest.mark.parametrize("options", [{"pixels": "some"}, {"pixels": [-1]}, {"samples": 0}, {"colour": 1}])
+def test_bad_options_are_an_error_result(options):
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=8, height=8)
+    res = get("exact").render(scene, resolve(scene), options)
+    assert res.status == "error" and res.reason
+
+
+def test_found_by_capability_not_by_name():
+    certified = [n for n in backends.oracle_names() if getattr(backends.get(n), "certified", False)]
+    assert certified == ["exact"]
+
+
+def test_several_samples_take_the_references_own_sub_pixel_positions():
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=12, height=12, samples=4)
+    rules = resolve(scene)
+    res = _exact(scene, rules, samples=4)
+    ref = backends.render("reference", scene, rules)
+    assert res.meta["settings"]["samples_cast"] == 4 and not res.aux["exact_tie"].any()
+    # the same rays (binary64 sub-pixel offsets, taken exactly), so the same mean colour to float64's rounding
+    assert np.abs(res.aux["color_exact"] - ref.color).max() < 1e-12
+    one = _exact(scene, rules)
+    assert np.abs(one.aux["color_exact"] - ref.color).max() > 1e-3  # one ray per pixel is another picture
