@@ -326,11 +326,11 @@ class ExactOracle(Oracle):
                 "ties": len(ties),
                 "bits": {str(b): int((bits == b).sum()) for b in sorted(set(bits.tolist()))},
                 "color_abs": 2.0**-40,
-                "seconds_per_ray": seconds / max(1, pixels.size * samples),
             },
             "ties": ties[:100],
             "effects": {"simulated": ["geometry", "shading"], "skipped": []},
-            "timings": {"total": seconds},
+            # Timings only here: a render's sidecar leaves "timings" out, so the same command writes the same bytes
+            "timings": {"total": seconds, "per_ray": seconds / max(1, pixels.size * samples)},
             "commands": ["minirt.oracles.exact.render.trace_pixels (python-flint arb)"],
         }
         return RenderResult(backend=NAME, width=w, height=h, hit=buf["hit"], shape_id=buf["shape_id"], t=buf["t"],
