@@ -30,6 +30,23 @@ def plane_frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t1, t2
 
 
+def materials_use(scene: Scene, term: str) -> bool:
+    """Does some shape's material have a non-zero ``term`` ("ambient", "specular", "reflection", ...)? What
+    an oracle whose renderer has no such term (a physical one) must say it leaves out."""
+    return any(any(v != 0 for v in getattr(s.material, term)) for s in scene.shapes)
+
+
+def median_light_distance(scene: Scene, o: np.ndarray, d: np.ndarray, t: np.ndarray) -> float | None:
+    """The median distance from the light to the hit points o + t d of the rays with a finite t; None when
+    no ray hits. The distance at which an export's light, scaled by pi d^2, gives the exercise's brightness
+    (Mitsuba's and Cycles' viewing_distance)."""
+    hit = np.isfinite(t)
+    if not hit.any():
+        return None
+    p = o[hit] + t[hit, None] * d[hit]
+    return float(np.median(np.linalg.norm(p - np.asarray(scene.light.position, dtype=np.float64), axis=1)))
+
+
 def ball_silhouette_margins(
     scene: Scene, o: np.ndarray, d: np.ndarray, shape_id: np.ndarray
 ) -> Iterator[tuple[np.ndarray, Ball, np.ndarray, np.ndarray]]:

@@ -195,24 +195,24 @@ class Grade:
 
     def reproduce(self) -> str:
         """The command whose PNG is the image (as far as the diagnosis explains it)."""
-        cmd = ["minirt", "render", self.scene_file]
-        if self.size_override:
-            cmd += ["--width", str(self.size_override[0]), "--height", str(self.size_override[1])]
-        if self.diagnosis:
-            for name, value in sorted(self.diagnosis.changed.items()):
-                cmd += ["--rule", f"{name}={value}"]
-        return shlex.join(cmd)
+        return shlex.join(["minirt", "render", self.scene_file, *self._settings()])
 
     def probe_command(self, x: int, y: int) -> str:
         """The command that traces pixel (x, y) step by step under the diagnosis's rules, beside the image's
         value, and says where the image departs (``minirt probe --image``)."""
-        cmd = ["minirt", "probe", self.scene_file, str(x), str(y), "--image", self.image]
+        return shlex.join(
+            ["minirt", "probe", self.scene_file, str(x), str(y), "--image", self.image, *self._settings()]
+        )
+
+    def _settings(self) -> list[str]:
+        """The size and rule arguments under which the reference renders the image as the diagnosis explains it."""
+        args = []
         if self.size_override:
-            cmd += ["--width", str(self.size_override[0]), "--height", str(self.size_override[1])]
+            args += ["--width", str(self.size_override[0]), "--height", str(self.size_override[1])]
         if self.diagnosis:
             for name, value in sorted(self.diagnosis.changed.items()):
-                cmd += ["--rule", f"{name}={value}"]
-        return shlex.join(cmd)
+                args += ["--rule", f"{name}={value}"]
+        return args
 
     def summary(self) -> str:
         if self.verdict == ERROR:

@@ -82,7 +82,7 @@ from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Tr
 from minirt.model.result import RenderResult, geometry_from_flat, to8
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
-from minirt.oracles.base import Oracle
+from minirt.oracles.base import Oracle, materials_use
 from minirt.oracles.cycles import precision as pr
 from minirt.oracles.cycles import run
 from minirt.oracles.cycles import scene as cs
@@ -105,15 +105,10 @@ def default_timeout(scene: Scene, samples: int) -> float:
 
 
 def unsupported_terms(scene: Scene, rules: Rules, direct_only: bool) -> list[str]:
-    mats = [s.material for s in scene.shapes]
-    out = []
-    if any(any(v != 0 for v in m.ambient) for m in mats):
-        out.append("ambient")
-    if any(any(v != 0 for v in m.specular) for m in mats):
-        out.append("specular")
+    out = [term for term in ("ambient", "specular") if materials_use(scene, term)]
     if any(v != 0 for v in scene.background) and rules.background != "on-miss":
         out.append("background")
-    if direct_only and scene.max_depth > 0 and any(any(v != 0 for v in m.reflection) for m in mats):
+    if direct_only and scene.max_depth > 0 and materials_use(scene, "reflection"):
         out.append("reflection")  # the statistical route renders direct light only
     return out
 

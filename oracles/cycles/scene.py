@@ -16,7 +16,7 @@ import numpy as np
 from minirt.model import camera
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
-from minirt.oracles.base import plane_frame
+from minirt.oracles.base import median_light_distance, plane_frame
 
 U32 = 2.0**-24  # float32 unit round-off
 
@@ -364,11 +364,7 @@ def viewing_distance(scene: Scene, rules: Rules, side: int = 64) -> float | None
     by pi d^2, gives the exercise's brightness."""
     o, d = _grid_rays(scene, rules, side)
     t, _ = first_hits(scene, o, d, 1e-9)
-    hit = np.isfinite(t)
-    if not hit.any():
-        return None
-    p = o[hit] + t[hit, None] * d[hit]
-    return float(np.median(np.linalg.norm(p - np.asarray(scene.light.position, dtype=np.float64), axis=1)))
+    return median_light_distance(scene, o, d, t)
 
 
 # ---------------------------------------------------------------------------------------------

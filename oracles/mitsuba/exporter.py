@@ -19,6 +19,7 @@ import numpy as np
 from minirt.model import camera
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
+from minirt.oracles.base import median_light_distance
 from minirt.oracles.mitsuba.planes import PlaneRect, plane_frames
 from minirt.oracles.mitsuba.variants import PACKAGE_VERSION
 
@@ -132,11 +133,7 @@ def viewing_distance(scene: Scene, rules: Rules) -> float | None:
                 t = (s.distance - o @ n) / den
             t = np.where(np.isfinite(t) & (t > 1e-9), t, np.inf)
         best = np.minimum(best, t)
-    hit = np.isfinite(best)
-    if not hit.any():
-        return None
-    p = o[hit] + best[hit, None] * d[hit]
-    return float(np.median(np.linalg.norm(p - np.asarray(scene.light.position, dtype=np.float64), axis=1)))
+    return median_light_distance(scene, o, d, best)
 
 
 def scene_to_xml(

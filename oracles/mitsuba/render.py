@@ -14,6 +14,7 @@ import numpy as np
 from minirt.model import camera
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
+from minirt.oracles.base import materials_use
 from minirt.oracles.mitsuba.accuracy import BAND_K, DIR_ERR, NORMAL_DEG, T_REL, U32, band_scales, shape_eps
 from minirt.oracles.mitsuba.exporter import scene_to_xml
 from minirt.oracles.mitsuba.planes import PlaneRect
@@ -21,15 +22,10 @@ from minirt.oracles.mitsuba.variants import BACKEND
 
 
 def _unsupported_terms(scene: Scene, mode: str) -> list[str]:
-    mats = [s.material for s in scene.shapes]
-    out = []
-    if any(any(v != 0 for v in m.ambient) for m in mats):
-        out.append("ambient")
-    if any(any(v != 0 for v in m.specular) for m in mats):
-        out.append("specular")
+    out = [term for term in ("ambient", "specular") if materials_use(scene, term)]
     if any(v != 0 for v in scene.background):
         out.append("background")
-    if mode == "sensor" and scene.max_depth > 0 and any(any(v != 0 for v in m.reflection) for m in mats):
+    if mode == "sensor" and scene.max_depth > 0 and materials_use(scene, "reflection"):
         out.append("reflection")  # the `direct` integrator does not follow delta reflections
     return out
 
