@@ -108,17 +108,24 @@ def test_every_fuzz_family_warns_as_the_definition_does(family):
         assert jumped > 0
 
 
+def _jump_inputs(scene, offset=0.05):
+    """The rules (a numeric offset large enough to jump into neighbours), the secondary rays' starts of a
+    render, the balls, and each start before and after the offset; asserts the grid (not its fallback, the
+    tree) answers the scene."""
+    rules = resolve(scene, None, {"offset": offset})
+    g = hazards._secondary(scene, rules, render(scene, rules))
+    balls = hazards._Balls.of(scene)
+    p = g["p"]
+    q = p + offset * g["n"]
+    assert hazards._grid_pairs(balls, p, q) is not None
+    return rules, g, balls, p, q
+
+
 def test_the_grid_answers_and_can_disagree_with_a_wrong_answer():
     """The grid (not its fallback, the tree) answers a scene of touching balls, and a candidate list that
     misses one ball makes the answer differ: the comparison above can fail."""
     scene = parse_scene(scene_text("contact", 37, 3, 64, 64))
-    rules = resolve(scene, None, {"offset": 0.05})
-    res = render(scene, rules)
-    g = hazards._secondary(scene, rules, res)
-    balls = hazards._Balls.of(scene)
-    p = g["p"]
-    q = p + 0.05 * g["n"]
-    assert hazards._grid_pairs(balls, p, q) is not None
+    rules, g, balls, p, q = _jump_inputs(scene)
     right = hazards._jumped(scene, p, q, g["id"], balls)
     want = judge_by_definition(scene, rules, g, "f64")["jumped"]
     np.testing.assert_array_equal(right, want)
@@ -144,13 +151,7 @@ def test_many_balls_on_the_grid_match_the_tree():
     from minirt.campaign.generate import balls_scene
 
     scene = parse_scene(balls_scene(200, seed=3, width=96, height=96))
-    rules = resolve(scene, None, {"offset": 0.05})  # an offset large enough to jump into neighbours
-    res = render(scene, rules)
-    g = hazards._secondary(scene, rules, res)
-    balls = hazards._Balls.of(scene)
-    p = g["p"]
-    q = p + 0.05 * g["n"]
-    assert hazards._grid_pairs(balls, p, q) is not None
+    _, g, balls, p, q = _jump_inputs(scene)
     grid = hazards._jumped(scene, p, q, g["id"], balls)
     tree = hazards._jumped_tree(balls, p, q, g["id"])
     with np.errstate(invalid="ignore"):
