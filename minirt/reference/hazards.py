@@ -79,7 +79,9 @@ def _secondary(
             out["shadow"] = s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-300)
     if fx.reflection:
         kr = np.array([any(c != 0 for c in sh.material.reflection) for sh in scene.shapes], dtype=bool)
-        out["reflection"] = None if d is None else d - 2 * np.einsum("ij,ij->i", d, n)[:, None] * n
+        r = None if d is None else d - 2 * np.einsum("ij,ij->i", d, n)[:, None] * n
+        # normalised, as the tracer's reflected Ray (minirt.reference.shading)
+        out["reflection"] = None if r is None else r / np.linalg.norm(r, axis=1, keepdims=True)
         out["reflects"] = kr[sid] if len(sid) else np.zeros(0, dtype=bool)
     return out
 

@@ -165,8 +165,13 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
     if fx.ambient:
         terms["ambient"] = dr.select(hit, values.material(shape_id, "ambient"), zero)
         local = local + terms["ambient"]
-    r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction
-    r_dir = r  # the reflected ray's direction
+    r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction: the highlight's r·s takes it as computed
+    # The reflected Ray's direction, normalised: the exercise's Ray holds a normalised direction, and its
+    # ball intersection (Appendix 2) drops d·d = 1. r is of unit length only to within the normal's error,
+    # which is relative to the ball's radius, not to the hit point: a ball of radius 20 hit 4e7 from the
+    # origin has |n|^2 - 1 ~ 1e-10, and a ray of that length, solved as if unit, lands 1.5e-3 inside a
+    # planet 1.6e7 away -- its shadow ray then starts inside and sees no blocker (the campaign's far_6005_0).
+    r_dir = dr.normalize(r)
     # rule raw_normals: the normal as a solution that never normalises it has it, of length r for a ball
     # (p - c) and |n| as written for a plane (values.normal_length); the offset keeps the unit one. Under
     # ``runtime`` both switches are read at run time: one kernel for every value (a diagnosis tries them all).
@@ -177,11 +182,11 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
         nr = ns * values.normal_length(shape_id)
     if raw_reflection is not False:
         r_raw = d - 2 * dr.dot(d, nr) * nr  # the highlight's r·s takes it as computed
-        r_unit = dr.normalize(r_raw)  # the exercise's Ray holds a normalised direction
+        r_unit = dr.normalize(r_raw)  # normalised, as above
         if raw_reflection is True:
             r, r_dir = r_raw, r_unit
         else:
-            r, r_dir = dr.select(raw_reflection, r_raw, r), dr.select(raw_reflection, r_unit, r)
+            r, r_dir = dr.select(raw_reflection, r_raw, r), dr.select(raw_reflection, r_unit, r_dir)
     err = interaction.error_bound(tr, shape_id, p, o) if rules.offset == "error-bound" else None
     outward = interaction.outward(tr, shape_id)
     clamp_all, clamp_specular = values.rule(rules.clamp is True), values.rule(rules.clamp == "specular")

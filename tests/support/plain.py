@@ -156,7 +156,7 @@ class Plain:
         nr = mul(sub(p, shape.center) if isinstance(shape, Ball) else mul(shape.normal, shape.written), flip)
         if raw in ("reflection", "both"):
             r = sub(d, mul(nr, 2 * dot(d, nr)))
-        r_dir = normalize(r) if raw in ("reflection", "both") else r
+        r_dir = normalize(r)  # the reflected Ray's direction is normalised (Appendix 2 drops d·d)
         so = self.start(shape, p, n, s, o)
         blocked = False
         for other in sc.shapes:
