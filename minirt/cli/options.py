@@ -49,7 +49,15 @@ ScenesArg = Annotated[
         metavar="SCENE...", help="Scene files, bundled scenes' names or folders (default: the bundled scenes)."
     ),
 ]
-OraclesOpt = Annotated[str, typer.Option("--backend", "-b", help="Oracles to compare with (comma list or all).")]
+# The backends by name, written out for the help texts (importing the registry pulls NumPy into `--help`);
+# tests/cli/test_startup.py holds them to the registry's names and order.
+BACKEND_NAMES = ("reference", "mitsuba", "povray", "embree", "cycles", "exact")
+OraclesOpt = Annotated[
+    str,
+    typer.Option(
+        "--backend", "-b", help=f"Oracles to compare with: {', '.join(BACKEND_NAMES[1:])}, a comma list, or all."
+    ),
+]
 SizeOpt = Annotated[str | None, typer.Option("--size", help="Render at WIDTHxHEIGHT instead of the scene's size.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")]
 

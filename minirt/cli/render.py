@@ -16,6 +16,7 @@ from rich.table import Table
 
 from minirt.cli.console import err, out, progress_bar, warn
 from minirt.cli.options import (
+    BACKEND_NAMES,
     HeightOpt,
     Precision,
     ProfileOpt,
@@ -43,7 +44,7 @@ RENDER_HELP = "\n\n".join([
 def render(
     scene_path: SceneArg,
     backend: Annotated[
-        str, typer.Option("--backend", "-b", help="reference, mitsuba, povray, embree, a comma list, or all.")
+        str, typer.Option("--backend", "-b", help=f"{', '.join(BACKEND_NAMES)}, a comma list, or all.")
     ] = "reference",
     out_dir: Annotated[
         Path | None, typer.Option("--out", "-o", help="Output folder (default renders/<scene name>).")

@@ -67,13 +67,16 @@ def diagnose_oracle(scene: Scene, rules: Rules, followed: Rules, res: RenderResu
     from minirt.model import bitmap
     from minirt.model import rules as rules_mod
 
+    h, w = scene.camera.height, scene.camera.width
+    if res.traced is not None:  # a rule setting explains an image, not a sample of its pixels
+        n = int(res.traced.sum())
+        return RuleDiagnosis(reason=f"{res.backend} traced {n} of the {h * w} pixels: no image to search rules for")
     t0 = time.perf_counter()
     variants = variants if variants is not None else shared_variants()
     one = scene.with_overrides(samples=1)
     given = rules.traced()
     declared = {n: rules_mod.format_rule_value(n, getattr(followed, n)) for n in rules.differs(followed)}
     img = res.color8()
-    h, w = scene.camera.height, scene.camera.width
     out = RuleDiagnosis(ran=True, declared=declared, pixels=h * w)
     before = variants.renders
     base = variants.get(one, given)

@@ -56,6 +56,10 @@ def check_backend(
     t0 = time.perf_counter()
     followed = backends.rules_for(name, rules) if backends.info(name).available else rules
     bc = BackendCheck(backend=name, verdict="skip", rules_followed=followed.as_dict())
+    known = backends.find(name)  # a result no backend made (a test's) has no check options or sample checks
+    if rendered is None and known is not None and known.chooses_pixels and backends.info(name).available:
+        # the backend names the pixels worth its time from the reference it is compared with
+        options = {**known.check_options(scene, refs.get(followed, samples=1)), **(options or {})}
     if rendered is None:
         with ThreadPoolExecutor(max_workers=1) as pool:
             started = start_ahead(pool, [name], scene, rules, options)
@@ -83,7 +87,6 @@ def check_backend(
         geom = check_geometry(scene, followed, ref, res, rays)
         bc.checks["geometry"] = geom
         bc.checks["shading"] = check_shading(scene, ref, res, geom)
-        known = backends.find(name)  # a result no backend made (a test's) has no sample checks
         model = known.shading_model if known else None
         if scene.samples > 1 and model == "physical":
             bc.checks["stochastic"] = _stochastic_run(scene, followed, name, refs, geom)
@@ -127,7 +130,9 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache) ->
     ``samples``): the averaged colour is compared per pixel like a one-ray render, with the band taken
     over every sample's ray."""
     n = scene.samples
-    res = backends.render(name, scene, rules, {"samples": n})
+    known = backends.get(name)
+    chosen = known.check_options(scene, refs.get(rules, samples=1)) if known.chooses_pixels else {}
+    res = backends.render(name, scene, rules, {**chosen, "samples": n})
     if not res.ok:
         return Check("skip" if res.status == "skip" else "error", reason=res.reason)
     ref = refs.get(rules)

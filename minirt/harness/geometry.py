@@ -76,6 +76,8 @@ def check_geometry(
         widen=lambda eps: rays.margins(bound=eps),
     )
     mism = ref.hit != res.hit
+    if tol.traced is not None:  # a pixel the oracle did not trace holds no answer: not a mismatch
+        mism &= tol.traced
     inside, outside = mism & tol.band, mism & ~tol.band
     both = ref.hit & res.hit
     # NaN or infinity where the reference is finite: inside the band the oracle's own precision cannot
@@ -127,7 +129,9 @@ def check_geometry(
         "normal_length_violations": int(len_viol.sum()),
         "tolerance": tol.summary,
     }
-    figures["inconclusive"] = inconclusive(ref, res, tol.band, judged, tol.t_abs, tol.normal_deg)
+    if tol.traced is not None:
+        figures["traced_pixels"] = int(tol.traced.sum())
+    figures["inconclusive"] = inconclusive(ref, res, tol.band, judged, tol.t_abs, tol.normal_deg, tol.traced)
     bad = []
     if nf_out.any():
         where = ", ".join(f"{k}: {v}" for k, v in said.items() if v)
@@ -181,11 +185,15 @@ def inconclusive(
     judged: np.ndarray,
     t_abs: np.ndarray,
     normal_deg: np.ndarray,
+    traced: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Whether the geometry check could have failed on most of what it judges (THRESHOLDS
-    "inconclusive_fraction"): the fractions measured, and the reasons it could not (empty: conclusive)."""
+    "inconclusive_fraction"): the fractions measured, and the reasons it could not (empty: conclusive).
+    ``traced``: the pixels the backend rendered (None: all); the fractions are of those."""
     limit = THRESHOLDS["inconclusive_fraction"].value
     hits = ref.hit | res.hit
+    if traced is not None:
+        hits = hits & traced
     n_hits, n_judged = int(hits.sum()), int(judged.sum())
     band_frac = float((band_px & hits).sum() / n_hits) if n_hits else 0.0
     depth_range = float(np.ptp(ref.t[ref.hit])) if ref.hit.any() else 0.0

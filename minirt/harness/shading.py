@@ -80,12 +80,16 @@ def _colour() -> Any:
         return colour
 
 
-def color_differences(a8: np.ndarray, b8: np.ndarray) -> dict[str, float]:
-    """CIEDE2000 (colour-science) and FLIP (flip-evaluator) on 8-bit images read as sRGB display values."""
+def color_differences(a8: np.ndarray, b8: np.ndarray, traced: np.ndarray | None = None) -> dict[str, float]:
+    """CIEDE2000 (colour-science) and FLIP (flip-evaluator) on 8-bit images read as sRGB display values.
+    ``traced``: where ``b8`` holds data (None: everywhere); the figures are of those pixels, and FLIP's
+    filters see ``a8`` in the others, so a pixel not traced adds no difference to its neighbours'."""
     import flip_evaluator
 
     colour = _colour()
 
+    if traced is not None:
+        b8 = np.where(traced[..., None], b8, a8)
     fa, fb = a8.astype(np.float64) / 255.0, b8.astype(np.float64) / 255.0
     lab_a = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(fa))
     lab_b = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(fb))
@@ -93,13 +97,17 @@ def color_differences(a8: np.ndarray, b8: np.ndarray) -> dict[str, float]:
     flip_map, flip_mean, _ = flip_evaluator.evaluate(
         fa.astype(np.float32), fb.astype(np.float32), "LDR", applyMagma=False
     )
+    flip_map = np.asarray(flip_map).reshape(a8.shape[:2])
+    sel = de if traced is None else de[traced]
+    if traced is not None:
+        flip_mean = float(flip_map[traced].mean()) if traced.any() else 0.0
     return {
-        "delta_e_mean": float(de.mean()),
-        "delta_e_p95": float(np.percentile(de, 95)),
-        "delta_e_max": float(de.max()),
+        "delta_e_mean": float(sel.mean()) if sel.size else 0.0,
+        "delta_e_p95": float(np.percentile(sel, 95)) if sel.size else 0.0,
+        "delta_e_max": float(sel.max()) if sel.size else 0.0,
         "flip_mean": float(flip_mean),
         "_delta_e": de,
-        "_flip": np.asarray(flip_map).reshape(a8.shape[:2]),
+        "_flip": flip_map,
     }
 
 
@@ -121,6 +129,9 @@ def shading_exercise(ref, res, classes, edges) -> Check:
     a8, b8 = ref.color8().astype(int), res.color8().astype(int)
     dch = np.abs(a8 - b8)
     d8 = dch.max(axis=-1)
+    traced = res.traced  # a render of chosen pixels is judged where it traced
+    if traced is not None:
+        edges = edges | ~traced
     judged = ~edges
     over = judged & (d8 > THRESHOLDS["color8_levels"].value)
     # A 1-level difference in a channel sitting on a rounding tie is rounding, not shading.
@@ -129,7 +140,7 @@ def shading_exercise(ref, res, classes, edges) -> Check:
     one_any = judged & (d8 == 1)
     one = one_any & ((dch == 1) & ~tie).any(axis=-1)
     frac_one = float(one.sum() / max(judged.sum(), 1))
-    cd = color_differences(ref.color8(), res.color8())
+    cd = color_differences(ref.color8(), res.color8(), traced)
     rel = np.abs(ref.color - res.color) / np.maximum(np.abs(ref.color), 1e-3)
     figures = {
         "compared_pixels": int(judged.sum()),

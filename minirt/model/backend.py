@@ -48,6 +48,9 @@ class GeometryTolerance:
     # bool (H, W) or None: where two shapes' nearest hits are a depth tie at the backend's per-shape precision
     # (an id mismatch there is not a defect); None: the harness's scene-wide rule, id_tie < 4 band_eps
     ties: np.ndarray | None = None
+    # bool (H, W) or None: the pixels the backend rendered (None: every pixel). The others are in ``band`` (not
+    # judged) and out of the fractions that make a check inconclusive: a sampled render is judged where it is.
+    traced: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -240,6 +243,15 @@ class Backend:
     def is_float32(self, options: dict[str, Any]) -> bool:
         """Does a render with these options trace in float32?"""
         return self.float32
+
+    # Does a check ask ``check_options`` before rendering (it then renders after the reference)?
+    chooses_pixels: ClassVar[bool] = False
+
+    def check_options(self, scene: Scene, reference: RenderResult) -> dict[str, Any]:
+        """Options for the render a check compares with ``reference`` (the reference's own render of the
+        scene under the rules this backend follows, one ray a pixel, with its diagnostics): a backend too
+        slow to render every pixel of a large image names the pixels worth its time (``chooses_pixels``)."""
+        return {}
 
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
         """Render under `rules` (already adapted by the caller); options are backend-specific, and a

@@ -45,6 +45,13 @@ class RenderResult:
     def ok(self) -> bool:
         return self.status == "ok"
 
+    @property
+    def traced(self) -> np.ndarray | None:
+        """(H, W) bool: the pixels a backend that renders chosen pixels traced (aux "rendered"); None when it
+        traced every pixel. The others hold no data and are judged nowhere."""
+        r = self.aux.get("rendered")
+        return None if r is None or r.all() else r
+
     @classmethod
     def failed(cls, backend: str, width: int, height: int, status: str, reason: str, **meta: Any) -> RenderResult:
         assert status in ("skip", "error")

@@ -24,7 +24,11 @@ Conventions bridged (none: this is the model the reference tracer computes in fl
   64^2 at most); a larger image a stratified sample of ``SAMPLE_PIXELS`` (one pixel of each block,
   deterministic), plus the pixels ``options["pixels"]`` names (row-major indices: those another oracle
   left inconclusive), or every pixel with ``options["pixels"] = "all"``. A pixel not traced is in
-  ``aux["rendered"]`` false and not judged.
+  ``aux["rendered"]`` false and not judged. A check (``check_options``) traces the whole image up to
+  ``CHECK_WHOLE_PIXELS`` (64^2) and above it the reference's edges -- silhouettes, shadow edges and
+  terminators, and the edges seen in reflections: where float renderers' bands leave their checks
+  inconclusive -- with the stratified sample; its verdict is on the pixels traced (the count is in the
+  check's figures, ``traced_pixels``).
 - Robust bounds (``aux`` "robust", "robust_geometry", "t_lo" ... "color_hi"): the model again with every
   ray, hit point and plane widened (minirt.oracles.exact.model), what minirt.harness.judge rules with.
 - Tolerance (``geometry_tolerance``): zero on decisions, except where the *reference's* float64 error
@@ -56,6 +60,10 @@ AUX = ("rendered", "exact_tie", "certified_bits", "color_rad", "t_rel_rad", "rob
        "t_lo", "t_hi", "color_lo", "color_hi", "normal_lo", "normal_hi")  # fmt: skip
 WHOLE_IMAGE_PIXELS = 512 * 512
 SAMPLE_PIXELS = 4096
+# A check traces every pixel up to the campaign's largest size (64^2); above it, the pixels where float
+# renderers are left inconclusive -- every edge of the reference's image -- and a stratified sample
+# (``check_options``): a 256^2 bundled scene in ~1 s rather than ~10 s.
+CHECK_WHOLE_PIXELS = 64 * 64
 SAMPLE_SEED = 38
 OPTIONS = ("pixels", "samples", "workers")
 # Options every backend is given that mean nothing here (the model is exact whatever the precision).
@@ -161,6 +169,26 @@ def stratified(w: int, h: int, count: int = SAMPLE_PIXELS) -> np.ndarray:
     return np.unique(np.asarray(out, dtype=np.int64))
 
 
+def reference_edges(ref: RenderResult) -> np.ndarray:
+    """(H, W) bool: pixels whose 3x3 neighbourhood crosses a change of the reference's shape id, of lit or
+    not (a diffuse or specular term above 0), or of its ray tree (aux ray_tree: every decision a pixel's
+    colour rests on, when the render has diagnostics) -- where float renderers' bands lie."""
+    labels = [ref.shape_id, np.zeros(ref.shape_id.shape, dtype=bool)]
+    for k in ("diffuse", "specular"):
+        if k in ref.terms:
+            labels[1] = labels[1] | (ref.terms[k] > 0).any(axis=-1)
+    if "ray_tree" in ref.aux:
+        labels.append(ref.aux["ray_tree"])
+    h, w = ref.shape_id.shape
+    out = np.zeros((h, w), dtype=bool)
+    for lab in labels:
+        p = np.pad(lab, 1, mode="edge")
+        for dy in (0, 1, 2):
+            for dx in (0, 1, 2):
+                out |= p[dy : dy + h, dx : dx + w] != lab
+    return out
+
+
 class ExactOracle(Oracle):
     name: ClassVar[str] = NAME
     display_name: ClassVar[str] = "exact"
@@ -191,6 +219,15 @@ class ExactOracle(Oracle):
 
     def options(self, precision: str = "f64", samples: int | None = None, timeout: float | None = None) -> dict:
         return {} if samples is None or samples <= 1 else {"samples": samples}
+
+    chooses_pixels: ClassVar[bool] = True
+
+    def check_options(self, scene: Scene, reference: RenderResult) -> dict[str, Any]:
+        """Every pixel up to CHECK_WHOLE_PIXELS; above, the reference's edges and the stratified sample."""
+        w, h = scene.camera.width, scene.camera.height
+        if w * h <= CHECK_WHOLE_PIXELS:
+            return {}
+        return {"pixels": np.union1d(stratified(w, h), np.flatnonzero(reference_edges(reference)))}
 
     def geometry_tolerance(self, result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
         """The reference's float64 error bound as per-pixel tolerances (``band_scales``, ``start_error``); the
@@ -249,7 +286,9 @@ class ExactOracle(Oracle):
             "not_robust": int((rendered & ~aux.get("robust", rendered)).sum()),
             "start_band_pixels": int(starts.sum()),
         }
-        return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary, ties=ties)
+        traced = None if rendered.all() else rendered
+        return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary, ties=ties,
+                                 traced=traced)  # fmt: skip
 
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None, progress=None) -> RenderResult:
         w, h = scene.camera.width, scene.camera.height

@@ -95,3 +95,11 @@ def test_a_command_runs_on_normal_pages():
     assert line.endswith(" 0"), line  # NumPy's switch
     if sys.platform.startswith("linux") and "THP_enabled" in line:  # kernels from 6.0 report it
         assert "THP_enabled:\\t0" in line, line
+
+
+def test_help_names_every_backend():
+    """The help texts write the backends' names out: the registry's, in its order."""
+    from minirt.cli.options import BACKEND_NAMES
+    from minirt.harness.backends import all_names
+
+    assert tuple(all_names()) == BACKEND_NAMES

@@ -21,7 +21,7 @@ from minirt.model.bundled import find_scene
 from minirt.model.rules import PROFILES, Rules, resolve
 from minirt.model.scene import load_scene
 from minirt.oracles import get
-from minirt.oracles.exact import WHOLE_IMAGE_PIXELS, choose_pixels, stratified
+from minirt.oracles.exact import CHECK_WHOLE_PIXELS, WHOLE_IMAGE_PIXELS, choose_pixels, reference_edges, stratified
 from minirt.oracles.exact.render import PRECISIONS, PixelTracer
 
 
@@ -106,6 +106,34 @@ def test_a_known_wrong_reference_is_caught():
         bad = _DefectiveReference(scene, DEFECTS[name])
         bc = check_backend(scene, rules, "exact", bad, explain=False)
         assert bc.verdict == "fail", (name, bc.reason)
+
+
+def test_a_check_of_a_large_image_traces_the_edges_and_a_sample_and_judges_only_those():
+    # 96^2 > CHECK_WHOLE_PIXELS: the check asks for the reference's edges and the stratified sample
+    scene = load_scene(find_scene("shadows")).with_overrides(width=96, height=96)
+    rules = resolve(scene)
+    refs = ReferenceCache(scene)
+    ref = refs.get(rules, samples=1)
+    edges = reference_edges(ref)
+    assert CHECK_WHOLE_PIXELS < 96 * 96 and 0 < edges.sum() < 0.5 * edges.size
+    bc = check_backend(scene, rules, "exact", refs)
+    assert bc.verdict == "pass", bc.reason
+    traced = bc.result.aux["rendered"]
+    assert traced[edges].all() and not traced.all()  # every edge, not every pixel
+    assert set(stratified(96, 96).tolist()) <= set(np.flatnonzero(traced).tolist())
+    geom, shading = bc.checks["geometry"].figures, bc.checks["shading"].figures
+    assert geom["traced_pixels"] == traced.sum() and geom["mask_mismatch"] == 0
+    assert not geom["inconclusive"]["reasons"]  # judged on what it traced, not inconclusive for the rest
+    assert 0 < shading["compared_pixels"] <= traced.sum() and shading["delta_e_max"] == 0.0
+    assert "traced" in bc.rule_diagnosis.reason and not bc.rule_diagnosis.ran
+    # and it can fail: a reference in the wrong on the traced pixels is caught
+    bad = _DefectiveReference(scene, DEFECTS["no-shadows"])
+    assert check_backend(scene, rules, "exact", bad, explain=False).verdict == "fail"
+
+
+def test_a_check_of_a_small_image_traces_every_pixel():
+    scene = load_scene(find_scene("shadows")).with_overrides(width=32, height=32)
+    assert get("exact").check_options(scene, ReferenceCache(scene).get(resolve(scene), samples=1)) == {}
 
 
 def test_rays_are_the_exercises_exact_ones_not_the_references():
