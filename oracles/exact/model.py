@@ -57,6 +57,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 from flint import arb, ctx, fmpq
 
 from minirt.model.rules import Rules
@@ -64,6 +65,12 @@ from minirt.model.scene import Ball, Scene
 
 U64 = fmpq(1, 2**53)
 OFFSET_SURE = 32  # see Model.offset_sure
+# Balls are culled by a float64 test of each ray's line (Model.near_balls) from this many on; below, a ray is
+# tested against every ball (the test costs about as much as a few balls' ball arithmetic).
+CULL_FROM = 8
+# The cull's margin on h^2 - r^2 (Model.near_balls): CULL_REL F^2 + CULL_RAD F (rad_o + F rad_w)
+# + CULL_ROUND u F (|o| + |C|), F = |f| + r.
+CULL_REL, CULL_RAD, CULL_ROUND = 2.0**-20, 256.0, 64.0
 
 
 class Uncertain(Exception):
@@ -198,6 +205,11 @@ class Model:
             for s in scene.shapes
         ]  # fmt: skip
         self.bg: Vec = tuple(arb(c) for c in scene.background)
+        ball_shapes = [(k, s) for k, s in enumerate(scene.shapes) if isinstance(s, Ball)]
+        self.ball_ids = np.array([k for k, _ in ball_shapes], dtype=np.int64)
+        self.ball_c = np.array([s.center for _, s in ball_shapes], dtype=np.float64).reshape(-1, 3)
+        self.ball_r = np.array([s.radius for _, s in ball_shapes], dtype=np.float64)
+        self.ball_csize = np.abs(self.ball_c).sum(axis=1)
         keys = [self.key(k, 0) for k in range(len(scene.shapes))]
         self.same = [[j for j, kj in enumerate(keys) if kj == kk] for kk in keys]
         self.exponent = rules.specular_exponent
@@ -205,6 +217,48 @@ class Model:
         self.offset = None if off == "error-bound" else arb(off)
         self.offset_zero = off != "error-bound" and off == 0 and not slack
         self.g6, self.g4 = arb(gamma(6)), arb(gamma(4))
+
+    def near_balls(self, o, w, keep=()) -> list[int]:
+        """The balls whose surface the line o + t w may meet, in id order: every ball but those a float64 test
+        shows the line to pass outside of by a wide margin (and always those in ``keep``). ``o``, ``w``: arb
+        or exact rational vectors (w of any length; arb vectors with their radii).
+
+        Why a ball culled would have been no candidate, bit for bit: ``ball_first`` (and the primary ray's
+        rational test) take a ball only when its discriminant r^2 - h^2 may be >= 0, h the distance from C to
+        the line, |f - (f·w) w| with f = o - C. In float64 on the midpoints, h^2 is computed to within 16 u F^2
+        (F = |f| + r; a handful of roundings) plus 4 u F (|o| + |C|) from rounding o and C's difference;
+        across the intervals (o and w within rad_o and rad_w per component) h^2 moves by at most
+        2 F (sqrt(3) rad_o + 2 sqrt(3) F rad_w) + their squares, and ball arithmetic's own widening of the
+        discriminant is a few times that (about 30 F (rad_o + F rad_w): products of radii through f, b, g and
+        g·g) plus 2^-prec. A ball is culled only when the float h^2 - r^2 exceeds CULL_REL F^2 + CULL_RAD F
+        (rad_o + F rad_w) + CULL_ROUND u F (|o| + |C|): then every value of the discriminant's interval is
+        < 0, a certified miss at every precision, the answer the ball's own test gives. Non-finite numbers
+        cull nothing."""
+        if len(self.ball_ids) < CULL_FROM:
+            return list(self.balls)
+        om = np.array([float(x.mid()) if isinstance(x, arb) else float(x) for x in o])
+        wm = np.array([float(x.mid()) if isinstance(x, arb) else float(x) for x in w])
+        ro = max(float(x.rad()) if isinstance(x, arb) else 0.0 for x in o)
+        rw = max(float(x.rad()) if isinstance(x, arb) else 0.0 for x in w)
+        length = math.sqrt(float(wm @ wm))
+        if not (np.isfinite(om).all() and np.isfinite(wm).all() and math.isfinite(ro + rw)) or length == 0:
+            return list(self.balls)
+        wu = wm / length  # the line's direction (a rational primary V is not unit)
+        rw = rw / length + 4 * 2.0**-53
+        f = om - self.ball_c
+        b = f @ wu
+        g = f - b[:, None] * wu
+        h2 = np.einsum("ij,ij->i", g, g)
+        big = np.sqrt(np.einsum("ij,ij->i", f, f)) + self.ball_r
+        r = self.ball_r
+        with np.errstate(over="ignore", invalid="ignore"):
+            margin = (CULL_REL * big * big + CULL_RAD * big * (ro + big * rw)
+                      + CULL_ROUND * 2.0**-53 * big * (np.abs(om).sum() + self.ball_csize))  # fmt: skip
+            culled = h2 - r * r > margin  # NaN: not culled
+        near = self.ball_ids[~culled].tolist()
+        if keep:
+            near = sorted(set(near) | {k for k in keep if k in self.balls})
+        return near
 
     def owned(self, own: tuple[int, int] | None) -> dict[int, int]:
         """Shape -> what is known of a ray's origin against it (``offset_origin``): the shape it leaves and
@@ -237,7 +291,8 @@ class Model:
         vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
         lv = arb(vv).sqrt()
         cands: list[tuple[arb, int, int, fmpq | None]] = []  # (t, shape, dn sign, t/|V| when rational)
-        for k, (_, _, _, cq, rq) in self.balls.items():
+        for k in self.near_balls(o, v):
+            _, _, _, cq, rq = self.balls[k]
             f = (o[0] - cq[0], o[1] - cq[1], o[2] - cq[2])
             fv = f[0] * v[0] + f[1] * v[1] + f[2] * v[2]
             c = f[0] * f[0] + f[1] * f[1] + f[2] * f[2] - rq * rq
@@ -347,7 +402,7 @@ class Model:
         """The closest hit of the ray (o, w); ``own``: (the shape it leaves, ``ball_first``'s own) or None."""
         mine = self.owned(own)
         cands = []
-        for k in self.balls:
+        for k in self.near_balls(o, w, mine):
             got = self.ball_first(k, o, w, mine.get(k))
             if got is not None:  # d·n at the hit: (b + t)/r, the sign of the root's branch
                 cands.append((got[0], k, got[1], None, self.key(k, got[1])))
@@ -361,7 +416,7 @@ class Model:
         """Is the shadow ray (o, s) blocked (rule shadow_range)? ``own``: as for ``closest``."""
         mine = self.owned(own)
         to_light = self.rules.shadow_range != "any"
-        for k in self.balls:
+        for k in self.near_balls(o, s, mine):
             got = self.ball_first(k, o, s, mine.get(k))
             if got is not None and (not to_light or self.sign(light_dist - got[0], f"ball {k} against the light") > 0):
                 return True

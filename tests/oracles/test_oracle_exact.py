@@ -22,6 +22,7 @@ from minirt.model.rules import PROFILES, Rules, resolve
 from minirt.model.scene import load_scene
 from minirt.oracles import get
 from minirt.oracles.exact import CHECK_WHOLE_PIXELS, WHOLE_IMAGE_PIXELS, choose_pixels, reference_edges, stratified
+from minirt.oracles.exact.model import CULL_FROM
 from minirt.oracles.exact.render import PRECISIONS, PixelTracer
 
 
@@ -61,6 +62,54 @@ def test_a_shadow_ray_exactly_tangent_to_a_ball_is_a_tie_not_a_guess():
                    'ray_origin = "camera"\noffset = 0.0')  # fmt: skip
     got = _exact(moved)
     assert not got.aux["exact_tie"].any() and got.terms["diffuse"][3, 2].max() > 0
+
+
+def _far_balls(n: int) -> str:
+    """n small balls well away from every ray of the constructed cases (behind the camera)."""
+    return "\n".join(
+        f'[[shapes]]\ntype = "ball"\ncenter = [{x}.0, {y}.0, -40.0]\nradius = 0.5\nmaterial = "m"'
+        for x, y in ((i % 5, i // 5) for i in range(n))
+    )
+
+
+def test_many_balls_keep_a_tangent_and_its_tie():
+    # enough balls for the cull (CULL_FROM): the tangent ball (h = r exactly) is never culled, the tie stays
+    assert CULL_FROM <= 12
+    tangent = _scene(f"{FLOOR}\n{TANGENT_BALL}\n{_far_balls(12)}", 'ray_origin = "camera"\noffset = 0.0')
+    res = _exact(tangent)
+    assert res.aux["exact_tie"][3, 2] and "ball 1" in res.meta["ties"][0]["decision"]
+    primary = _scene(
+        f'[[shapes]]\ntype = "ball"\ncenter = [1.0, 0.0, 5.0]\nradius = 1.0\nmaterial = "m"\n{_far_balls(12)}'
+    )
+    got = _exact(primary)
+    assert got.hit[2, 2] and got.t[2, 2] == 6.0 and not got.aux["exact_tie"].any()
+
+
+@pytest.mark.parametrize("profile", ["exercise", "conventional"])
+def test_culling_balls_changes_no_bit_and_culls(profile, monkeypatch):
+    from minirt.campaign.generate import balls_scene
+    from minirt.model.scene import parse_scene
+    from minirt.oracles.exact import model
+
+    scene = parse_scene(balls_scene(40, seed=3, width=10, height=10), "balls.toml").with_overrides(profile=profile)
+    rules = resolve(scene)
+    calls = []
+    near = model.Model.near_balls
+
+    def counted(self, o, w, keep=()):
+        got = near(self, o, w, keep)
+        calls.append(len(got))
+        return got
+
+    monkeypatch.setattr(model.Model, "near_balls", counted)
+    culled = _exact(scene, rules)
+    assert calls and sum(calls) < 0.25 * 40 * len(calls)  # most balls culled from most rays
+    monkeypatch.setattr(model, "CULL_FROM", 10**9)
+    every = _exact(scene, rules)
+    for k in ("hit", "shape_id", "t", "position", "normal", "color"):
+        assert np.array_equal(getattr(culled, k), getattr(every, k), equal_nan=True), k
+    for k, v in every.aux.items():
+        assert np.array_equal(culled.aux[k], v, equal_nan=True), k
 
 
 def test_an_offset_of_zero_starts_on_the_surface_exactly():
