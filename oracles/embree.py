@@ -221,6 +221,20 @@ def default_subdivisions(scene: Scene) -> int:
     return level
 
 
+def _hit_face_normals(mesh, hit_faces: np.ndarray):
+    """A lookup face index -> unit normal (``mesh.face_normals``' values: trimesh's triangle normals, row by
+    row, zero for a degenerate face) computed for the faces hit only: 1,024 balls at the default subdivision
+    are 5.2 M faces, every one's normal 6 s, the hit ones' a few ms."""
+    import trimesh
+
+    faces = np.unique(hit_faces)
+    normals = np.zeros((len(faces), 3))
+    if len(faces):
+        unit, valid = trimesh.triangles.normals(triangles=mesh.vertices[mesh.faces[faces]])
+        normals[valid] = unit
+    return lambda wanted: normals[np.searchsorted(faces, wanted)]
+
+
 def scene_to_mesh(scene: Scene, subdivisions: int = DEFAULT_SUBDIVISIONS, far_factor: float = FAR_FACTOR):
     """All shapes in one trimesh.Trimesh, faces in scene order; ``face_attributes["shape_id"]`` per face."""
     import trimesh
@@ -465,14 +479,14 @@ class EmbreeOracle(Oracle):
         t = np.full(n_rays, np.inf)
         normal = np.zeros((n_rays, 3))
         t_bound = np.full(n_rays, np.inf)
-        face_n = mesh.face_normals if len(mesh.faces) else np.zeros((0, 3))
+        face_n = _hit_face_normals(mesh, tri[hit])
         for k, shape in enumerate(scene.shapes):
             m = sid == k
             if not m.any():
                 continue
             om, dm = o[m], d[m]
             if isinstance(shape, Ball):
-                fn = np.asarray(face_n[tri[m]], dtype=np.float64)
+                fn = face_n(tri[m])
                 v0 = mesh.vertices[mesh.faces[tri[m], 0]]
                 # float64 intersection with the face's plane (the triangle Embree chose)
                 with np.errstate(divide="ignore", invalid="ignore"):

@@ -281,3 +281,23 @@ def test_the_default_level_keeps_many_balls_within_the_face_budget(monkeypatch):
     tess = res.meta["tessellation"]
     assert tess["subdivisions"] == 2 and tess["radial_gap_rel"] == tessellation(2).radial_gap_rel
     assert EmbreeOracle().render(sc, rules, {"subdivisions": 4}).meta["tessellation"]["subdivisions"] == 4
+
+
+def test_the_hit_faces_normals_are_trimeshs_bit_for_bit():
+    """Only the faces hit get a normal (5.2 M faces for 1,024 balls): the same bits as every face's."""
+    import trimesh
+
+    from minirt.oracles.embree import _hit_face_normals
+
+    scene = load_scene(Path(__file__).parents[2] / "scenes" / "three_balls.toml")
+    mesh = scene_to_mesh(scene, 3)
+    rng = np.random.default_rng(5)
+    hit = rng.integers(0, len(mesh.faces), 5000)
+    got = _hit_face_normals(mesh, hit)(hit)
+    assert np.array_equal(got, mesh.face_normals[hit])
+    # a degenerate face: a zero normal, as trimesh pads it
+    flat = trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]], faces=[[0, 1, 2], [0, 1, 3]],
+                           process=False, validate=False)  # fmt: skip
+    faces = np.array([1, 0, 1])
+    assert np.array_equal(_hit_face_normals(flat, faces)(faces), flat.face_normals[faces])
+    assert not _hit_face_normals(flat, faces)(faces)[1].any()
