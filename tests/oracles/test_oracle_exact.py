@@ -85,12 +85,15 @@ def test_many_balls_keep_a_tangent_and_its_tie():
     assert got.hit[2, 2] and got.t[2, 2] == 6.0 and not got.aux["exact_tie"].any()
 
 
-@pytest.mark.parametrize("profile", ["exercise", "conventional"])
-def test_culling_balls_changes_no_bit_and_culls(profile, monkeypatch):
+@pytest.mark.parametrize(("profile", "groups"), [("exercise", False), ("conventional", False), ("exercise", True)])
+def test_culling_balls_changes_no_bit_and_culls(profile, groups, monkeypatch):
     from minirt.campaign.generate import balls_scene
     from minirt.model.scene import parse_scene
     from minirt.oracles.exact import model
 
+    if groups:  # the lines tested against groups of balls first (GROUP_FROM), groups of 4
+        monkeypatch.setattr(model, "GROUP_FROM", 1)
+        monkeypatch.setattr(model, "GROUP_SIZE", 4)
     scene = parse_scene(balls_scene(40, seed=3, width=10, height=10), "balls.toml").with_overrides(profile=profile)
     rules = resolve(scene)
     calls = []
