@@ -64,10 +64,15 @@ class _Base:
         return dr
 
     def map_ids(self, reg: np.ndarray, hit: np.ndarray) -> np.ndarray:
-        out = np.full(reg.shape, -1, dtype=np.int32)
-        for r, k in self.lut.items():
-            out[(reg == r) & hit] = k
-        return out
+        """Registry ids -> scene indices where ``hit`` (-1 elsewhere, and for an id the scene has not)."""
+        keys = np.fromiter(self.lut.keys(), dtype=np.int64, count=len(self.lut))
+        vals = np.fromiter(self.lut.values(), dtype=np.int32, count=len(self.lut))
+        order = np.argsort(keys)
+        keys, vals = keys[order], vals[order]
+        reg = np.asarray(reg, dtype=np.int64)
+        at = np.clip(np.searchsorted(keys, reg), 0, max(len(keys) - 1, 0))
+        known = hit & (keys[at] == reg) if len(keys) else np.zeros(reg.shape, dtype=bool)
+        return np.where(known, vals[at] if len(keys) else -1, -1).astype(np.int32)
 
     def meta(self, mode: str, extra: dict[str, Any]) -> dict[str, Any]:
         sc = self.scene
