@@ -25,8 +25,20 @@ from minirt.model.scene import Ball, Scene
 EPS_REL = 2.0**-24 * 64
 
 
-# Images up to this many pixels render every candidate in full (and keep it for the next image).
+# Images up to this many pixels render every candidate in full (and keep it for the next image) -- divided by
+# balls / FULL_RENDER_BALLS beyond that many balls: a ray's cost grows with the balls it passes, and a
+# candidate traced in full at 128² took 45 ms with 1,024 balls and 190 ms with 10,000 (against ~25 ms for a
+# 512² image of a few balls), while the search asks about a few hundred pixels (a 10,000-ball check's rule
+# diagnosis: 42 s in full renders).
 FULL_RENDER_PIXELS = 512 * 512
+FULL_RENDER_BALLS = 16
+
+
+def full_render_pixels(scene: Scene) -> float:
+    """The largest image whose candidates are rendered in full (``FULL_RENDER_PIXELS``, fewer with many balls)."""
+    balls = sum(isinstance(s, Ball) for s in scene.shapes)
+    return FULL_RENDER_PIXELS * min(1.0, FULL_RENDER_BALLS / max(balls, 1))
+
 
 # From this many rays a band is computed in parts on threads (a single image's search only): below it a
 # part's fixed cost (rays, the scene's shapes set up again, a thread) is not repaid -- the search's own
@@ -132,7 +144,7 @@ class VariantCache:
         n = scene.camera.width * scene.camera.height
         if keep:
             self._pinned.add(key)
-        if key not in self._items and (keep or n <= FULL_RENDER_PIXELS):
+        if key not in self._items and (keep or n <= full_render_pixels(scene)):
             self.get(scene, rules)
         v = self._items.get(key)
         if v is not None:
