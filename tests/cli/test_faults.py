@@ -32,6 +32,12 @@ case "$FAKE_MODE" in
   hang) echo $$ >> "$FAKE_PIDS"; sleep 600 ;;
   garbage) for i in 1 2 3 4 5 6 7; do printf 'garbage' > out$i.exr; printf 'garbage' > out$i.png; done; exit 0 ;;
   nothing) exit 0 ;;
+  startup|startup-once)
+    # POV-Ray's start-up race (vfeInitializeTimedOut): every time, or on the first run only
+    if [ "$FAKE_MODE" = startup ] || [ ! -e "$FAKE_PIDS.started" ]; then
+      touch "$FAKE_PIDS.started"; echo "POV-Ray: Timed out waiting for worker thread startup" >&2; exit 1
+    fi
+    exec "$REAL_POVRAY" "$@" ;;
   truncated|wrong-size)
     # a real 4x4 (or 8x9) render by the real povray, then cut short
     size="+W8 +H8"; [ "$FAKE_MODE" = wrong-size ] && size="+W4 +H4"
@@ -112,6 +118,24 @@ def test_a_hanging_povray_times_out_and_is_killed(fake_povray, tmp_path, monkeyp
             for _ in range(50):
                 os.kill(int(pid), 0)
                 time.sleep(0.1)
+
+
+def test_povrays_startup_race_is_run_again_and_said_when_it_stays(fake_povray, tmp_path, monkeypatch):
+    """POV-Ray's "Timed out waiting for worker thread startup" (a loaded machine) is retried; a pass that keeps
+    failing so is an ERROR that says it."""
+    from minirt import oracles
+    from minirt.model.bundled import bundled_scene
+    from minirt.model.rules import resolve
+
+    scene = bundled_scene("exercise").with_overrides(width=8, height=8)
+    pov = oracles.get("povray")
+    monkeypatch.setenv("FAKE_MODE", "startup-once")
+    res = pov.render(scene, pov.adapt(resolve(scene)), {})
+    assert res.ok, res.reason
+    assert (tmp_path / "pids.started").exists()  # the first run did fail
+    monkeypatch.setenv("FAKE_MODE", "startup")
+    res = pov.render(scene, pov.adapt(resolve(scene)), {})
+    assert res.status == "error" and "worker thread startup" in res.reason, res.reason
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
