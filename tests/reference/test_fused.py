@@ -123,6 +123,12 @@ def test_auto_picks_the_wavefront_for_many_balls():
         o, d = tr.primary_rays()
         levels[n] = len(tr.trace(o, d)[1])
     assert levels == {WAVEFRONT_MIN_BALLS - 1: 1, WAVEFRONT_MIN_BALLS: 4}
+    # with each pixel's decision tree (a check's reference, the rule diagnosis) one kernel, the same bits
+    o, d = tr.primary_rays()
+    tree_auto, tree_levels = tr.trace(o, d, tree=True)
+    assert len(tree_levels) == 1
+    tree_wave, _ = tr.trace(o, d, tree=True, path="wavefront")
+    assert np.array_equal(tr._to_numpy3(tree_auto), tr._to_numpy3(tree_wave))
     with pytest.raises(ValueError, match="record"):
         tr.trace(*tr.primary_rays(), record=True, path="fused")
 
