@@ -58,8 +58,7 @@ def check_backend(
     bc = BackendCheck(backend=name, verdict="skip", rules_followed=followed.as_dict())
     known = backends.find(name)  # a result no backend made (a test's) has no check options or sample checks
     if rendered is None and known is not None and known.chooses_pixels and backends.info(name).available:
-        # the backend names the pixels worth its time from the reference it is compared with
-        options = {**known.check_options(scene, refs.get(followed, samples=1)), **(options or {})}
+        options = {**_check_options(name, scene, followed, refs), **(options or {})}
     if rendered is None:
         with ThreadPoolExecutor(max_workers=1) as pool:
             started = start_ahead(pool, [name], scene, rules, options)
@@ -114,6 +113,13 @@ def check_backend(
     return bc
 
 
+def _check_options(name: str, scene: Scene, followed: Rules, refs: ReferenceCache) -> dict[str, Any]:
+    """The options a backend that ``chooses_pixels`` asks for in a check, named from the reference it is
+    compared with (rendered first, one ray a pixel); none for the others."""
+    b = backends.get(name)
+    return b.check_options(scene, refs.get(followed, samples=1)) if b.chooses_pixels else {}
+
+
 def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache, geom: Check) -> Check:
     res = backends.render(name, scene, rules, {"mode": "sensor", "spp": scene.samples})
     if not res.ok:
@@ -130,9 +136,7 @@ def _samples_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache) ->
     ``samples``): the averaged colour is compared per pixel like a one-ray render, with the band taken
     over every sample's ray."""
     n = scene.samples
-    known = backends.get(name)
-    chosen = known.check_options(scene, refs.get(rules, samples=1)) if known.chooses_pixels else {}
-    res = backends.render(name, scene, rules, {**chosen, "samples": n})
+    res = backends.render(name, scene, rules, {**_check_options(name, scene, rules, refs), "samples": n})
     if not res.ok:
         return Check("skip" if res.status == "skip" else "error", reason=res.reason)
     ref = refs.get(rules)

@@ -16,30 +16,8 @@ import numpy as np
 from minirt.harness import backends
 from minirt.harness.results import Check
 from minirt.harness.tolerances import THRESHOLDS
-from minirt.model.result import RenderResult
+from minirt.model.result import RenderResult, edge_classes
 from minirt.model.scene import Scene
-
-
-def edge_classes(ref: RenderResult) -> dict[str, np.ndarray]:
-    """Pixels whose 3x3 neighbourhood crosses a silhouette, a shadow edge or a terminator -- seen
-    directly, or further down the ray tree (in a reflection: the reference's aux ray_tree labels each
-    pixel by every decision its colour rests on)."""
-    from scipy import ndimage
-
-    def changes(labels: np.ndarray) -> np.ndarray:
-        mx = ndimage.maximum_filter(labels, size=3, mode="nearest")
-        mn = ndimage.minimum_filter(labels, size=3, mode="nearest")
-        return mx != mn
-
-    sil = changes(ref.shape_id)
-    lit = (ref.terms.get("diffuse", np.zeros((ref.height, ref.width, 3))) > 0).any(-1) | (
-        ref.terms.get("specular", np.zeros((ref.height, ref.width, 3))) > 0
-    ).any(-1)
-    light_edge = changes(lit.astype(np.int8)) & ~sil
-    out = {"silhouette": sil, "shadow_or_terminator": light_edge}
-    if "ray_tree" in ref.aux:
-        out["in_reflection"] = changes(ref.aux["ray_tree"]) & ~sil & ~light_edge
-    return out
 
 
 def edge_pixels(classes: dict[str, np.ndarray], band_px: np.ndarray) -> np.ndarray:

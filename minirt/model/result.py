@@ -90,3 +90,26 @@ def geometry_from_flat(
     pos = np.where(hit[..., None], np.asarray(position, dtype=np.float64).reshape(height, width, 3), 0.0)
     nrm = np.where(hit[..., None], np.asarray(normal, dtype=np.float64).reshape(height, width, 3), 0.0)
     return {"hit": hit, "shape_id": sid, "t": t, "position": pos, "normal": nrm}
+
+
+def edge_classes(ref: RenderResult) -> dict[str, np.ndarray]:
+    """Pixels whose 3x3 neighbourhood crosses a silhouette, a shadow edge or a terminator -- seen
+    directly, or further down the ray tree (in a reflection: the reference's aux ray_tree labels each
+    pixel by every decision its colour rests on). The harness reports them apart (minirt.harness.shading);
+    an oracle that chooses its pixels traces where they are (minirt.oracles.exact)."""
+    from scipy import ndimage
+
+    def changes(labels: np.ndarray) -> np.ndarray:
+        mx = ndimage.maximum_filter(labels, size=3, mode="nearest")
+        mn = ndimage.minimum_filter(labels, size=3, mode="nearest")
+        return mx != mn
+
+    sil = changes(ref.shape_id)
+    lit = (ref.terms.get("diffuse", np.zeros((ref.height, ref.width, 3))) > 0).any(-1) | (
+        ref.terms.get("specular", np.zeros((ref.height, ref.width, 3))) > 0
+    ).any(-1)
+    light_edge = changes(lit.astype(np.int8)) & ~sil
+    out = {"silhouette": sil, "shadow_or_terminator": light_edge}
+    if "ray_tree" in ref.aux:
+        out["in_reflection"] = changes(ref.aux["ray_tree"]) & ~sil & ~light_edge
+    return out

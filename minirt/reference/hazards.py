@@ -282,14 +282,12 @@ def _grid_pairs(balls: _Balls, p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray
     if per_point.sum() > GRID_SPREAD * len(p) + 1024:
         return None
     if (per_point == 1).all():  # every segment within one cell (an offset far below a cell): no expansion
-        flat = grid.flat(a0)
-        first, count = grid.start[flat], grid.start[flat + 1] - grid.start[flat]
-        pp = np.repeat(inside, count)
+        point, cell = np.arange(len(inside)), a0
     else:
         point, cell = _expand(a0, span, per_point)
-        flat = grid.flat(cell)
-        first, count = grid.start[flat], grid.start[flat + 1] - grid.start[flat]
-        pp = np.repeat(inside[point], count)
+    flat = grid.flat(cell)
+    first, count = grid.start[flat], grid.start[flat + 1] - grid.start[flat]
+    pp = np.repeat(inside[point], count)
     slot = np.repeat(first - (np.cumsum(count) - count), count) + np.arange(int(count.sum()))
     return pp, grid.filed[slot]
 

@@ -49,7 +49,7 @@ import numpy as np
 
 from minirt.model import camera
 from minirt.model.backend import U64, GeometryTolerance, Margins, tolerance_inputs
-from minirt.model.result import RenderResult
+from minirt.model.result import RenderResult, edge_classes
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
 from minirt.oracles.base import Oracle
@@ -169,26 +169,6 @@ def stratified(w: int, h: int, count: int = SAMPLE_PIXELS) -> np.ndarray:
     return np.unique(np.asarray(out, dtype=np.int64))
 
 
-def reference_edges(ref: RenderResult) -> np.ndarray:
-    """(H, W) bool: pixels whose 3x3 neighbourhood crosses a change of the reference's shape id, of lit or
-    not (a diffuse or specular term above 0), or of its ray tree (aux ray_tree: every decision a pixel's
-    colour rests on, when the render has diagnostics) -- where float renderers' bands lie."""
-    labels = [ref.shape_id, np.zeros(ref.shape_id.shape, dtype=bool)]
-    for k in ("diffuse", "specular"):
-        if k in ref.terms:
-            labels[1] = labels[1] | (ref.terms[k] > 0).any(axis=-1)
-    if "ray_tree" in ref.aux:
-        labels.append(ref.aux["ray_tree"])
-    h, w = ref.shape_id.shape
-    out = np.zeros((h, w), dtype=bool)
-    for lab in labels:
-        p = np.pad(lab, 1, mode="edge")
-        for dy in (0, 1, 2):
-            for dx in (0, 1, 2):
-                out |= p[dy : dy + h, dx : dx + w] != lab
-    return out
-
-
 class ExactOracle(Oracle):
     name: ClassVar[str] = NAME
     display_name: ClassVar[str] = "exact"
@@ -227,7 +207,8 @@ class ExactOracle(Oracle):
         w, h = scene.camera.width, scene.camera.height
         if w * h <= CHECK_WHOLE_PIXELS:
             return {}
-        return {"pixels": np.union1d(stratified(w, h), np.flatnonzero(reference_edges(reference)))}
+        edges = np.logical_or.reduce(list(edge_classes(reference).values()))
+        return {"pixels": np.union1d(stratified(w, h), np.flatnonzero(edges))}
 
     def geometry_tolerance(self, result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
         """The reference's float64 error bound as per-pixel tolerances (``band_scales``, ``start_error``); the

@@ -248,17 +248,18 @@ class Model:
         radius = radius * (1 + 2.0**-40) + 2.0**-40 * (sizes + radius)
         return parts, centre, radius, sizes + 1.75 * radius
 
-    def _line_misses(self, om, wu, ro, rw, c, r, csize) -> np.ndarray:
-        """Per ball (centre c, radius r, |c|_1 csize): is the line a certified miss (``near_balls``)?"""
+    @staticmethod
+    def _line_gap(om, wu, ro, rw, c, r, csize) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per sphere (centre c, radius r, |c|_1 csize) and the line om + t wu: (h^2, the cull's margin on
+        h^2 - r^2, F = |om - c| + r) -- ``near_balls``' test, for a ball or a group's bounding sphere."""
         f = om - c
         b = f @ wu
         g = f - b[:, None] * wu
-        h2 = np.einsum("ij,ij->i", g, g)
         big = np.sqrt(np.einsum("ij,ij->i", f, f)) + r
         with np.errstate(over="ignore", invalid="ignore"):
             margin = (CULL_REL * big * big + CULL_RAD * big * (ro + big * rw)
                       + CULL_ROUND * 2.0**-53 * big * (np.abs(om).sum() + csize))  # fmt: skip
-            return h2 - r * r > margin  # NaN: not culled
+        return np.einsum("ij,ij->i", g, g), margin, big
 
     def near_balls(self, o, w, keep=()) -> list[int]:
         """The balls whose surface the line o + t w may meet, in id order: every ball but those a float64 test
@@ -297,18 +298,16 @@ class Model:
             at = np.arange(len(self.ball_ids))
         else:
             parts, gc, gr, gsize = self.groups
-            f = om - gc
-            b = f @ wu
-            g = f - b[:, None] * wu
-            big = np.sqrt(np.einsum("ij,ij->i", f, f)) + gr
+            h2, delta, big = self._line_gap(om, wu, ro, rw, gc, gr, gsize)
             with np.errstate(over="ignore", invalid="ignore"):
-                delta = (CULL_REL * big * big + CULL_RAD * big * (ro + big * rw)
-                         + CULL_ROUND * 2.0**-53 * big * (np.abs(om).sum() + gsize))  # fmt: skip
-                gap = np.sqrt(np.einsum("ij,ij->i", g, g)) - gr - 2.0**-30 * big
+                gap = np.sqrt(h2) - gr - 2.0**-30 * big
                 culled = gap > np.sqrt(delta) * (1 + 2.0**-20)  # NaN: not culled
             kept = np.flatnonzero(~culled)
             at = np.sort(np.concatenate([parts[i] for i in kept])) if len(kept) else np.zeros(0, np.int64)
-        miss = self._line_misses(om, wu, ro, rw, self.ball_c[at], self.ball_r[at], self.ball_csize[at])
+        r = self.ball_r[at]
+        h2, margin, _ = self._line_gap(om, wu, ro, rw, self.ball_c[at], r, self.ball_csize[at])
+        with np.errstate(invalid="ignore"):
+            miss = h2 - r * r > margin  # NaN: not culled
         near = self.ball_ids[at[~miss]].tolist()
         if keep:
             near = sorted(set(near) | {k for k in keep if k in self.balls})
