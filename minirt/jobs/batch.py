@@ -27,10 +27,17 @@ from one item to the next in its own process (a render cache): items are handed 
 With a ``cache`` (minirt.jobs.cache) the items whose results it holds are not run again; this process alone
 reads and writes it.
 
-A call that raises -- or whose worker process dies, which Dask reports after retrying the item on other
-workers, or whose result fails ``check(item, result)`` (what came back from another process is checked
-before it is used) -- does not stop the run: ``on_error(item, message)`` makes its result instead. Dask's
-own log records come out as one line each, or not at all when they repeat such an error (minirt.jobs.logs).
+A call that raises -- or whose worker process dies, or whose result fails ``check(item, result)`` (what
+came back from another process is checked before it is used) -- does not stop the run:
+``on_error(item, message)`` makes its result instead. Dask's own log records come out as one line each,
+or not at all when they repeat such an error (minirt.jobs.logs).
+
+A worker process that dies takes with it every item it held, not only the one that killed it: Dask
+cannot tell which it was, and under load an innocent item can share a dying worker more than once. So an
+item whose worker died is held back and run again alone, with nothing else in flight, once the rest are
+done: only an item that kills its worker when alone is reported as having died. The embedded cluster
+lets Dask retry nothing itself (``allowed-failures`` 0), so a crashing item costs two worker restarts,
+not four plus two.
 """
 
 from __future__ import annotations
@@ -144,6 +151,7 @@ def stream(
         return
     with contextlib.ExitStack() as stack:
         client, ac, pending = None, None, {}
+        suspects: list[tuple[int, Any]] = []  # items whose worker died under them
         while True:
             while len(pending) < window:
                 nxt = next(source, None)
@@ -163,14 +171,30 @@ def stream(
                 pending[f.key] = (k, item)
                 ac.add(f)
             if not pending:
-                return
+                break
             f = next(ac)
             k, item = pending.pop(f.key)
+            if _died(f):  # maybe its own crash, maybe a neighbour's: decided when it runs alone
+                suspects.append((k, item))
+                f.release()
+                continue
             result, ok = _collect(f, item, on_error, check)
             f.release()
             if ok and store is not None:
                 store.store(item, result)
             yield k, item, result, ok
+        for k, item in suspects:
+            f = client.submit(fn, item, pure=False)
+            result, ok = _collect(f, item, on_error, check)
+            f.release()
+            if ok and store is not None:
+                store.store(item, result)
+            yield k, item, result, ok
+
+
+def _died(f) -> bool:
+    """Whether a finished future ended with its worker process gone (Dask's KilledWorker)."""
+    return f.status == "error" and type(f.exception()).__name__ == "KilledWorker"
 
 
 def _collect(f, item, on_error, check) -> tuple[Any, bool]:
@@ -205,7 +229,7 @@ def _one(fn, item, on_error) -> tuple[Any, bool]:
 def _message(e: BaseException) -> str:
     name = type(e).__name__
     if name == "KilledWorker":
-        return "the worker process grading it died (a crash or out of memory), also when retried"
+        return "the worker process grading it died (a crash or out of memory), also when run alone"
     text = str(e).splitlines()[0] if str(e) else ""
     return f"internal error: {name}: {text}" if text else f"internal error: {name}"
 

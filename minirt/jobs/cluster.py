@@ -131,7 +131,13 @@ def serve(workers: int) -> None:
     environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
     environ.pop("MALLOC_TRIM_THRESHOLD_", None)
     with (
-        dask.config.set({"distributed.nanny.pre-spawn-environ": environ}),
+        dask.config.set(
+            {
+                "distributed.nanny.pre-spawn-environ": environ,
+                # minirt.jobs.batch runs an item whose worker died again alone: Dask need not retry it
+                "distributed.scheduler.allowed-failures": 0,
+            }
+        ),
         LocalCluster(
             n_workers=workers,
             threads_per_worker=1,

@@ -89,6 +89,11 @@ def test_local_workers_in_order_errors_and_crashes(capfd):
     assert sorted(done) == [0, 1, 2]
     got = jobs.run(dies_on_two, list(range(4)), workers=2, on_error=lambda item, msg: msg)
     assert got[0] == 0 and got[1] == 1 and got[3] == 3 and "died" in got[2]
+    # Items sharing the dying worker (queued behind it, or done but not yet reported) are run again
+    # alone: however the scheduler spread them, the one that kills its worker is the only one that died.
+    got = jobs.run(dies_on_two, list(range(16)), workers=2, on_error=lambda item, msg: msg)
+    assert [g for k, g in enumerate(got) if k != 2] == [k for k in range(16) if k != 2]
+    assert got[2] == "the worker process grading it died (a crash or out of memory), also when run alone"
     said = capfd.readouterr()
     assert "Compute Failed" not in said.err and "Traceback" not in said.err, said.err
 
