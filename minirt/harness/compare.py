@@ -179,10 +179,25 @@ def check_text(
 # minirt.harness.run's ``run`` and ``check_scene``.
 def start_ahead(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, options=None) -> dict[str, Any]:
     """Start on ``pool`` the renders of those of ``names`` that run as a child process and are installed
-    (the backend's ``concurrent``): name -> Future. Such a render mostly waits for its process, so it overlaps the
-    work this process does meanwhile; the results are the same."""
+    (the backend's ``runs_apart`` with these options): name -> Future. Such a render mostly waits for its
+    processes, so it overlaps the work this process does meanwhile; the results are the same."""
     return {
         n: pool.submit(backends.render, n, scene, rules, options)
         for n in names
-        if backends.get(n).concurrent and backends.info(n).available
+        if backends.get(n).runs_apart(options or {}) and backends.info(n).available
     }
+
+
+def start_chosen(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, refs: ReferenceCache) -> dict[str, Any]:
+    """``start_ahead`` for those of ``names`` that choose their pixels from the reference (``chooses_pixels``):
+    started once the reference it is compared with is rendered, with their check options."""
+    started = {}
+    for n in names:
+        b = backends.get(n)
+        if not (b.chooses_pixels and backends.info(n).available):
+            continue
+        followed = backends.rules_for(n, rules)
+        options = _check_options(n, scene, followed, refs)
+        if b.runs_apart(options):
+            started[n] = pool.submit(backends.render, n, scene, rules, options)
+    return started

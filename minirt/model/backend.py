@@ -253,6 +253,11 @@ class Backend:
         slow to render every pixel of a large image names the pixels worth its time (``chooses_pixels``)."""
         return {}
 
+    def runs_apart(self, options: dict[str, Any]) -> bool:
+        """Whether its render with these options works in processes of its own, so that a check starts it
+        beside the others' work (minirt.harness.compare.start_ahead): ``concurrent``, by default."""
+        return self.concurrent
+
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
         """Render under `rules` (already adapted by the caller); options are backend-specific, and a
         backend that ``reports_progress`` is given ``options["progress"]``, called as ``progress(done, total)``."""

@@ -36,7 +36,8 @@ Conventions bridged (none: this is the model the reference tracer computes in fl
   reference's error bound on t and normals: the reference's stability is what this oracle judges.
 - Several samples per pixel (``options["samples"]``, the check of a scene with samples > 1): the
   reference's own stratified sub-pixel positions (minirt.model.camera.sample_offsets, binary64 numbers
-  taken exactly), the colour their mean.
+  taken exactly), the colour their mean; no robust bounds (those are of one ray: every pixel is "not
+  robust"), so the judge rules on one-sample renders only.
 """
 
 from __future__ import annotations
@@ -203,12 +204,23 @@ class ExactOracle(Oracle):
     chooses_pixels: ClassVar[bool] = True
 
     def check_options(self, scene: Scene, reference: RenderResult) -> dict[str, Any]:
-        """Every pixel up to CHECK_WHOLE_PIXELS; above, the reference's edges and the stratified sample."""
+        """Every pixel up to CHECK_WHOLE_PIXELS, in this process; above, the reference's edges and the
+        stratified sample, on a worker process per core (where this process may start them: not in a Dask
+        worker), which the check runs beside the other oracles' work (``runs_apart``)."""
+        from minirt.jobs.batch import cores
+        from minirt.oracles.exact.render import can_spread
+
         w, h = scene.camera.width, scene.camera.height
         if w * h <= CHECK_WHOLE_PIXELS:
             return {}
         edges = np.logical_or.reduce(list(edge_classes(reference).values()))
-        return {"pixels": np.union1d(stratified(w, h), np.flatnonzero(edges))}
+        options: dict[str, Any] = {"pixels": np.union1d(stratified(w, h), np.flatnonzero(edges))}
+        if can_spread() and cores() > 1:
+            options["workers"] = cores()
+        return options
+
+    def runs_apart(self, options: dict[str, Any]) -> bool:
+        return options.get("workers", 1) > 1
 
     def geometry_tolerance(self, result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
         """The reference's float64 error bound as per-pixel tolerances (``band_scales``, ``start_error``); the
@@ -315,7 +327,11 @@ class ExactOracle(Oracle):
             for s in range(samples):
                 u, v = camera.sample_offsets(samples, s, w * h)
                 uvs.append(np.stack([u[pixels], v[pixels]], axis=1))
-        results = [trace_pixels(scene, rules, pixels, uv, workers, progress) for uv in uvs]
+        # Robust bounds are of one ray a pixel (what the judge rules on); the mean of several has none of its
+        # own -- one sample's bounds are not the mean's -- so a render of several samples leaves them out
+        # (every pixel not robust), and with them more than half its time.
+        bounds = samples == 1
+        results = [trace_pixels(scene, rules, pixels, uv, workers, progress, bounds) for uv in uvs]
         buf = buffers(w, h, results[0])
         if samples > 1:
             buf["color"] = sum(buffers(w, h, r, terms=False)["color"] for r in results) / samples

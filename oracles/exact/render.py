@@ -119,9 +119,10 @@ class PixelTracer:
         set_precision(PRECISIONS[-1])
         return self.run(Model(self.scene, self.rules, guess=True), index, u, v)
 
-    def pixel(self, index: int, u: float, v: float) -> Pixel:
+    def pixel(self, index: int, u: float, v: float, bounds: bool = True) -> Pixel:
         """One ray, certified: at each precision in turn until every decision is and the colour is known to
-        COLOR_ABS; a tie where the last precision still cannot."""
+        COLOR_ABS; a tie where the last precision still cannot. ``bounds``: its robust bounds too (``robust``;
+        more than half a pixel's time); without them the pixel is not robust, so never judged by them."""
         why = ""
         for bits in PRECISIONS:
             try:
@@ -131,7 +132,8 @@ class PixelTracer:
                 continue
             rad = max(float(c.rad()) for c in color)
             if rad <= COLOR_ABS:
-                return self.robust(self._pixel(index, levels, color, bits, ""), u, v)
+                px = self._pixel(index, levels, color, bits, "")
+                return self.robust(px, u, v) if bounds else px
             why = "a colour gate (s·n or r·s under clamp) at its threshold"
         return self._tie(index, u, v, why)
 
@@ -219,40 +221,77 @@ class Batch:
     rules: Rules
     indices: tuple[int, ...]
     uv: tuple[tuple[float, float], ...]
+    bounds: bool = True
 
 
 def run_batch(batch: Batch) -> list[Pixel]:
     tracer = PixelTracer(batch.scene, batch.rules)
-    return [tracer.pixel(i, u, v) for i, (u, v) in zip(batch.indices, batch.uv, strict=True)]
+    return [tracer.pixel(i, u, v, batch.bounds) for i, (u, v) in zip(batch.indices, batch.uv, strict=True)]
 
 
 def trace_pixels(
-    scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarray, workers: int = 1, progress=None
+    scene: Scene,
+    rules: Rules,
+    indices: np.ndarray,
+    uv: np.ndarray,
+    workers: int = 1,
+    progress=None,
+    bounds: bool = True,
 ) -> list[Pixel]:
     """Every given pixel (row-major indices, sub-pixel positions (N, 2)), in order: in this process, or in
-    ``workers`` processes, the pixels dealt out in interleaved batches (neighbouring pixels cost alike)."""
+    ``workers`` processes, the pixels dealt out in interleaved batches (neighbouring pixels cost alike).
+    ``bounds``: with their robust bounds (``PixelTracer.pixel``)."""
     idx = [int(i) for i in indices]
     pos = [(float(u), float(v)) for u, v in uv]
     if workers <= 1 or len(idx) < 64:
         tracer = PixelTracer(scene, rules)
         out = []
         for n, (i, (u, v)) in enumerate(zip(idx, pos, strict=True)):
-            out.append(tracer.pixel(i, u, v))
+            out.append(tracer.pixel(i, u, v, bounds))
             if progress and (n + 1) % 256 == 0:
                 progress(n + 1, len(idx))
         return out
     parts = max(workers * 4, 1)
-    batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts])) for k in range(parts)]
+    batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts]), bounds) for k in range(parts)]
     got: dict[int, Pixel] = {}
     done = 0
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for part in pool.map(run_batch, batches):
-            for px in part:
-                got[px.index] = px
-            done += len(part)
-            if progress:
-                progress(done, len(idx))
+    for part in _pool(workers).map(run_batch, batches):
+        for px in part:
+            got[px.index] = px
+        done += len(part)
+        if progress:
+            progress(done, len(idx))
     return [got[i] for i in idx]
+
+
+_POOLS: dict[int, ProcessPoolExecutor] = {}
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` processes, started once and kept for the process's later renders (a check's
+    scenes, a render's samples): each costs ~0.3 s to start. Its processes come from a fork server -- a
+    fresh interpreter, not a fork of this process and its Dr.Jit and renderer threads -- and ignore the
+    terminal's Ctrl-C (the command stops them; an interrupted worker would print a traceback)."""
+    pool = _POOLS.get(workers)
+    if pool is None:
+        import multiprocessing
+
+        context = multiprocessing.get_context("forkserver")
+        pool = _POOLS[workers] = ProcessPoolExecutor(workers, mp_context=context, initializer=_quiet_worker)
+    return pool
+
+
+def _quiet_worker() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def can_spread() -> bool:
+    """Whether this process may start worker processes (a daemonic one, a Dask worker's, may not)."""
+    import multiprocessing
+
+    return not multiprocessing.current_process().daemon
 
 
 def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str, np.ndarray]:

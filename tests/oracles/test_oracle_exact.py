@@ -14,7 +14,7 @@ from flint import fmpq
 from support.exact_cases import FLOOR, TANGENT_BALL, exact_case
 
 from minirt.campaign.campaign import DEFECTS, _DefectiveReference
-from minirt.harness import backends
+from minirt.harness import backends, judge
 from minirt.harness.compare import check_backend
 from minirt.harness.references import ReferenceCache
 from minirt.model.bundled import find_scene
@@ -184,6 +184,34 @@ def test_a_check_of_a_large_image_traces_the_edges_and_a_sample_and_judges_only_
     assert check_backend(scene, rules, "exact", bad, explain=False).verdict == "fail"
 
 
+def test_a_checks_certified_render_runs_beside_the_others_with_the_same_result(monkeypatch):
+    """Above CHECK_WHOLE_PIXELS a check renders the chosen pixels on a worker process per core, started once
+    the reference is there and checked after the other oracles: the same buffers as in this process, the
+    document's oracles in the order asked."""
+    from minirt.harness.run import check_scene
+    from minirt.jobs import batch
+    from minirt.oracles.exact import render as exact_render
+
+    monkeypatch.setattr(batch, "cores", lambda: 2)  # a worker process per core, also on a one-core runner
+    path = find_scene("shadows")
+    scene = load_scene(path).with_overrides(width=72, height=72)
+    rules = resolve(scene)
+    options = get("exact").check_options(scene, ReferenceCache(scene).get(rules, samples=1))
+    assert options["workers"] == 2 and get("exact").runs_apart(options)
+    started = []
+    real = exact_render.trace_pixels
+    monkeypatch.setattr(exact_render, "trace_pixels", lambda *a, **k: started.append(a[4]) or real(*a, **k))
+    sc = check_scene(path, ["reference", "exact", "embree"], size=(72, 72))
+    assert list(sc.backends) == ["exact", "embree"] and started == [2]
+    here = backends.render("exact", scene, rules, {**options, "workers": 1})
+    there = sc.backends["exact"].result
+    for k in ("hit", "shape_id", "t", "normal", "color"):
+        assert np.array_equal(getattr(here, k), getattr(there, k), equal_nan=True), k
+    for k in ("rendered", "robust", "color_lo", "color_hi"):
+        assert np.array_equal(here.aux[k], there.aux[k]), k
+    assert sc.backends["exact"].verdict == "pass", sc.backends["exact"].reason
+
+
 def test_a_check_of_a_small_image_traces_every_pixel():
     scene = load_scene(find_scene("shadows")).with_overrides(width=32, height=32)
     assert get("exact").check_options(scene, ReferenceCache(scene).get(resolve(scene), samples=1)) == {}
@@ -234,3 +262,6 @@ def test_several_samples_take_the_references_own_sub_pixel_positions():
     assert np.abs(res.aux["color_exact"] - ref.color).max() < 1e-12
     one = _exact(scene, rules)
     assert np.abs(one.aux["color_exact"] - ref.color).max() > 1e-3  # one ray per pixel is another picture
+    # robust bounds are of one ray: the mean of four has none, so the judge settles nothing on it
+    assert one.aux["robust"].any() and not res.aux["robust"].any()
+    assert judge.reference_errors(ref, res)[0].sum() == 0
