@@ -71,6 +71,22 @@ def spawn(cmd: list[str], **popen: Any) -> subprocess.Popen:
     return subprocess.Popen([*_pdeathsig_prefix(), *cmd], start_new_session=True, **popen)
 
 
+def track(p: subprocess.Popen) -> None:
+    """Count a ``spawn``ed child among those ``kill_all`` kills (a signal stops minirt: it goes first)."""
+    with _lock:
+        _live.add(p)
+
+
+def untrack(p: subprocess.Popen) -> None:
+    with _lock:
+        _live.discard(p)
+
+
+def kill(p: subprocess.Popen) -> None:
+    """Kill a child and its process group at once."""
+    _kill(p)
+
+
 def _kill(p: subprocess.Popen) -> None:
     with contextlib.suppress(ProcessLookupError, PermissionError):
         os.killpg(p.pid, signal.SIGKILL)

@@ -11,7 +11,6 @@ last attempt with that decision taken by the interval's midpoint -- for the pict
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -264,31 +263,110 @@ def trace_pixels(
     return [got[i] for i in idx]
 
 
-_POOLS: dict[int, ProcessPoolExecutor] = {}
+_POOLS: dict[int, Workers] = {}
 
 
-def _pool(workers: int) -> ProcessPoolExecutor:
-    """A pool of ``workers`` processes, started once and kept for the process's later renders (a check's
-    scenes, a render's samples): each costs ~0.3 s to start. Its processes come from a fork server -- a
-    fresh interpreter, not a fork of this process and its Dr.Jit and renderer threads -- and ignore the
-    terminal's Ctrl-C (the command stops them; an interrupted worker would print a traceback)."""
+def _pool(workers: int) -> Workers:
+    """``workers`` worker processes, started once and kept for the process's later renders (a check's
+    scenes, a render's samples): each costs ~0.3 s to start."""
     pool = _POOLS.get(workers)
-    if pool is None:
-        import multiprocessing
-
-        context = multiprocessing.get_context("forkserver")
-        pool = _POOLS[workers] = ProcessPoolExecutor(workers, mp_context=context, initializer=_quiet_worker)
+    if pool is None or not pool.alive():
+        if pool is not None:
+            pool.close()
+        pool = _POOLS[workers] = Workers(workers)
     return pool
 
 
-def _quiet_worker() -> None:
-    import signal
+class Workers:
+    """Worker processes of minirt.oracles.exact.worker, each in a session of its own (a terminal's Ctrl-C
+    reaches minirt, which kills them: minirt.jobs.processes) and killed by the kernel if minirt is; they
+    end when minirt closes their input (at its exit)."""
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    def __init__(self, n: int):
+        import atexit
+        import os
+        import queue
+        import subprocess
+        import sys
+
+        from minirt.jobs import processes
+
+        path = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))  # they import minirt by name
+        env = {**os.environ, "PYTHONPATH": path}
+        cmd = [sys.executable, "-m", "minirt.oracles.exact.worker"]
+        self.procs = [processes.spawn(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env) for _ in range(n)]
+        for p in self.procs:
+            processes.track(p)
+        self.broken = ""  # why the pool can serve no more ("": it can)
+        self.free: queue.Queue = queue.Queue()  # idle workers; None once broken
+        for p in self.procs:
+            self.free.put(p)
+        atexit.register(self.close)
+
+    def alive(self) -> bool:
+        return not self.broken and all(p.poll() is None for p in self.procs)
+
+    def map(self, fn, batches: list):
+        """``fn(batch)`` for each batch on the workers (``fn``: module-level, here ``run_batch``), results in
+        order as they are ready."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        assert fn is run_batch
+        lanes = ThreadPoolExecutor(len(self.procs))
+        try:
+            futures = [lanes.submit(self._ask, b) for b in batches]
+            for f in futures:
+                yield f.result()
+        finally:
+            lanes.shutdown(wait=True, cancel_futures=True)
+
+    def _ask(self, batch: Batch) -> list[Pixel]:
+        import pickle
+
+        from minirt.oracles.exact.worker import read_message, write_message
+
+        p = self.free.get()
+        if p is None:  # the pool broke: every batch still waiting fails with the first one's reason
+            self.free.put(None)
+            raise RuntimeError(self.broken)
+        try:
+            write_message(p.stdin, pickle.dumps(batch, protocol=pickle.HIGHEST_PROTOCOL))
+            data = read_message(p.stdout)
+        except (BrokenPipeError, OSError):
+            data = None
+        if data is None:
+            self.broken = f"a worker process of the certified oracle died (status {p.wait()})"
+            self.free.put(None)
+            raise RuntimeError(self.broken)
+        self.free.put(p)
+        status, value = pickle.loads(data)
+        if status != "ok":
+            raise RuntimeError(value)
+        return value
+
+    def close(self) -> None:
+        import contextlib
+        import subprocess
+
+        from minirt.jobs import processes
+
+        for p in self.procs:
+            with contextlib.suppress(OSError):
+                p.stdin.close()
+        for p in self.procs:
+            try:
+                p.wait(timeout=2)
+            except subprocess.TimeoutExpired:
+                processes.kill(p)
+                p.wait()
+            processes.untrack(p)
+            with contextlib.suppress(OSError):
+                p.stdout.close()
 
 
 def can_spread() -> bool:
-    """Whether this process may start worker processes (a daemonic one, a Dask worker's, may not)."""
+    """Whether a check here should start worker processes: not in a daemonic process -- a Dask worker's,
+    one of several that share the cores already."""
     import multiprocessing
 
     return not multiprocessing.current_process().daemon

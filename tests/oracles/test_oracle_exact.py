@@ -265,3 +265,41 @@ def test_several_samples_take_the_references_own_sub_pixel_positions():
     # robust bounds are of one ray: the mean of four has none, so the judge settles nothing on it
     assert one.aux["robust"].any() and not res.aux["robust"].any()
     assert judge.reference_errors(ref, res)[0].sum() == 0
+
+
+def test_worker_processes_that_die_are_an_error_result_and_are_started_again(monkeypatch):
+    from minirt.oracles.exact import render as exact_render
+
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=12, height=12)
+    rules = resolve(scene)
+    here = backends.render("exact", scene, rules, {"pixels": "all"})
+    pool = exact_render._pool(2)
+    for p in pool.procs:  # dying while the render runs (seen only when it answers no more)
+        p.kill()
+        p.wait()
+    with monkeypatch.context() as m:
+        m.setattr(exact_render.Workers, "alive", lambda self: True)
+        res = backends.render("exact", scene, rules, {"pixels": "all", "workers": 2})
+    assert res.status == "error" and "worker process of the certified oracle died" in res.reason, res.reason
+    again = backends.render("exact", scene, rules, {"pixels": "all", "workers": 2})  # a new pool
+    assert exact_render._pool(2) is not pool and again.ok, again.reason
+    assert np.array_equal(again.color, here.color) and np.array_equal(again.aux["color_hi"], here.aux["color_hi"])
+
+
+def test_a_script_without_a_main_guard_runs_once(tmp_path):
+    """The workers are fresh interpreters, not multiprocessing children (which import the caller's main
+    script again): a user's script calling the API runs once, whatever it lacks."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "use.py"
+    script.write_text(
+        "from minirt.harness import backends\n"
+        "from minirt.model.bundled import bundled_scene\n"
+        "from minirt.model.rules import resolve\n"
+        "scene = bundled_scene('three_balls').with_overrides(width=10, height=10)\n"
+        "res = backends.render('exact', scene, resolve(scene), {'pixels': 'all', 'workers': 2})\n"
+        "print('ran', res.status)\n"
+    )
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert out.stdout.splitlines() == ["ran ok"], out.stdout + out.stderr

@@ -1,0 +1,61 @@
+"""A worker process of the certified oracle (minirt.oracles.exact.render.Workers): ``python -m
+minirt.oracles.exact.worker`` reads batches of pixels from its standard input and writes their certified
+values to its standard output, each message an 8-byte little-endian length and a pickle, until its input
+closes.
+
+Its own interpreter, started afresh: not a fork of minirt (with Dr.Jit's and the renderers' threads in
+it), and not a multiprocessing child, which imports the caller's main script again -- a user's script
+without a ``__main__`` guard would run once more in every worker. Pickles come only from the minirt
+process that started it, through its pipe. What the model's code prints goes to standard error: standard
+output is the channel.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import struct
+import sys
+
+HEADER = struct.Struct("<Q")
+
+
+def read_message(f) -> bytes | None:
+    """One message from a binary stream (None at its end)."""
+    head = f.read(HEADER.size)
+    if len(head) < HEADER.size:
+        return None
+    (n,) = HEADER.unpack(head)
+    data = f.read(n)
+    if len(data) < n:
+        return None
+    return data
+
+
+def write_message(f, data: bytes) -> None:
+    f.write(HEADER.pack(len(data)))
+    f.write(data)
+    f.flush()
+
+
+def serve() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # minirt decides (it is in a session of its own anyway)
+    channel = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    from minirt.oracles.exact.render import run_batch
+
+    source = sys.stdin.buffer
+    while True:
+        data = read_message(source)
+        if data is None:
+            return
+        try:
+            answer = ("ok", run_batch(pickle.loads(data)))
+        except Exception as e:  # the batch's failure, said to the caller, which makes it the render's ERROR
+            answer = ("error", f"{type(e).__name__}: {(str(e).splitlines() or [''])[0]}")
+        write_message(channel, pickle.dumps(answer, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+if __name__ == "__main__":
+    serve()
