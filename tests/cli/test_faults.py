@@ -148,13 +148,17 @@ def test_a_signal_cleans_up(fake_povray, tmp_path, sig):
          "--width", "8", "--height", "8"], cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
     )  # fmt: skip
     pids = tmp_path / "pids"
-    for _ in range(600):  # until POV-Ray's passes are running
-        if pids.exists() and len(pids.read_text().split()) >= 2:
+    written = tmp_path / "out" / "exercise.reference.json"
+    # Until POV-Ray's passes are running and the reference's files are written: minirt then waits for
+    # POV-Ray alone. (Before that the signal may land in a Dr.Jit kernel compile, which Python cannot
+    # interrupt: with an empty kernel cache on a loaded runner that took over 30 s once.)
+    for _ in range(1200):
+        if pids.exists() and len(pids.read_text().split()) >= 2 and written.exists():
             break
         time.sleep(0.1)
     else:
         p.kill()
-        pytest.fail("the fake povray never started")
+        pytest.fail("the fake povray never started, or the reference was never written")
     p.send_signal(sig)
     _, err = p.communicate(timeout=30)
     assert p.returncode == 128 + sig, err
