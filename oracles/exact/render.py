@@ -339,7 +339,7 @@ class Workers:
     def _ask(self, batch: Batch) -> list[Pixel]:
         import pickle
 
-        from minirt.oracles.exact.worker import read_message, write_message
+        from minirt.oracles.exact.channel import read_message, write_message
 
         p = self.free.get()
         if p is None:  # the pool broke: every batch still waiting fails with the first one's reason

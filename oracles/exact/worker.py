@@ -15,28 +15,9 @@ from __future__ import annotations
 import os
 import pickle
 import signal
-import struct
 import sys
 
-HEADER = struct.Struct("<Q")
-
-
-def read_message(f) -> bytes | None:
-    """One message from a binary stream (None at its end)."""
-    head = f.read(HEADER.size)
-    if len(head) < HEADER.size:
-        return None
-    (n,) = HEADER.unpack(head)
-    data = f.read(n)
-    if len(data) < n:
-        return None
-    return data
-
-
-def write_message(f, data: bytes) -> None:
-    f.write(HEADER.pack(len(data)))
-    f.write(data)
-    f.flush()
+from minirt.oracles.exact.channel import read_message, write_message
 
 
 def serve() -> None:
