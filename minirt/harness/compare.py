@@ -48,9 +48,11 @@ def check_backend(
     variants=None,
     rendered=None,
     explain: bool = True,
+    samples_rendered=None,
 ) -> BackendCheck:
     """``rendered``: the backend's render of (scene, rules, options) when it was started earlier (a
-    concurrent.futures.Future or a RenderResult), else it is rendered here. ``explain=False`` leaves out
+    concurrent.futures.Future or a RenderResult), else it is rendered here; ``samples_rendered``: the same
+    for the several-sample render of ``_samples_run`` (``start_samples``). ``explain=False`` leaves out
     what only explains the verdict -- the rule effects and the rule diagnosis, renders of their own --
     for runs that want verdicts alone (a fuzzing campaign)."""
     t0 = time.perf_counter()
@@ -90,7 +92,7 @@ def check_backend(
         if scene.samples > 1 and model == "physical":
             bc.checks["stochastic"] = _stochastic_run(scene, followed, name, refs, geom)
         if scene.samples > 1 and model == "exercise":
-            bc.checks["samples"] = _samples_run(scene, followed, name, refs)
+            bc.checks["samples"] = _samples_run(scene, followed, name, refs, samples_rendered)
         bc.verdict = worst([c.verdict for c in bc.checks.values()])
         # worst first; an inconclusive check's reason as it is ("inconclusive: ..."), ahead of other warnings
         said = [(k, c) for k, c in bc.checks.items() if c.verdict in ("fail", "warn", "error")]
@@ -131,12 +133,19 @@ def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache,
     return check_stochastic(scene, ref, res, classes, edges, centre)
 
 
-def _samples_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache) -> Check:
+def _samples_options(name: str, scene: Scene, followed: Rules, refs: ReferenceCache) -> dict[str, Any]:
+    return {**_check_options(name, scene, followed, refs), "samples": scene.samples}
+
+
+def _samples_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache, rendered=None) -> Check:
     """An oracle of the exercise's model rendering the reference's own stratified samples (option
-    ``samples``): the averaged colour is compared per pixel like a one-ray render, with the band taken
-    over every sample's ray."""
+    ``samples``; ``rendered``: that render started earlier, a Future): the averaged colour is compared per
+    pixel like a one-ray render, with the band taken over every sample's ray."""
     n = scene.samples
-    res = backends.render(name, scene, rules, {**_check_options(name, scene, rules, refs), "samples": n})
+    if rendered is not None:
+        res = rendered.result()
+    else:
+        res = backends.render(name, scene, rules, _samples_options(name, scene, rules, refs))
     if not res.ok:
         return Check("skip" if res.status == "skip" else "error", reason=res.reason)
     ref = refs.get(rules)
@@ -200,4 +209,21 @@ def start_chosen(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, re
         options = _check_options(n, scene, followed, refs)
         if b.runs_apart(options):
             started[n] = pool.submit(backends.render, n, scene, rules, options)
+    return started
+
+
+def start_samples(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, refs: ReferenceCache) -> dict[str, Any]:
+    """``start_ahead`` for the several-sample renders ``_samples_run`` compares (a scene of samples > 1, an
+    oracle of the exercise's model), once the reference is rendered: those that run apart."""
+    if scene.samples <= 1:
+        return {}
+    started = {}
+    for n in names:
+        b = backends.get(n)
+        if b.shading_model != "exercise" or not backends.info(n).available:
+            continue
+        followed = backends.rules_for(n, rules)
+        options = _samples_options(n, scene, followed, refs)
+        if b.runs_apart(options):
+            started[n] = pool.submit(backends.render, n, scene, followed, options)
     return started

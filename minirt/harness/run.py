@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from minirt.harness import backends
 from minirt.harness.attribution import VARIANT_CACHE_BYTES
-from minirt.harness.compare import check_backend, check_text, start_ahead, start_chosen
+from minirt.harness.compare import check_backend, check_text, start_ahead, start_chosen, start_samples
 from minirt.harness.references import ReferenceCache
 from minirt.harness.results import BackendCheck, CheckResult, SceneCheck, worst
 from minirt.model.result import RenderResult
@@ -22,6 +22,9 @@ from minirt.model.scene import Scene, load_scene
 
 if TYPE_CHECKING:
     from minirt.jobs.cache import Cache
+
+
+LANES = 4  # threads that wait for a scene's renders started ahead (each render's work is in its own processes)
 
 
 def scene_label(path: str | Path) -> str:
@@ -67,16 +70,19 @@ def check_scene(
     refs = ReferenceCache(scene)
     sc.reference = refs.get(rules)
     oracle_names = backends.oracles_among(names)
-    with ThreadPoolExecutor(max_workers=1) as lane:
-        # an oracle that picks its pixels from the reference and renders them in processes of its own (the
-        # certified one, on a large image) starts now, beside the others' work here; it is checked last
+    with ThreadPoolExecutor(max_workers=LANES) as lane:
+        # Renders that need the reference and run in processes of their own start now, beside the others'
+        # work here: an oracle that picks its pixels from the reference (the certified one, on a large
+        # image), and the several-sample renders of a scene of samples > 1. Their oracles are checked last.
         chosen = start_chosen(lane, [n for n in oracle_names if n not in (rendered or {})], scene, rules, refs)
+        several = start_samples(lane, oracle_names, scene, rules, refs)
         got = {**(rendered or {}), **chosen}
         checked = {}
-        for i, name in enumerate(sorted(oracle_names, key=lambda n: n in chosen)):
+        for i, name in enumerate(sorted(oracle_names, key=lambda n: n in chosen or n in several)):
             if progress:
                 progress(scene.name, name, i, len(oracle_names))
-            checked[name] = check_backend(scene, rules, name, refs, variants=variants, rendered=got.get(name))
+            checked[name] = check_backend(scene, rules, name, refs, variants=variants, rendered=got.get(name),
+                                          samples_rendered=several.get(name))  # fmt: skip
     sc.backends = {name: checked[name] for name in oracle_names}  # in the order asked, however they ran
     sc.verdict = worst([b.verdict for b in sc.backends.values()])  # no oracle: skip, nothing was compared
     return sc

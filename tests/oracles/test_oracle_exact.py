@@ -212,6 +212,26 @@ def test_a_checks_certified_render_runs_beside_the_others_with_the_same_result(m
     assert sc.backends["exact"].verdict == "pass", sc.backends["exact"].reason
 
 
+def test_a_several_sample_render_started_ahead_is_the_one_rendered_in_line(monkeypatch):
+    """A scene of samples > 1: the check's several-sample render of an oracle that runs apart starts with
+    the reference (harness.compare.start_samples); the samples check is the one a render in line gives."""
+    from minirt.harness import compare
+    from minirt.harness import run as run_module
+    from minirt.jobs import batch
+
+    monkeypatch.setattr(batch, "cores", lambda: 2)
+    path = find_scene("shadows")
+    scene = load_scene(path).with_overrides(width=72, height=72, samples=4)
+    rules = resolve(scene)
+    started = []
+    monkeypatch.setattr(run_module, "start_samples", lambda *a: started.append(got := compare.start_samples(*a)) or got)
+    sc = run_module.check_scene(path, ["reference", "exact"], size=(72, 72), loaded=(scene, rules))
+    assert list(started[0]) == ["exact"]
+    ahead = sc.backends["exact"].checks["samples"]
+    in_line = check_backend(scene, rules, "exact", ReferenceCache(scene)).checks["samples"]
+    assert ahead.verdict == in_line.verdict == "pass" and ahead.figures == in_line.figures
+
+
 def test_a_check_of_a_small_image_traces_every_pixel():
     scene = load_scene(find_scene("shadows")).with_overrides(width=32, height=32)
     assert get("exact").check_options(scene, ReferenceCache(scene).get(resolve(scene), samples=1)) == {}
