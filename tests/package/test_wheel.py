@@ -11,6 +11,7 @@ editable install stays invisible: the minirt that runs is the wheel's.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -99,6 +100,10 @@ def smoke_test_installed(dist: Path, tmp_path: Path) -> None:
     run(minirt, "render", "exercise", "--width", "16", "--height", "16", "--out", work / "out", "-q", cwd=work, env=env)
     assert (work / "out" / "exercise.reference.png").stat().st_size > 0
     run(minirt, "check", "exercise", "-b", "embree", "--size", "16x16", "-q", cwd=work, env=env)
+    # above 64^2 the certified oracle's check starts worker processes of the installed package's
+    # (python -m minirt.oracles.exact.worker)
+    said = run(minirt, "check", "exercise", "-b", "exact", "--size", "72x72", "--json", "-", "-q", cwd=work, env=env)
+    assert json.loads(said.stdout)["verdict"] == "pass"
     probe = (
         "import importlib.util, minirt\n"
         "from minirt.model.bundled import SAMPLES\n"
