@@ -346,6 +346,11 @@ class Model:
         """The closest hit of the primary ray, with its origin and unit direction as arb vectors."""
         vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
         lv = arb(vv).sqrt()
+        oa: Vec = tuple(arb(x) for x in o)
+        d = tuple(arb(x) / lv for x in v)
+        if self.slack:  # the robust evaluation: the ray widened, its decisions made on the widened ray
+            oa, d = self.widen(oa), self.widen(d, unit=True)
+            return self.closest(oa, d, None), oa, d
         cands: list[tuple[arb, int, int, fmpq | None]] = []  # (t, shape, dn sign, t/|V| when rational)
         for k in self.near_balls(o, v):
             _, _, _, cq, rq = self.balls[k]
@@ -369,11 +374,6 @@ class Model:
                 continue
             s = num / den
             cands.append((arb(s) * lv, k, qsign(den), s, self.key(k, 0)))
-        oa: Vec = tuple(arb(x) for x in o)
-        d = tuple(arb(x) / lv for x in v)
-        if self.slack:  # the robust evaluation: the ray widened, its decisions made on the widened ray
-            oa, d = self.widen(oa), self.widen(d, unit=True)
-            return self.closest(oa, d, None), oa, d
         return self._nearest(cands), oa, d
 
     def widen(self, v: Vec, unit: bool = False) -> Vec:
