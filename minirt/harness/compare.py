@@ -200,16 +200,7 @@ def start_ahead(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, opt
 def start_chosen(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, refs: ReferenceCache) -> dict[str, Any]:
     """``start_ahead`` for those of ``names`` that choose their pixels from the reference (``chooses_pixels``):
     started once the reference it is compared with is rendered, with their check options."""
-    started = {}
-    for n in names:
-        b = backends.get(n)
-        if not (b.chooses_pixels and backends.info(n).available):
-            continue
-        followed = backends.rules_for(n, rules)
-        options = _check_options(n, scene, followed, refs)
-        if b.runs_apart(options):
-            started[n] = pool.submit(backends.render, n, scene, rules, options)
-    return started
+    return _start_after_reference(pool, names, rules, lambda b: b.chooses_pixels, scene, refs, _check_options)
 
 
 def start_samples(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, refs: ReferenceCache) -> dict[str, Any]:
@@ -217,13 +208,21 @@ def start_samples(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, r
     oracle of the exercise's model), once the reference is rendered: those that run apart."""
     if scene.samples <= 1:
         return {}
+    return _start_after_reference(
+        pool, names, rules, lambda b: b.shading_model == "exercise", scene, refs, _samples_options
+    )
+
+
+def _start_after_reference(pool, names, rules: Rules, wanted, scene: Scene, refs: ReferenceCache, options_for):
+    """The renders of those of ``names`` whose backend is ``wanted`` and installed, with the options
+    ``options_for(name, scene, followed, refs)`` names from the reference, where they run apart."""
     started = {}
     for n in names:
         b = backends.get(n)
-        if b.shading_model != "exercise" or not backends.info(n).available:
+        if not (wanted(b) and backends.info(n).available):
             continue
         followed = backends.rules_for(n, rules)
-        options = _samples_options(n, scene, followed, refs)
+        options = options_for(n, scene, followed, refs)
         if b.runs_apart(options):
             started[n] = pool.submit(backends.render, n, scene, followed, options)
     return started
