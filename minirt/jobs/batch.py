@@ -178,18 +178,19 @@ def stream(
                 suspects.append((k, item))
                 f.release()
                 continue
-            result, ok = _collect(f, item, on_error, check)
-            f.release()
-            if ok and store is not None:
-                store.store(item, result)
-            yield k, item, result, ok
+            yield k, item, *_settle(f, item, on_error, check, store)
         for k, item in suspects:
             f = client.submit(fn, item, pure=False)
-            result, ok = _collect(f, item, on_error, check)
-            f.release()
-            if ok and store is not None:
-                store.store(item, result)
-            yield k, item, result, ok
+            yield k, item, *_settle(f, item, on_error, check, store)
+
+
+def _settle(f, item, on_error, check, store) -> tuple[Any, bool]:
+    """A finished future's result and whether it is one (``_collect``); the future released, a result stored."""
+    result, ok = _collect(f, item, on_error, check)
+    f.release()
+    if ok and store is not None:
+        store.store(item, result)
+    return result, ok
 
 
 def _died(f) -> bool:

@@ -40,15 +40,12 @@ def local_cluster(workers: int) -> Iterator[Callable[[], str]]:
     """An embedded cluster of ``workers`` processes for the block (module docstring), started at once; what
     it yields gives the scheduler's address, waiting for it (the caller imports Dask meanwhile)."""
     from minirt.errors import MinirtError
-    from minirt.jobs.processes import spawn
+    from minirt.jobs.processes import python_env, spawn
 
-    # The workers import the jobs' functions by name, so they get this process's module path (as Python's
-    # own process pools give their workers).
-    path = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))
-    env = {**os.environ, "PYTHONPATH": path}
+    # The workers import the jobs' functions by name
     p = spawn(
         [sys.executable, "-m", "minirt.jobs.cluster", str(workers)],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env,
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=python_env(),
     )  # fmt: skip
 
     def address() -> str:

@@ -54,7 +54,7 @@ def run(cmd: list[str], cwd: Path | str | None = None, timeout: float | None = N
         try:
             out, err = p.communicate(timeout=timeout)
         except BaseException:  # the time-out, Ctrl-C, SIGTERM: the child goes first
-            _kill(p)
+            kill(p)
             p.communicate()
             raise
     finally:
@@ -62,6 +62,15 @@ def run(cmd: list[str], cwd: Path | str | None = None, timeout: float | None = N
             _live.discard(p)
     text = (out or b"").decode("utf-8", "replace"), (err or b"").decode("utf-8", "replace")
     return subprocess.CompletedProcess(cmd, p.returncode, *text)
+
+
+def python_env() -> dict[str, str]:
+    """The environment of a child Python process that imports minirt's modules by name (the embedded
+    cluster's, the certified oracle's workers): this one's, with this process's module path, as Python's
+    own process pools give their workers."""
+    import sys
+
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))}
 
 
 def spawn(cmd: list[str], **popen: Any) -> subprocess.Popen:
@@ -84,10 +93,6 @@ def untrack(p: subprocess.Popen) -> None:
 
 def kill(p: subprocess.Popen) -> None:
     """Kill a child and its process group at once."""
-    _kill(p)
-
-
-def _kill(p: subprocess.Popen) -> None:
     with contextlib.suppress(ProcessLookupError, PermissionError):
         os.killpg(p.pid, signal.SIGKILL)
 
@@ -95,7 +100,7 @@ def _kill(p: subprocess.Popen) -> None:
 def kill_all() -> None:
     """Kill every live child (from a signal handler: no waiting here)."""
     for p in list(_live):
-        _kill(p)
+        kill(p)
 
 
 @contextlib.contextmanager

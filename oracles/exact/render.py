@@ -270,7 +270,7 @@ def trace_pixels(
     batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts]), bounds) for k in range(parts)]
     got: dict[int, Pixel] = {}
     done = 0
-    for part in _pool(workers).map(run_batch, batches):
+    for part in _pool(workers).run(batches):
         for px in part:
             got[px.index] = px
         done += len(part)
@@ -300,16 +300,13 @@ class Workers:
 
     def __init__(self, n: int):
         import atexit
-        import os
         import queue
         import subprocess
         import sys
 
         from minirt.jobs import processes
 
-        path = os.pathsep.join(p for p in sys.path if p and os.path.isdir(p))  # they import minirt by name
-        env = {**os.environ, "PYTHONPATH": path}
-        cmd = [sys.executable, "-m", "minirt.oracles.exact.worker"]
+        cmd, env = [sys.executable, "-m", "minirt.oracles.exact.worker"], processes.python_env()
         self.procs = [processes.spawn(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env) for _ in range(n)]
         for p in self.procs:
             processes.track(p)
@@ -322,12 +319,10 @@ class Workers:
     def alive(self) -> bool:
         return not self.broken and all(p.poll() is None for p in self.procs)
 
-    def map(self, fn, batches: list):
-        """``fn(batch)`` for each batch on the workers (``fn``: module-level, here ``run_batch``), results in
-        order as they are ready."""
+    def run(self, batches: list[Batch]):
+        """``run_batch(batch)`` for each batch on the workers, the results in order as they are ready."""
         from concurrent.futures import ThreadPoolExecutor
 
-        assert fn is run_batch
         lanes = ThreadPoolExecutor(len(self.procs))
         try:
             futures = [lanes.submit(self._ask, b) for b in batches]
