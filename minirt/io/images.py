@@ -90,21 +90,17 @@ def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, 
                 outs[key] = (tmp, out)
             return out
 
-        def put(key: str, out: Any, y: int, a: np.ndarray) -> None:
-            if not out.write_scanlines(y, y + len(a), 0, a):
-                raise MinirtError(f"{paths[key]}: cannot write image: {out.geterror()}")
-
         buf = None  # the EXR's rows, converted a block at a time (write_exr): no whole-tile float32 copy
         for y0, tile in tiles:
             c8 = np.ascontiguousarray(tile.color8())
-            put("png", opened("png", c8.shape[-1], oiio.UINT8, None), y0, c8)
+            png = opened("png", c8.shape[-1], oiio.UINT8, None)
+            if not png.write_scanlines(y0, y0 + tile.height, 0, c8):
+                raise MinirtError(f"{paths['png']}: cannot write image: {png.geterror()}")
             blocks, names = _exr_layout(tile)
             exr = opened("exr", len(names), oiio.FLOAT, names)
             if buf is None:
                 buf = np.empty((min(EXR_BLOCK_ROWS, height), width, len(names)), np.float32)
-            for y in range(0, tile.height, len(buf)):
-                n = min(len(buf), tile.height - y)
-                put("exr", exr, y0 + y, _fill(blocks, slice(y, y + n), buf[:n]))
+            _write_rows(exr, paths["exr"], blocks, y0, tile.height, buf)
             last = tile
         for key, (_, out) in outs.items():
             if out is None or not out.close():
@@ -223,16 +219,22 @@ def write_exr(path: str | Path, result: RenderResult, stop: threading.Event | No
         if out is None or not out.open(str(tmp), _spec(w, h, len(names), oiio.FLOAT, path, names)):
             raise MinirtError(f"{path}: cannot write image: {oiio.geterror() if out is None else out.geterror()}")
         try:
-            for y0 in range(0, h, len(buf)):
-                if stop is not None and stop.is_set():
-                    raise _Abandoned(path)
-                n = min(len(buf), h - y0)
-                if not out.write_scanlines(y0, y0 + n, 0, _fill(blocks, slice(y0, y0 + n), buf[:n])):
-                    raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+            _write_rows(out, path, blocks, 0, h, buf, stop)
         except BaseException:
             out.close()  # before the temporary file goes (OpenEXR says nothing of the missing rows; and no
             raise  # _quiet_stderr here: this may run on the background writer, and fd 2 is the process's)
         if not out.close():
+            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+
+
+def _write_rows(out: Any, path: Path, blocks, y0: int, height: int, buf: np.ndarray, stop=None) -> None:
+    """Rows 0 .. height of ``blocks`` (``_exr_layout``) to the open image ``out`` at rows y0 .., converted
+    into ``buf`` a block of its rows at a time; ``stop``: as ``write_exr``'s."""
+    for y in range(0, height, len(buf)):
+        if stop is not None and stop.is_set():
+            raise _Abandoned(path)
+        n = min(len(buf), height - y)
+        if not out.write_scanlines(y0 + y, y0 + y + n, 0, _fill(blocks, slice(y, y + n), buf[:n])):
             raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
 
 
