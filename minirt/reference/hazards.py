@@ -194,13 +194,16 @@ def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray, balls: 
     shape_of = np.asarray(balls.ids)
     keep = sid[pp] != shape_of[bb]  # a point's own ball is not tested (as with the tree)
     pp, bb = pp[keep], bb[keep]
-    c, r = balls.center[bb], balls.radius[bb]
-    with np.errstate(invalid="ignore"):
-        fp = np.linalg.norm(p[pp] - c, axis=-1) - r
-        fq = np.linalg.norm(q[pp] - c, axis=-1) - r
-    crossed = np.sign(fp) != np.sign(fq)
+    crossed = _crosses(p[pp], q[pp], balls.center[bb], balls.radius[bb])
     out |= np.bincount(pp[crossed], minlength=len(p)) > 0
     return out
+
+
+def _crosses(p: np.ndarray, q: np.ndarray, c: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Per (point, ball) pair: whether the ball's implicit function |x - C| - r, as computed, changes sign
+    between p and q (``_jumped``'s test of a ball, found on the grid or through the tree)."""
+    with np.errstate(invalid="ignore"):
+        return np.sign(np.linalg.norm(p - c, axis=-1) - r) != np.sign(np.linalg.norm(q - c, axis=-1) - r)
 
 
 def _pad(balls: _Balls, p: np.ndarray, q: np.ndarray) -> float:
@@ -331,11 +334,7 @@ def _jumped_tree(balls: _Balls, p: np.ndarray, q: np.ndarray, sid: np.ndarray) -
             pi = np.concatenate([pi[~leaf], pi[~leaf]])
             node = np.concatenate([inner + 1, tree.right[inner]])
         pp, bb = np.concatenate(pairs_p), np.concatenate(pairs_b)
-        c, r = center[order[bb]], radius[order[bb]]
-        with np.errstate(invalid="ignore"):
-            fp = np.linalg.norm(pc[pp] - c, axis=-1) - r
-            fq = np.linalg.norm(qc[pp] - c, axis=-1) - r
-        crossed = (np.sign(fp) != np.sign(fq)) & (ic[pp] != shape_of[bb])
+        crossed = _crosses(pc[pp], qc[pp], center[order[bb]], radius[order[bb]]) & (ic[pp] != shape_of[bb])
         out[a : a + len(pc)] |= np.bincount(pp[crossed], minlength=len(pc)) > 0
     return out
 
