@@ -170,9 +170,8 @@ def _planar_seconds(tr: Any) -> float:
     """Wall time of a trace whose first level's buffers -- colour, hit point, normal, every term, t and the
     ids -- are the kernel's own outputs: each component an array of its own (Dr.Jit writes those with
     non-temporal stores), nothing copied or read back. The fastest a render writing those buffers can
-    be; ``render()`` stores them as (H, W, 3) float64 arrays instead (4-packets, ``Tracer._scatter_out``),
-    since each component of a kernel output is an allocation of its own and NumPy cannot view three
-    allocations as one array."""
+    be; ``render()`` at this size writes them so too (``film.planar_out``), and adds their hand-over to
+    NumPy (``Planes``: RenderResult stacks a vector only when it is read)."""
     import drjit as dr
 
     t0 = time.perf_counter()
@@ -261,15 +260,15 @@ def bench_reference(cfg: Config) -> dict[str, Any]:
 
 def _write_floor(px: int, cfg: Config) -> dict[str, Any]:
     """The memory side of the roofline for ``render()``: one kernel that computes nothing and writes the
-    buffers a full f64 render writes, in its layout -- colour, position, normal and five terms as (x, y, z,
-    0) float64 packets (``film.scatter_out``), t as float64, the shape id as int32: 268 bytes a pixel.
-    A render can take no less than the longer of its trace and these writes.
+    buffers a full f64 render writes -- colour, position, normal and five terms, t as float64, the shape id
+    as int32 -- in either of the film's layouts (minirt.reference.film): "outputs", the kernel's own outputs,
+    one array a component (204 bytes a pixel), the layout of a render from 2^18 pixels (this one); and
+    "packets", (x, y, z, 0) float64 packets scattered from a loop (``film.scatter_out``, 268 bytes a pixel),
+    that of smaller renders. A render can take no less than the longer of its trace and its writes.
 
-    Beside it, "outputs": the same values (x, y, z of each vector, t, the id: 204 bytes a pixel) as the
-    kernel's own outputs, one array a component. Dr.Jit writes outputs with non-temporal stores and packet
-    scatters with ordinary ones (a cache line read for ownership before it is written): the two figures
-    show what the store kind costs, apart from any arithmetic; "cached", the packet scatters' arithmetic
-    without their memory traffic."""
+    Dr.Jit writes outputs with non-temporal stores and packet scatters with ordinary ones (a cache line read
+    for ownership before it is written): the two figures show what the store kind costs, apart from any
+    arithmetic; "cached", the packet scatters' arithmetic without their memory traffic."""
     import drjit as dr
 
     from minirt.model.result import TERMS
@@ -735,17 +734,17 @@ def markdown(res: dict[str, Any]) -> str:
              f"{_f(npy['mpix_s'], 3)} | 1x |")  # fmt: skip
     if "writes" in ref:
         w, tr64 = ref["writes"], ref["f64"]
-        floor = max(tr64["trace"]["median_s"], w["median_s"])
-        L += ["", f"Memory roofline of `render()`: its buffers alone ({w['bytes'] / 1e6:.0f} MB, a kernel that "
-              f"only writes them) take {_f(w['median_s'], 4)} s ({_f(w['gb_s'], 3)} GB/s); a render takes at least the "
-              f"longer of that and the trace: {_f(floor, 4)} s, {_f(floor / tr64['trace']['median_s'], 3)}x the trace "
-              f"(measured: {_f(tr64['render']['median_s'] / tr64['trace']['median_s'], 3)}x)."]  # fmt: skip
-        if "outputs" in w:
-            wo = w["outputs"]
-            L += ["", f"The same values as a kernel's own outputs (non-temporal stores, {wo['bytes'] / 1e6:.0f} MB): "
-                  f"{_f(wo['median_s'], 4)} s ({_f(wo['gb_s'], 3)} GB/s), {_f(w['median_s'] / wo['median_s'], 3)}x "
-                  f"faster than the packet scatters, whose arithmetic alone (into packets that stay in the L1 cache) "
-                  f"takes {_f(w['cached_median_s'], 4)} s."]  # fmt: skip
+        wo = w["outputs"]
+        floor = max(tr64["trace"]["median_s"], wo["median_s"])
+        L += ["", f"Memory roofline of `render()`: its buffers alone as the kernel's own outputs, its layout at "
+              f"this size ({wo['bytes'] / 1e6:.0f} MB, a kernel that only writes them), take {_f(wo['median_s'], 4)} s "
+              f"({_f(wo['gb_s'], 3)} GB/s); a render takes at least the longer of that and the trace: "
+              f"{_f(floor, 4)} s, {_f(floor / tr64['trace']['median_s'], 3)}x the trace (measured: "
+              f"{_f(tr64['render']['median_s'] / tr64['trace']['median_s'], 3)}x)."]  # fmt: skip
+        L += ["", f"The same values as (x, y, z, 0) packets scattered from a loop (a small render's layout, "
+              f"{w['bytes'] / 1e6:.0f} MB): {_f(w['median_s'], 4)} s ({_f(w['gb_s'], 3)} GB/s), "
+              f"{_f(w['median_s'] / wo['median_s'], 3)}x the outputs' time; their arithmetic alone (into packets "
+              f"that stay in the L1 cache) takes {_f(w['cached_median_s'], 4)} s."]  # fmt: skip
     if "planar_outputs" in ref["f64"]:
         po = ref["f64"]["planar_outputs"]["median_s"]
         ratio = po / ref["f64"]["trace"]["median_s"]

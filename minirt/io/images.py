@@ -20,7 +20,7 @@ import OpenImageIO as oiio
 
 from minirt.errors import MinirtError
 from minirt.io.atomic import atomic_path, stale
-from minirt.model.result import TERMS, RenderResult
+from minirt.model.result import TERMS, Planes, RenderResult
 
 
 def write_image(path: str | Path, pixels: np.ndarray, channels: list[str] | None = None) -> None:
@@ -161,7 +161,20 @@ def _exr_layout(result: RenderResult) -> tuple[list[Callable[[slice], np.ndarray
             names.extend(f"{prefix}.{comp}" if prefix else comp for comp in comps)
             blocks.append(lambda rows: a[rows, :, : len(comps)])
 
-    add("", result.color)
+    def vector(prefix: str, name: str, comps: str = "RGB") -> None:
+        # A vector as the result holds it (RenderResult.held): three arrays of their own (Planes) are
+        # stacked a block of rows at a time, never as a whole image.
+        v = result.held(name)
+        if v is None:
+            return
+        names.extend(f"{prefix}.{comp}" if prefix else comp for comp in comps)
+        if isinstance(v, Planes):
+            blocks.append(lambda rows: np.stack([c[rows] for c in v], axis=-1))
+        else:
+            a = np.asarray(v)
+            blocks.append(lambda rows: a[rows, :, :3])
+
+    vector("", "color")
     if result.hit is not None:
         hit, ids, t = result.hit, result.shape_id, result.t
         names.append("hit")
@@ -170,10 +183,10 @@ def _exr_layout(result: RenderResult) -> tuple[list[Callable[[slice], np.ndarray
         blocks.append(lambda rows: ids[rows, :, None].astype(np.float64))
         names.append("t")  # 0 on a miss: EXR readers choke on inf
         blocks.append(lambda rows: np.where(hit[rows], t[rows], 0.0)[..., None])
-        add("P", result.position, "XYZ")
-        add("N", result.normal, "XYZ")
+        vector("P", "position", "XYZ")
+        vector("N", "normal", "XYZ")
     for term in TERMS:
-        add(term, result.terms.get(term))
+        vector(term, term)
     for key in sorted(result.aux):
         add(f"aux.{key}", result.aux[key], "XYZ")
     return blocks, names
@@ -253,9 +266,10 @@ def write_result(
     their own, while the caller goes on (the hazard warnings, the next backend)."""
     out_dir = Path(out_dir)
     paths: dict[str, Path] = {}
-    if result.color is not None:
+    color = result.held("color")  # not stacked when it is Planes (RenderResult): the files take its components
+    if color is not None:
         paths["png"] = out_dir / f"{stem}.png"
-    if result.hit is not None or result.color is not None:
+    if result.hit is not None or color is not None:
         paths["exr"] = out_dir / f"{stem}.exr"
     paths["json"] = out_dir / f"{stem}.json"
     doc = sidecar(result, timings)  # now: the caller may add to the metadata once this returns

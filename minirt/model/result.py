@@ -11,6 +11,12 @@ All arrays are NumPy, row-major images of shape (H, W) or (H, W, 3), y = 0 the t
 - ``aux``: backend-specific per-pixel buffers the harness needs (e.g. Mitsuba's light distance);
 - ``meta``: backend, version, settings, rules, effects simulated/skipped, timings, commands run.
 A backend that could not run returns status "skip" or "error" with a reason and no buffers.
+
+A backend may hand a 3-vector buffer over as ``Planes``, its three (H, W) components: the arrays its
+kernels wrote, one allocation each, which NumPy cannot view as one (H, W, 3) array. The field stacks them
+into one the first time it is read, and keeps that; a writer that wants the components (an EXR's channels)
+takes them with ``components``, and never pays for the stack. The reference tracer's large renders do
+this: the stack is a copy of every buffer, as long as the trace itself (three_balls 1024^2, f64).
 """
 
 from __future__ import annotations
@@ -23,6 +29,56 @@ import numpy as np
 TERMS = ("ambient", "diffuse", "specular", "reflection", "background")
 
 
+class Planes(tuple):
+    """An (H, W, 3) buffer as its three (H, W) components (x, y, z), stacked when read (see the module)."""
+
+    __slots__ = ()
+
+    def stack(self) -> np.ndarray:
+        return np.stack(self, axis=-1)
+
+
+def _stacked(v: Any) -> Any:
+    return v.stack() if isinstance(v, Planes) else v
+
+
+class _Vector:
+    """A field holding an (H, W, 3) array or None, which may be set as ``Planes`` (stacked on first read)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.slot = "_" + name
+
+    def __get__(self, obj: Any, owner: type | None = None) -> Any:
+        if obj is None:
+            return None  # the dataclass field's default
+        v = obj.__dict__.get(self.slot)
+        if isinstance(v, Planes):
+            v = obj.__dict__[self.slot] = v.stack()
+        return v
+
+    def __set__(self, obj: Any, value: Any) -> None:
+        obj.__dict__[self.slot] = value
+
+
+class _Terms:
+    """The field ``terms``: a dict of (H, W, 3) arrays (None: an empty one), whose values may be set as
+    ``Planes``; they are stacked when the dict is first read."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.slot = "_" + name
+
+    def __get__(self, obj: Any, owner: type | None = None) -> Any:
+        if obj is None:
+            return None  # the dataclass field's default: a new dict, made by __set__
+        d = obj.__dict__[self.slot]
+        if any(isinstance(v, Planes) for v in d.values()):
+            d.update({k: v.stack() for k, v in d.items() if isinstance(v, Planes)})
+        return d
+
+    def __set__(self, obj: Any, value: Any) -> None:
+        obj.__dict__[self.slot] = {} if value is None else value
+
+
 @dataclass
 class RenderResult:
     backend: str
@@ -33,17 +89,34 @@ class RenderResult:
     hit: np.ndarray | None = None
     shape_id: np.ndarray | None = None
     t: np.ndarray | None = None
-    position: np.ndarray | None = None
-    normal: np.ndarray | None = None
-    color: np.ndarray | None = None
+    position: np.ndarray | None = _Vector()  # type: ignore[assignment]
+    normal: np.ndarray | None = _Vector()  # type: ignore[assignment]
+    color: np.ndarray | None = _Vector()  # type: ignore[assignment]
     image8: np.ndarray | None = None
-    terms: dict[str, np.ndarray] = field(default_factory=dict)
+    terms: dict[str, np.ndarray] = _Terms()  # type: ignore[assignment]
     aux: dict[str, np.ndarray] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+    def held(self, name: str) -> np.ndarray | Planes | None:
+        """The vector buffer ``name`` ("color", "position", "normal" or a term) as it is held: an (H, W, 3)
+        array, ``Planes`` (never stacked by this), or None."""
+        return self.__dict__["_terms"].get(name) if name in TERMS else self.__dict__["_" + name]
+
+    def components(self, name: str) -> tuple[np.ndarray, ...] | None:
+        """The three (H, W) components of the vector buffer ``name`` (as ``held``), without stacking them
+        (views of the array when it is one); None where there is none."""
+        v = self.held(name)
+        if v is None or isinstance(v, Planes):
+            return v
+        return tuple(v[..., k] for k in range(3))
+
+    def terms_names(self) -> list[str]:
+        """The names of the terms held, in order, without stacking any."""
+        return list(self.__dict__["_terms"])
 
     @property
     def traced(self) -> np.ndarray | None:
@@ -62,9 +135,13 @@ class RenderResult:
         """The exercise's bitmap: clamp to [0, 1], then floor(c * 255 + 0.5), no gamma."""
         if self.image8 is not None:
             return self.image8
-        if self.color is None:
-            return None
-        return to8(self.color)
+        v = self.held("color")
+        if isinstance(v, Planes):  # component by component: the colour is not stacked for its bitmap
+            out = np.empty((*v[0].shape, 3), np.uint8)
+            for k, c in enumerate(v):
+                out[..., k] = to8(c)
+            return out
+        return None if v is None else to8(v)
 
 
 def to8(color: np.ndarray) -> np.ndarray:

@@ -1,8 +1,13 @@
 """The film: the buffers a render writes and NumPy reads, and the assembly of an image from its tiles.
 
-A render's buffers -- colour, hit points, normals, terms -- are float64 (x, y, z, 0) packets, one per
-ray, written by the kernels that compute them (``scatter_out``) and viewed by NumPy as (h, w, 3) without a
-copy (``view3``); what is read back later goes through ``interleave``, one kernel over 3 N lanes. Zeros
+A render's buffers -- colour, hit points, normals, terms -- are written by the kernels that compute
+them, in one of two layouts. Where the first level is straight-line code (large renders), each
+component is one of the kernel's own outputs (``planar_out``), which NumPy reads as three (h, w) arrays
+(``read``: ``Planes``, stacked only if a reader asks for the (h, w, 3) array; an EXR writes the
+components). Where the first level runs inside a loop (small renders) its values are not the kernel's
+outputs; they are written from the loop as float64 (x, y, z, 0) packets, one per ray (``scatter_out``),
+viewed by NumPy as (h, w, 3) without a copy (``view3``). The two hold the same bits. What is read back
+later goes through ``interleave``, one kernel over 3 N lanes. Zeros
 are canonical (+0.0) in every buffer, so a skipped term and a computed zero carry the same bits. A
 large image is rendered in tiles of whole rows (minirt.reference.tracer.Tracer.tiles), pasted into one
 image here (``empty_like``, ``paste``).
@@ -15,7 +20,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
-from minirt.model.result import RenderResult
+from minirt.model.result import Planes, RenderResult
 
 
 def scatter_out(out: dict[str, Any], vectors: dict[str, Any], n: int, hit=None, masked=()) -> None:
@@ -58,6 +63,31 @@ def queue_out(bufs: dict[str, Any], vectors: dict[str, Any], n: int, hit=None, m
         # One packet per ray: element j at 4 j + k, in one scatter. Three scalar scatters into one
         # buffer would each run the kernel of the writes queued before them.
         dr.scatter(bufs[name], A4(x[0], x[1], x[2], zero), i, active)
+
+
+def planar_out(out: dict[str, Any], vectors: dict[str, Any], hit=None, masked=()) -> None:
+    """The 3-vectors as float64 Dr.Jit arrays in out[name], for the caller to evaluate as its kernel's own
+    outputs: one array a component, written with the kernel's streaming stores -- a render's buffers in
+    1.1x the time of its trace, where 4-packet scatters (``scatter_out``) took 2.1x (three_balls 1024^2,
+    f64: benchmarks/bench.py, "planar_outputs"). The same values as ``scatter_out``: the names in
+    ``masked`` are 0 where ``hit`` is false, zeros canonical. A component that is one constant for every
+    ray may stay an array of width 1 (``read`` widens it)."""
+    A64 = dr.llvm.Array3f64
+    zero = dr.opaque(dr.llvm.Float64, 0.0)
+    for name, v in vectors.items():
+        x = A64(v)
+        if name in masked:
+            x = dr.select(hit, x, 0.0)
+        out[name] = x + zero
+
+
+def read(buf, h: int, w: int) -> np.ndarray | Planes:
+    """A buffer of either layout as NumPy, without a copy: ``Planes`` of a ``planar_out`` vector (a
+    width-1 component widened), the (h, w, 3) view of a ``scatter_out`` packet buffer."""
+    if not isinstance(buf, dr.llvm.Array3f64):
+        return view3(buf, h, w)
+    comps = (np.asarray(c) for c in buf)
+    return Planes(c.reshape(h, w) if c.size == h * w else np.full((h, w), c[0]) for c in comps)
 
 
 def view3(buf, h: int, w: int) -> np.ndarray:
@@ -114,20 +144,30 @@ def empty_like(tile: RenderResult, height: int) -> RenderResult:
     def big(a):
         return None if a is None else np.empty((height, *a.shape[1:]), dtype=a.dtype)
 
+    def big3(name):
+        comps = tile.components(name)
+        return None if comps is None else np.empty((height, tile.width, 3), dtype=comps[0].dtype)
+
     return RenderResult(
-        backend=tile.backend, width=tile.width, height=height, color=big(tile.color),
-        terms={k: big(v) for k, v in tile.terms.items()}, aux={k: big(v) for k, v in tile.aux.items()},
+        backend=tile.backend, width=tile.width, height=height, color=big3("color"),
+        terms={k: big3(k) for k in tile.terms_names()}, aux={k: big(v) for k, v in tile.aux.items()},
         meta=dict(tile.meta), hit=big(tile.hit), shape_id=big(tile.shape_id), t=big(tile.t),
-        position=big(tile.position), normal=big(tile.normal),
+        position=big3("position"), normal=big3("normal"),
     )  # fmt: skip
 
 
 def paste(full: RenderResult, tile: RenderResult, y0: int) -> None:
-    """A tile's rows into the whole image's buffers, from row y0."""
+    """A tile's rows into the whole image's buffers, from row y0 (a vector's components one by one: a
+    tile's may be ``Planes``, never stacked)."""
     y1 = y0 + tile.height
-    for name in ("color", "hit", "shape_id", "t", "position", "normal"):
+    for name in ("hit", "shape_id", "t"):
         if getattr(tile, name) is not None:
             getattr(full, name)[y0:y1] = getattr(tile, name)
-    for group in ("terms", "aux"):
-        for k, v in getattr(tile, group).items():
-            getattr(full, group)[k][y0:y1] = v
+    for name in ("color", "position", "normal", *tile.terms_names()):
+        comps = tile.components(name)
+        if comps is not None:
+            into = full.terms[name] if name in full.terms_names() else getattr(full, name)
+            for k, c in enumerate(comps):
+                into[y0:y1, :, k] = c
+    for k, v in tile.aux.items():
+        full.aux[k][y0:y1] = v

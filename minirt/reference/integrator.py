@@ -68,9 +68,9 @@ def trace(
     ``record``, also its terms, t, hit points and normals.
 
     ``out`` (a dict to fill): the first level's outputs are written by the kernels that compute
-    them, straight into the interleaved float64 buffers NumPy views (``film.scatter_out``), instead of
-    being stored per component and copied by a read-out kernel afterwards. ``out`` then holds
-    "color", "position", "normal", "term.<name>" (4 N, see ``film.scatter_out``) and "t" (N, float64);
+    them, straight into the buffers NumPy reads (minirt.reference.film), instead of being stored per
+    component and copied by a read-out kernel afterwards. ``out`` then holds "color", "position",
+    "normal", "term.<name>" (``film.read`` reads either layout) and "t" (N, float64);
     the first level's colour, terms, hit points and normals are not kept per component (unless
     ``record``). ``terms``: the names of the terms written to ``out`` (default every term the
     effects compute); the others still add to the colour, but their 32 bytes a ray are never written.
@@ -91,7 +91,6 @@ def _wavefront(
 ) -> tuple[Any, list[Level]]:
     """``trace`` as a wavefront: each level a kernel of its own, the rays that go on compacted between them."""
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
-        rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))  # the first level's
         levels: list[Level] = []
         parent = None
         depth = tr.effects.reflection_depth if tr.effects.reflection else 0
@@ -109,9 +108,11 @@ def _wavefront(
                 vectors = {"position": lvl.p, "normal": lvl.n} | {
                     "term." + k: v for k, v in lvl.terms.items() if terms is None or k in terms
                 }
-                film.scatter_out(out, vectors, rays, lvl.shape_id >= 0, masked=("position", "normal"))
+                written: dict[str, Any] = {}
+                film.planar_out(written, vectors, lvl.shape_id >= 0, masked=("position", "normal"))
+                out.update(written)
                 out["t"] = dr.llvm.Float64(lvl.t)
-                outputs.append(out["t"])
+                outputs += [out["t"], *written.values()]
                 if record:
                     outputs += [lvl.t, lvl.p, lvl.n, lvl.terms]
             elif level == 0 or record:
@@ -153,8 +154,10 @@ def _wavefront(
             if k == 0 and out is not None:
                 late = [k for k in ("reflection", "background") if k in lvl.terms and (terms is None or k in terms)]
                 vectors = {"color": c} | {"term." + name: lvl.terms[name] for name in late}
-                film.scatter_out(out, vectors, rays)
-                dr.eval(*extra, *([c, lvl.terms] if record else []))  # runs the scatters too
+                written = {}
+                film.planar_out(written, vectors)
+                out.update(written)
+                dr.eval(*extra, *written.values(), *([c, lvl.terms] if record else []))
             elif k == 0 or record:
                 dr.eval(c, lvl.terms, *extra)
             else:
@@ -215,11 +218,17 @@ def trace_fused(
             lvl.record["tree"] = _tree_hash(tr.T.UInt(lvl.code), below)
         if out is None:  # lazy: the caller evaluates what it reads with the colour, in one kernel
             return c, [lvl]
+        # The first level is straight-line code here: its buffers are the kernel's own outputs (``film.
+        # planar_out``), in the order the packet buffers of the loop's path are made.
         wanted = term_names(tr, terms)
-        bufs = film.out_buffers(["color", "position", "normal"] + ["term." + k for k in wanted], rays)
-        vectors = {"position": lvl.p, "normal": lvl.n} | {"term." + k: lvl.terms[k] for k in wanted}
-        film.queue_out(bufs, vectors, rays, lvl.shape_id >= 0, masked=("position", "normal"))
-        return _write_first(tr, out, bufs, lvl, c, rays)
+        vectors = {"color": c, "position": lvl.p, "normal": lvl.n} | {"term." + k: lvl.terms[k] for k in wanted}
+        written: dict[str, Any] = {}
+        film.planar_out(written, vectors, lvl.shape_id >= 0, masked=("position", "normal"))
+        out.update(written)
+        out["t"] = dr.llvm.Float64(lvl.t)
+        extra = [lvl.record[k] for k in ("tree", "shadow_margin") if k in lvl.record]
+        dr.eval(out["t"], lvl.shape_id, *extra, *written.values())
+        return c, [lvl]
 
 
 def _trace_looped(tr: Tracer, o, d, rays: int, depth: int, out, terms, tree: bool) -> tuple[Any, list[Level]]:

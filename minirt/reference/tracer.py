@@ -189,9 +189,11 @@ class Tracer:
         the same bits as one pass (tested). For images too big to hold at all, write the tiles as they
         come (``minirt.io.images.write_tiles``).
 
-        ``terms``: the terms the result holds (default all of ``TERMS``). Each costs the kernels 32 bytes
-        a pixel of writes (a float64 3-vector as a 4-packet, ``film.scatter_out``); a caller that reads only
-        some asks for those: the colour and the terms asked for are the same bits either way (tested)."""
+        ``terms``: the terms the result holds (default all of ``TERMS``). Each costs the kernels 24 or 32
+        bytes a pixel of writes (a float64 3-vector, minirt.reference.film's two layouts); a caller that
+        reads only some asks for those: the colour and the terms asked for are the same bits either way
+        (tested). From ``integrator.LOOP_FIRST_LEVEL_BELOW`` pixels the vectors are ``Planes``, stacked into
+        (h, w, 3) arrays only when read (minirt.model.result)."""
         sc = self.scene
         w, h = sc.camera.width, sc.camera.height
         rows = tile_rows(w, tile_pixels)
@@ -247,7 +249,7 @@ class Tracer:
         color, levels = self.trace(o, d, tree=diagnostics, out=bufs, terms=wanted)
         lvl0 = levels[0]
         dr.sync_thread()
-        out = {k: film.view3(b, h, w) for k, b in bufs.items() if k != "t"}
+        out = {k: film.read(b, h, w) for k, b in bufs.items() if k != "t"}
         out["shape_id"] = np.asarray(lvl0.shape_id).reshape(h, w)
         out["hit"] = out["shape_id"] >= 0
         out["t"] = np.asarray(bufs["t"]).reshape(h, w)  # inf on a miss already (shade_level)

@@ -223,3 +223,30 @@ def test_rays_of_some_pixels_are_the_whole_images_bits(changes):
     assert o2.shape == (6, 3) and d2.shape == (6, 3)
     assert (o[idx].view(np.uint64) == o2.view(np.uint64)).all()
     assert (d[idx].view(np.uint64) == d2.view(np.uint64)).all()
+
+
+def test_both_layouts_hold_the_same_bits_and_files(tmp_path, monkeypatch):
+    """A straight-line first level hands its buffers over as the kernel's own outputs (``Planes``, stacked
+    only when read); a looped one as 4-packets. Same buffers, same files -- and writing the EXR and the PNG
+    does not stack the planes."""
+    from minirt.io import images
+    from minirt.model.result import Planes
+    from minirt.reference import integrator
+
+    scene = load_scene("scenes/three_balls.toml").with_overrides(width=48, height=40)
+    rules = resolve(scene)
+    got = {}
+    for form, below in (("looped", 1 << 62), ("straight", 0)):
+        monkeypatch.setattr(integrator, "LOOP_FIRST_LEVEL_BELOW", below)
+        r = Tracer(scene, rules).render()
+        held = [r.held(k) for k in ("color", "position", "normal", *TERMS)]
+        assert all(isinstance(v, Planes) == (form == "straight") for v in held), form
+        paths = images.write_result(r, tmp_path / form, "x")
+        if form == "straight":  # the files are written from the components
+            assert all(isinstance(r.held(k), Planes) for k in ("color", "position", "normal", *TERMS))
+        got[form] = (r, {k: p.read_bytes() for k, p in paths.items()})
+    (a, fa), (b, fb) = got["looped"], got["straight"]
+    _same(a, b)
+    assert fa == fb
+    assert b.color.shape == (40, 48, 3) and b.color.flags.c_contiguous
+    assert not isinstance(b.held("color"), Planes)  # stacked once read, and kept
