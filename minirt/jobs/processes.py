@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import queue
 import re
 import shutil
 import signal
@@ -26,6 +27,7 @@ import subprocess
 import tempfile
 import threading
 from collections.abc import Iterator
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -74,10 +76,47 @@ def python_env() -> dict[str, str]:
 
 
 def spawn(cmd: list[str], **popen: Any) -> subprocess.Popen:
-    """A long-lived child (the embedded Dask cluster, minirt.jobs.cluster) started as renderers are: in a
-    session of its own (a terminal's signals reach minirt, not it) and killed by the kernel if minirt is.
-    The caller stops it; ``popen``: subprocess.Popen's other arguments."""
+    """A long-lived child (the embedded Dask cluster, minirt.jobs.cluster; the certified oracle's workers;
+    Blender) started as renderers are: in a session of its own (a terminal's signals reach minirt, not it)
+    and killed by the kernel if minirt is. The caller stops it; ``popen``: subprocess.Popen's other arguments.
+
+    The kernel's parent-death signal follows the *thread* that started a child, not its process: a child
+    started from a passing thread (a check's lanes, one pool a scene) was killed when that thread ended,
+    and a check of the bundled scenes started the certified oracle's two workers seven times over (~0.5
+    CPU-s each). So a child started from any thread but the main one is started by ``_keeper``, a thread
+    that lives as long as minirt's process."""
+    if threading.current_thread() is threading.main_thread():
+        return _popen(cmd, popen)
+    f: Future = Future()
+    _keeper().put((cmd, popen, f))
+    return f.result()
+
+
+def _popen(cmd: list[str], popen: dict[str, Any]) -> subprocess.Popen:
     return subprocess.Popen([*_pdeathsig_prefix(), *cmd], start_new_session=True, **popen)
+
+
+_requests: queue.Queue | None = None
+
+
+def _keeper() -> queue.Queue:
+    """The queue of the thread that starts ``spawn``'s children for other threads (started on first use;
+    a daemon: it ends with the process, and its children with it)."""
+    global _requests
+    with _lock:
+        if _requests is None:
+            _requests = queue.Queue()
+            threading.Thread(target=_keep, args=(_requests,), name="minirt-keeper", daemon=True).start()
+        return _requests
+
+
+def _keep(requests: queue.Queue) -> None:
+    while True:
+        cmd, popen, f = requests.get()
+        try:
+            f.set_result(_popen(cmd, popen))
+        except BaseException as e:  # OSError: no such program; handed to the caller
+            f.set_exception(e)
 
 
 def track(p: subprocess.Popen) -> None:

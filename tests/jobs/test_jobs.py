@@ -271,3 +271,58 @@ def test_a_result_is_checked_before_it_is_used():
     assert got == ("error 2: a worker gave back a result minirt cannot use: str, not int", False)
     with pytest.raises(MinirtError, match="cannot use: str, not int"):
         jobs._collect(Done("four"), 2, None, must_be_int)
+
+
+def test_a_child_started_from_a_passing_thread_outlives_the_thread_not_minirt():
+    """The kernel's parent-death signal follows the thread that started a child: ``processes.spawn`` from
+    a thread that then ends (a check's lane) must not take the child with it -- yet a SIGKILL of minirt
+    still does."""
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    import textwrap
+
+    from minirt.jobs import processes
+
+    if shutil.which("setpriv") is None:  # no parent-death signal at all here: nothing to keep alive
+        pytest.skip("setpriv is not installed")
+    box: list = []
+    # the thread lives on a moment after the spawn: setpriv must have set the signal before it ends
+    t = threading.Thread(target=lambda: (box.append(processes.spawn(["sleep", "30"])), time.sleep(0.3)))
+    t.start()
+    t.join()
+    time.sleep(0.5)
+    try:
+        assert box[0].poll() is None, "killed when the thread that asked for it ended"
+    finally:
+        processes.kill(box[0])
+        box[0].wait()
+    code = textwrap.dedent("""
+        import os, sys, threading, time
+        from minirt.jobs import processes
+        box = []
+        t = threading.Thread(target=lambda: box.append(processes.spawn(["sleep", "30"])))
+        t.start(); t.join()
+        print(box[0].pid, flush=True)
+        time.sleep(60)
+    """)
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    child = int(p.stdout.readline())
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait()
+    for _ in range(50):
+        if not _alive(child):
+            break
+        time.sleep(0.1)
+    assert not _alive(child), "left running after minirt's SIGKILL"
+
+
+def _alive(pid: int) -> bool:
+    from pathlib import Path
+
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
