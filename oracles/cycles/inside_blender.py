@@ -2,10 +2,12 @@
 (and, for an export, a .blend file) out.
 
 It is a script, not a module minirt imports: minirt.oracles.cycles runs it as ``PYTHON inside_blender.py
-JOB.json`` with the Python that has ``bpy`` (a child process: see that package's docstring for why), so
-it imports nothing but ``bpy`` and the standard library. The job says everything in Blender's own frame
-and units -- the parent has already mirrored the exercise's left-handed scene, sized the planes, placed
-the camera's principal point and chosen the light's power -- so this side only builds what it is told:
+--serve`` (jobs one after another, a job file's path a line of standard input; or one job, ``PYTHON
+inside_blender.py JOB.json``) with the Python that has ``bpy`` (a child process: see that package's
+docstring for why), so it imports nothing but ``bpy`` and the standard library. The job says
+everything in Blender's own frame and units -- the parent has already mirrored the exercise's
+left-handed scene, sized the planes, placed the camera's principal point and chosen the light's power --
+so this side only builds what it is told:
 
 - a ball is a mesh of one vertex at its centre, turned into a point of its radius by a geometry-nodes
   "Mesh to Points" modifier: Cycles draws a point as an exact sphere (a ray-sphere root), not a mesh;
@@ -225,8 +227,23 @@ def main(path: str) -> None:
     print("minirt-cycles " + json.dumps({"blender": bpy.app.version_string, "timings": timings}), flush=True)
 
 
+def serve() -> None:
+    """Jobs one after another until the end of standard input: a job file's path a line, each answered by
+    ``main``'s line of JSON (or one saying why the job failed) and then the line "minirt-cycles-done". Each
+    job builds its scene from Blender's empty factory settings (``build``): no state is carried over."""
+    for line in sys.stdin:
+        try:
+            main(line.strip())
+        except Exception as e:  # the job's own failure; the process serves the next one
+            why = " ".join(f"{type(e).__name__}: {e}".split())[:300]
+            print("minirt-cycles " + json.dumps({"failed": why}), flush=True)
+        print("minirt-cycles-done", flush=True)
+
+
 if __name__ == "__main__":
     if sys.argv[1:] == ["--version"]:
         print("minirt-cycles " + json.dumps({"blender": bpy.app.version_string}), flush=True)
+    elif sys.argv[1:] == ["--serve"]:
+        serve()
     else:
         main(sys.argv[1])

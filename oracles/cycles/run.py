@@ -4,18 +4,31 @@ Cycles runs in a child process, never in minirt's own: ``bpy`` 5.0.1 requires Nu
 OpenImageIO 3.2 and colour-science 0.4.7 require NumPy >= 2, so ``bpy`` cannot even be installed beside
 them (pip downgrades NumPy and breaks both); and it bundles its own OpenImageIO, USD and OpenEXR, which
 would share one process with minirt's. So Blender lives in a Python environment of its own (the set-up's
-``.venv/blender``; see ``blender_python``), and a render is ``PYTHON inside_blender.py JOB.json`` through
-minirt.jobs.processes.run: a time-out, the process group killed with minirt, its temporary folder
-removed. Being a process of its own also lets a check run it beside the other backends.
+``.venv/blender``; see ``blender_python``). Being a process of its own also lets a check run it beside the
+other backends.
+
+A render is a job handed to ``PYTHON inside_blender.py --serve`` (``run_job``): a Blender process that
+serves jobs one after another, each from a fresh empty file (``read_factory_settings``), so its bytes are a
+new process's (tested). Importing ``bpy`` costs ~0.55 CPU-s, the price of every render when each had a
+process of its own (a check of the bundled scenes runs eight). The processes are started as renderers are
+(minirt.jobs.processes: a session of their own, killed with minirt), kept idle between jobs, one per render
+running at once, and end when minirt closes their input at its exit. A job that fails leaves its process
+serving; one that times out, crashes or exits takes it with it (the next job starts another), with the
+one-line reason a one-job process gave.
 """
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import functools
 import json
 import os
+import queue
 import subprocess
 import sys
+import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -104,25 +117,119 @@ def _said(stdout: str) -> dict[str, Any] | None:
 
 
 def run_job(job: dict[str, Any], folder: Path, timeout: float) -> dict[str, Any]:
-    """Run one job in Blender (``folder``: where its files go); Blender's own report (version, timings)
-    plus the wall time. Raises CyclesError with one line when Blender fails, crashes or times out."""
+    """Run one job in Blender (``folder``: where its files go) on an idle Blender process, or a new one;
+    Blender's own report (version, timings) plus the wall time. Raises CyclesError with one line when
+    Blender fails, crashes or times out."""
     exe = blender_python()
     if exe is None:
         raise FileNotFoundError(INSTALL_HINT)
     path = folder / "job.json"
     path.write_text(json.dumps(job), encoding="utf-8")
     t0 = time.perf_counter()
+    with _lock:
+        blender = next((b for b in reversed(_idle) if b.exe == str(exe)), None)
+        if blender is not None:
+            _idle.remove(blender)
+    if blender is None or blender.p.poll() is not None:  # none idle, or it died idle (killed from outside)
+        if blender is not None:
+            blender.close()
+        blender = _Blender(str(exe))
     try:
-        p = processes.run([str(exe), str(SCRIPT), str(path)], cwd=folder, timeout=timeout)  # dies with minirt
-    except subprocess.TimeoutExpired:
-        raise CyclesError(f"Blender timed out after {timeout:g} s") from None
-    wall = time.perf_counter() - t0
-    if p.returncode < 0:
-        raise CyclesError(f"Blender crashed (signal {-p.returncode}): {_one_line(p.stderr + p.stdout)}")
-    said = _said(p.stdout)
-    if p.returncode != 0 or said is None:
-        raise CyclesError(f"Blender failed: {_one_line(p.stderr + p.stdout)}")
-    return {**said, "wall": wall}
+        said = blender.ask(path, timeout)
+    finally:  # kept after a job's own failure; gone after a time-out, a crash or an exit
+        if blender.p.returncode is None:
+            with _lock:
+                _idle.append(blender)
+    return {**said, "wall": time.perf_counter() - t0}
+
+
+DONE = "minirt-cycles-done"  # the line after each job's answer: the process serves the next one
+_idle: list[_Blender] = []
+_lock = threading.Lock()
+
+
+@atexit.register
+def _close_idle() -> None:
+    """At minirt's exit, the idle Blender processes end (their input closed)."""
+    for b in list(_idle):
+        b.close()
+
+
+class _Blender:
+    """One ``inside_blender.py --serve`` process: job paths in, a line of JSON and ``DONE`` out per job."""
+
+    def __init__(self, exe: str):
+        self.exe = exe
+        # Blender's standard error, read back when a job fails; open as long as the process lives (close())
+        self.err = tempfile.TemporaryFile()  # noqa: SIM115
+        try:
+            self.p = processes.spawn([exe, str(SCRIPT), "--serve"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=self.err)  # fmt: skip
+        except OSError as e:
+            self.err.close()
+            raise CyclesError(f"cannot run '{exe}': {e.strerror or e}") from None
+        processes.track(self.p)
+        self.lines: queue.Queue = queue.Queue()
+        threading.Thread(target=self._read, daemon=True, name="minirt-blender-out").start()
+
+    def _read(self) -> None:
+        for raw in self.p.stdout:
+            self.lines.put(raw.decode("utf-8", "replace").rstrip("\n"))
+        self.lines.put(None)
+
+    def ask(self, path: Path, timeout: float) -> dict[str, Any]:
+        start = os.fstat(self.err.fileno()).st_size
+        try:
+            self.p.stdin.write(f"{path}\n".encode())
+            self.p.stdin.flush()
+        except OSError:
+            pass  # it has exited: what it said tells why (below)
+        deadline = time.monotonic() + timeout
+        out: list[str] = []
+        said = None
+        while True:
+            try:
+                line = self.lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                self.close(kill=True)
+                raise CyclesError(f"Blender timed out after {timeout:g} s") from None
+            if line is None or line == DONE:
+                break
+            out.append(line)
+            said = _said(line) or said
+        if line == DONE:
+            if said is None or "failed" in said:
+                raise CyclesError(f"Blender failed: {_one_line(said['failed'] if said else self._text(start, out))}")
+            return said
+        code = self.p.wait()  # it ended: a process of one job, a crash, or a failure it could not report
+        text = self._text(start, out)
+        self.close()
+        if code < 0:
+            raise CyclesError(f"Blender crashed (signal {-code}): {_one_line(text)}")
+        if code != 0 or said is None:
+            raise CyclesError(f"Blender failed: {_one_line(text)}")
+        return said
+
+    def _text(self, start: int, out: list[str]) -> str:
+        self.err.seek(start)
+        return self.err.read().decode("utf-8", "replace") + "\n".join(out)
+
+    def close(self, kill: bool = False) -> None:
+        """End the process (its input closed: it exits; ``kill``, or if it does not within 2 s: killed)."""
+        with _lock:
+            if self in _idle:
+                _idle.remove(self)
+        with contextlib.suppress(OSError):
+            self.p.stdin.close()
+        if kill:
+            processes.kill(self.p)
+        try:
+            self.p.wait(timeout=2)
+        except subprocess.TimeoutExpired:
+            processes.kill(self.p)
+            self.p.wait()
+        processes.untrack(self.p)
+        self.err.close()
 
 
 def read_exr(path: Path, width: int, height: int, canvas: tuple[int, int] | None = None) -> dict[str, np.ndarray]:

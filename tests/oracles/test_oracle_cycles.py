@@ -331,3 +331,49 @@ def test_planes_cover_every_ray_cycles_casts(oracle):
         uv = np.stack([(p - c[0]) @ (c[1] - c[0]), (p - c[0]) @ (c[3] - c[0])], axis=1)
         assert np.all(uv > 0) and np.all(uv[:, 0] < np.sum((c[1] - c[0]) ** 2))
         assert np.all(uv[:, 1] < np.sum((c[3] - c[0]) ** 2))
+
+
+def test_one_blender_serves_jobs_one_after_another_as_a_new_one_would(oracle, monkeypatch, tmp_path):
+    """Renders run as jobs on one Blender process (run._Blender), each from Blender's empty factory
+    settings: its files are the bytes a process of one job writes, whatever ran before; a job that fails
+    in Blender leaves it serving; one found dead idle is replaced."""
+    jobs = []
+    real = run.run_job
+    monkeypatch.setattr(run, "run_job", lambda job, folder, t: jobs.append(dict(job)) or real(job, folder, t))
+    for b in list(run._idle):
+        b.close()
+    spawned = []
+    monkeypatch.setattr(run, "_Blender", lambda exe, _B=run._Blender: spawned.append(_B(exe)) or spawned[-1])
+    scenes = [_scene("three_balls", 24), _scene("rules", 20), _scene("three_balls", 24)]
+    first, _, again = (oracle.render(sc, oracle.adapt(resolve(sc))) for sc in scenes)
+    assert len(spawned) == 1 and len(jobs) == 3
+    assert np.array_equal(first.color, again.color) and np.array_equal(first.t, again.t, equal_nan=True)
+
+    # the third job again, in a process of its own
+    def into(stem: str) -> dict:
+        return {
+            **jobs[2],
+            "renders": [{**r, "exr": str(tmp_path / f"{stem}{i}.exr")} for i, r in enumerate(jobs[2]["renders"])],
+        }
+
+    job, served = into("alone"), into("served")
+    (tmp_path / "job.json").write_text(json.dumps(job))
+    p = subprocess.run([str(run.blender_python()), str(run.SCRIPT), str(tmp_path / "job.json")], capture_output=True,
+                       timeout=300)  # fmt: skip
+    assert p.returncode == 0, p.stderr[-2000:]
+    (tmp_path / "s").mkdir()
+    real(served, tmp_path / "s", 300)
+    for a, b in zip(job["renders"], served["renders"], strict=True):
+        assert Path(a["exr"]).read_bytes() == Path(b["exr"]).read_bytes()
+    # a job Blender cannot do: an error of one line, and the same process serves the next job
+    (tmp_path / "bad").mkdir()
+    with pytest.raises(run.CyclesError, match="Blender failed: KeyError: 'sample_offset'") as e:
+        real({**served, "renders": [{"exr": str(tmp_path / "bad" / "x.exr")}]}, tmp_path / "bad", 300)
+    assert "\n" not in str(e.value)
+    assert len(run._idle) == 1 and run._idle[0] is spawned[0] and spawned[0].p.poll() is None
+    # killed while idle: the next render starts another
+    spawned[0].p.kill()
+    spawned[0].p.wait()
+    sc = _scene("three_balls", 24)
+    assert np.array_equal(oracle.render(sc, oracle.adapt(resolve(sc))).color, first.color)
+    assert len(spawned) == 2
