@@ -25,6 +25,15 @@ if TYPE_CHECKING:
 
 
 LANES = 4  # threads that wait for a scene's renders started ahead (each render's work is in its own processes)
+# Threads that run ``run``'s renders started ahead (POV-Ray's, Cycles'), in the scenes' order. Two: a POV-Ray
+# render mostly waits (its front end polls its renderer every 200 ms: ~0.7 s to start and ~0.2 s a frame, at
+# ~0.4 CPU-s a bundled scene), and one after another its renders of the bundled scenes took 16 s of wall
+# time, longer than the rest of the check, which waited for them.
+AHEAD = 2
+# Scenes whose checks ``run`` begins (``_Started``: their references rendered, the certified oracle's renders
+# started) before it checks this one's oracles. One: two ahead measured no faster (20.8-21.2 s against
+# 20.0-21.3 for the bundled scenes), and each holds its references in memory meanwhile.
+BEGUN_AHEAD = 1
 
 
 def scene_label(path: str | Path) -> str:
@@ -66,26 +75,49 @@ def check_scene(
             started = start_ahead(pool, names, scene, rules)
             if started:
                 return check_scene(path, names, size, progress, variants, started, (scene, rules))
-    sc = SceneCheck(scene.name, scene_label(path), "skip", description=scene.description, path=str(path))
-    refs = ReferenceCache(scene)
-    sc.reference = refs.get(rules)
-    oracle_names = backends.oracles_among(names)
-    with ThreadPoolExecutor(max_workers=LANES) as lane:
-        # Renders that need the reference and run in processes of their own start now, beside the others'
-        # work here: an oracle that picks its pixels from the reference (the certified one, on a large
-        # image), and the several-sample renders of a scene of samples > 1. Their oracles are checked last.
-        chosen = start_chosen(lane, [n for n in oracle_names if n not in (rendered or {})], scene, rules, refs)
-        several = start_samples(lane, oracle_names, scene, rules, refs)
-        got = {**(rendered or {}), **chosen}
-        checked = {}
-        for i, name in enumerate(sorted(oracle_names, key=lambda n: n in chosen or n in several)):
-            if progress:
-                progress(scene.name, name, i, len(oracle_names))
-            checked[name] = check_backend(scene, rules, name, refs, variants=variants, rendered=got.get(name),
-                                          samples_rendered=several.get(name))  # fmt: skip
-    sc.backends = {name: checked[name] for name in oracle_names}  # in the order asked, however they ran
-    sc.verdict = worst([b.verdict for b in sc.backends.values()])  # no oracle: skip, nothing was compared
-    return sc
+    return _Started(path, names, scene, rules, rendered).check(progress, variants)
+
+
+class _Started:
+    """A scene's check begun: its reference rendered, and the renders that need it -- those of an oracle
+    that picks its pixels from the reference (the certified one, on a large image), and the several-sample
+    renders of a scene of samples > 1 -- started beside the others' work on threads of their own (``lane``),
+    which ``check`` waits for, its oracles checked last. ``run`` begins the next scene's check before it
+    checks this one's oracles: the certified oracle's worker processes then trace the next scene while this
+    process checks this one (they sat idle through a scene's rule diagnosis before)."""
+
+    def __init__(self, path, names: list[str], scene: Scene, rules: Rules, rendered: dict | None):
+        self.scene, self.rules, self.rendered = scene, rules, rendered or {}
+        self.sc = SceneCheck(scene.name, scene_label(path), "skip", description=scene.description, path=str(path))
+        self.refs = ReferenceCache(scene)
+        self.sc.reference = self.refs.get(rules)
+        self.oracle_names = backends.oracles_among(names)
+        self.lane = ThreadPoolExecutor(max_workers=LANES)
+        try:
+            waiting = [n for n in self.oracle_names if n not in self.rendered]
+            self.chosen = start_chosen(self.lane, waiting, scene, rules, self.refs)
+            self.several = start_samples(self.lane, self.oracle_names, scene, rules, self.refs)
+        except BaseException:
+            self.lane.shutdown(wait=True, cancel_futures=True)
+            raise
+
+    def check(self, progress=None, variants=None) -> SceneCheck:
+        scene, rules, sc = self.scene, self.rules, self.sc
+        with self.lane:
+            got = {**self.rendered, **self.chosen}
+            checked = {}
+            names = sorted(self.oracle_names, key=lambda n: n in self.chosen or n in self.several)
+            for i, name in enumerate(names):
+                if progress:
+                    progress(scene.name, name, i, len(self.oracle_names))
+                checked[name] = check_backend(scene, rules, name, self.refs, variants=variants, rendered=got.get(name),
+                                              samples_rendered=self.several.get(name))  # fmt: skip
+        sc.backends = {name: checked[name] for name in self.oracle_names}  # in the order asked, however they ran
+        sc.verdict = worst([b.verdict for b in sc.backends.values()])  # no oracle: skip, nothing was compared
+        return sc
+
+    def cancel(self) -> None:
+        self.lane.shutdown(wait=True, cancel_futures=True)
 
 
 def run(
@@ -116,15 +148,23 @@ def run(
     from minirt.diagnose import VariantCache
 
     variants = VariantCache(VARIANT_CACHE_BYTES)
-    # POV-Ray runs as a separate process: its renders of every scene start now, one after the other on
-    # a thread of their own, and overlap the reference's, Mitsuba's and Embree's work in this process
-    # (the cores are otherwise idle while Python waits for POV-Ray). The same results, in less time.
-    with ThreadPoolExecutor(max_workers=1) as pool:
+    # POV-Ray and Cycles run as separate processes: their renders of every scene start now, in the scenes'
+    # order on AHEAD threads of their own, and overlap the reference's, Mitsuba's and Embree's work in this
+    # process (the cores are otherwise idle while Python waits for POV-Ray). The same results, in less time.
+    with ThreadPoolExecutor(max_workers=AHEAD) as pool:
         rendered = [start_ahead(pool, names, *sr) for sr in loaded]
-        scenes = []
-        for i, (p, r, sr) in enumerate(zip(paths, rendered, loaded, strict=True)):
-            tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
-            scenes.append(check_scene(p, names, size, tick, variants, r, sr))
+        scenes: list[SceneCheck] = []
+        begun: dict[int, _Started] = {}
+        try:
+            for i in range(len(paths)):
+                for k in range(i, i + 1 + BEGUN_AHEAD):  # this scene's check begun, and the next ones' (_Started)
+                    if k < len(paths) and k not in begun:
+                        begun[k] = _Started(paths[k], names, *loaded[k], rendered[k])
+                tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
+                scenes.append(begun.pop(i).check(tick, variants))
+        finally:
+            for started in begun.values():  # an error or an interrupt: the next scene's renders are not waited for
+                started.cancel()
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
 
 
