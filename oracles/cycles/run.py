@@ -169,6 +169,7 @@ class _Blender:
             self.err.close()
             raise CyclesError(f"cannot run '{exe}': {e.strerror or e}") from None
         processes.track(self.p)
+        self.told = 0  # the bytes of its standard error that earlier jobs' messages covered
         self.lines: queue.Queue = queue.Queue()
         threading.Thread(target=self._read, daemon=True, name="minirt-blender-out").start()
 
@@ -178,7 +179,7 @@ class _Blender:
         self.lines.put(None)
 
     def ask(self, path: Path, timeout: float) -> dict[str, Any]:
-        start = os.fstat(self.err.fileno()).st_size
+        start = self.told  # what it wrote to standard error since its last job (or its start) is this job's
         try:
             self.p.stdin.write(f"{path}\n".encode())
             self.p.stdin.flush()
@@ -198,6 +199,7 @@ class _Blender:
             out.append(line)
             said = _said(line) or said
         if line == DONE:
+            self.told = os.fstat(self.err.fileno()).st_size
             if said is None or "failed" in said:
                 raise CyclesError(f"Blender failed: {_one_line(said['failed'] if said else self._text(start, out))}")
             return said

@@ -223,20 +223,24 @@ class Batch:
     bounds: bool = True
 
 
-_LAST: list = []  # [key, PixelTracer]: the last scene's tracer, for its next batch or sample
+_KEPT: dict[bytes, PixelTracer] = {}  # the last scenes' tracers by key, the most recent last
+KEPT_TRACERS = 4
 
 
 def tracer_for(scene: Scene, rules: Rules) -> PixelTracer:
-    """A PixelTracer of the scene under the rules, the last one kept: its models (a Model per precision)
-    take seconds to build for thousands of balls (10,000: 3.5 s each), and a render asks for the same
-    scene batch after batch, sample after sample."""
+    """A PixelTracer of the scene under the rules, the last KEPT_TRACERS kept: its models (a Model per
+    precision) take time to build for thousands of balls, and a render asks for the same scene batch after
+    batch, sample after sample -- and a check of several scenes renders two at once (the next scene's
+    begins while this one's is checked: minirt.harness.run), their batches taking turns on each worker."""
     import hashlib
     import pickle
 
     key = hashlib.sha256(pickle.dumps((scene, rules), protocol=pickle.HIGHEST_PROTOCOL)).digest()
-    if not _LAST or _LAST[0] != key:
-        _LAST[:] = [key, PixelTracer(scene, rules)]
-    return _LAST[1]
+    tracer = _KEPT.pop(key, None) or PixelTracer(scene, rules)
+    _KEPT[key] = tracer
+    while len(_KEPT) > KEPT_TRACERS:
+        del _KEPT[next(iter(_KEPT))]
+    return tracer
 
 
 def run_batch(batch: Batch) -> list[Pixel]:

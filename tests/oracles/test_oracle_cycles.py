@@ -335,8 +335,9 @@ def test_planes_cover_every_ray_cycles_casts(oracle):
 
 def test_one_blender_serves_jobs_one_after_another_as_a_new_one_would(oracle, monkeypatch, tmp_path):
     """Renders run as jobs on one Blender process (run._Blender), each from Blender's empty factory
-    settings: its files are the bytes a process of one job writes, whatever ran before; a job that fails
-    in Blender leaves it serving; one found dead idle is replaced."""
+    settings: its passes are the pixels a process of one job writes, whatever ran before (the files' headers
+    hold the date and the render time); a job that fails in Blender leaves it serving; one found dead idle
+    is replaced."""
     jobs = []
     real = run.run_job
     monkeypatch.setattr(run, "run_job", lambda job, folder, t: jobs.append(dict(job)) or real(job, folder, t))
@@ -363,8 +364,11 @@ def test_one_blender_serves_jobs_one_after_another_as_a_new_one_would(oracle, mo
     assert p.returncode == 0, p.stderr[-2000:]
     (tmp_path / "s").mkdir()
     real(served, tmp_path / "s", 300)
-    for a, b in zip(job["renders"], served["renders"], strict=True):
-        assert Path(a["exr"]).read_bytes() == Path(b["exr"]).read_bytes()
+    w, h = jobs[2]["width"], jobs[2]["height"]
+    for a, b in zip(job["renders"], served["renders"], strict=True):  # every pass's pixels (the headers hold
+        alone, by_server = run.read_exr(Path(a["exr"]), w, h), run.read_exr(Path(b["exr"]), w, h)  # a date)
+        assert alone.keys() == by_server.keys()
+        assert all(np.array_equal(alone[k], by_server[k], equal_nan=True) for k in alone)
     # a job Blender cannot do: an error of one line, and the same process serves the next job
     (tmp_path / "bad").mkdir()
     with pytest.raises(run.CyclesError, match="Blender failed: KeyError: 'sample_offset'") as e:

@@ -323,3 +323,19 @@ def test_a_script_without_a_main_guard_runs_once(tmp_path):
     )
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
     assert out.stdout.splitlines() == ["ran ok"], out.stdout + out.stderr
+
+
+def test_two_scenes_taking_turns_keep_their_tracers(monkeypatch):
+    """A check renders the next scene beside this one (minirt.harness.run), their batches taking turns on a
+    worker: each scene's tracer is built once, not once a turn."""
+    from minirt.oracles.exact import render as exact_render
+
+    built = []
+    real = exact_render.PixelTracer
+    monkeypatch.setattr(exact_render, "PixelTracer", lambda *a: built.append(a[0].name) or real(*a))
+    monkeypatch.setattr(exact_render, "_KEPT", {})
+    a, b = (load_scene(find_scene(n)).with_overrides(width=8, height=8) for n in ("shadows", "matte"))
+    for _ in range(3):
+        for sc in (a, b):
+            assert exact_render.tracer_for(sc, resolve(sc)).scene == sc
+    assert built == ["shadows", "matte"]
