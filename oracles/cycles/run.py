@@ -8,13 +8,14 @@ would share one process with minirt's. So Blender lives in a Python environment 
 other backends.
 
 A render is a job handed to ``PYTHON inside_blender.py --serve`` (``run_job``): a Blender process that
-serves jobs one after another, each from a fresh empty file (``read_factory_settings``), so its bytes are a
-new process's (tested). Importing ``bpy`` costs ~0.55 CPU-s, the price of every render when each had a
-process of its own (a check of the bundled scenes runs eight). The processes are started as renderers are
-(minirt.jobs.processes: a session of their own, killed with minirt), kept idle between jobs, one per render
-running at once, and end when minirt closes their input at its exit. A job that fails leaves its process
-serving; one that times out, crashes or exits takes it with it (the next job starts another), with the
-one-line reason a one-job process gave.
+serves jobs one after another, each from a fresh empty file (``read_factory_settings``), so its passes hold
+a new process's pixels (tested; the EXRs' headers hold the date and the render time either way).
+Importing ``bpy`` costs ~0.55 CPU-s, the price of every render when each had a process of its own (a check
+of the bundled scenes runs eight). The processes are started as renderers are (minirt.jobs.processes: a
+session of their own, killed with minirt), kept idle between jobs, one per render running at once, and end
+when minirt closes their input at its exit. A job that fails leaves its process serving; one that times
+out, crashes or exits takes it with it (the next job starts another), with the one-line reason a one-job
+process gave.
 """
 
 from __future__ import annotations
