@@ -61,3 +61,33 @@ assert cp is sys.modules["colour.plotting"] is colour.plotting and "matplotlib.p
 """
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
+
+
+def test_equal_bitmaps_are_zero_without_computing_the_metrics(monkeypatch):
+    """Two equal bitmaps (on the pixels traced) differ by exactly 0 in both metrics -- the same figures and
+    maps the metrics give, without computing them; one level apart, they are computed."""
+    import flip_evaluator
+
+    from minirt.harness.shading import color_differences
+
+    rng = np.random.default_rng(5)
+    a = rng.integers(0, 256, (12, 10, 3), dtype=np.uint8)
+    b = a.copy()
+    b[3, 4, 1] ^= 1
+    traced = np.ones((12, 10), dtype=bool)
+    traced[3, 4] = False
+    with monkeypatch.context() as m:  # the metrics computed, as they were before the shortcut
+        m.setattr(np, "array_equal", lambda *x, **k: False)
+        computed = [color_differences(a, a.copy()), color_differences(a, b, traced)]
+    calls = []
+    real = flip_evaluator.evaluate
+    monkeypatch.setattr(flip_evaluator, "evaluate", lambda *x, **k: calls.append(1) or real(*x, **k))
+    for equal in (color_differences(a, a.copy()), color_differences(a, b, traced)):
+        for was in computed:
+            assert {k: v for k, v in equal.items() if not k.startswith("_")} == {
+                k: v for k, v in was.items() if not k.startswith("_")
+            }
+            for k in ("_delta_e", "_flip"):
+                assert equal[k].dtype == was[k].dtype and equal[k].tobytes() == was[k].tobytes()
+    assert calls == []
+    assert color_differences(a, b)["delta_e_max"] > 0 and calls == [1]
