@@ -229,9 +229,14 @@ def main(path: str) -> None:
 
 def serve() -> None:
     """Jobs one after another until the end of standard input: a job file's path a line, each answered by
-    ``main``'s line of JSON (or one saying why the job failed) and then the line "minirt-cycles-done". Each
+    ``main``'s line of JSON (or one saying why the job failed) and then the line "minirt-cycles-done"; the
+    line "--version" is answered with Blender's version, as ``--version`` on the command line is. Each
     job builds its scene from Blender's empty factory settings (``build``): no state is carried over."""
     for line in sys.stdin:
+        if line.strip() == "--version":  # the parent's first question: which Blender this is
+            print("minirt-cycles " + json.dumps({"blender": bpy.app.version_string}), flush=True)
+            print("minirt-cycles-done", flush=True)
+            continue
         try:
             main(line.strip())
         except Exception as e:  # the job's own failure; the process serves the next one

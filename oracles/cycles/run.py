@@ -76,17 +76,25 @@ def _one_line(text: str) -> str:
 
 @functools.lru_cache(maxsize=8)
 def _version(exe: str, mtime_ns: int, size: int) -> str | RuntimeError:
-    """Blender's version string from ``exe inside_blender.py --version``, once per process and executable
-    (each call imports bpy: ~0.4 s); a failure is cached too (returned, not raised)."""
+    """Blender's version string, once per process and executable, asked of a new Blender process that then
+    serves this process's first render (importing bpy costs ~0.45 s: once, not for the question and again
+    for the render); a failure is cached too (returned, not raised)."""
     try:
-        p = processes.run([exe, str(SCRIPT), "--version"], timeout=120)
-    except subprocess.TimeoutExpired:
-        return RuntimeError(f"'{exe}' did not import bpy in 120 s")
-    except OSError as e:
-        return RuntimeError(f"cannot run '{exe}': {e.strerror or e}")
-    said = _said(p.stdout)
-    if p.returncode != 0 or said is None:
-        return RuntimeError(f"'{exe}' cannot import bpy: {_one_line(p.stderr + p.stdout)}")
+        blender = _Blender(exe)
+    except CyclesError as e:
+        return RuntimeError(str(e))
+    try:
+        said = blender.ask("--version", 120)
+    except CyclesError as e:
+        why = str(e).removeprefix("Blender failed: ")
+        return RuntimeError(f"'{exe}' did not import bpy in 120 s" if "timed out" in why else
+                            f"'{exe}' cannot import bpy: {why}")  # fmt: skip
+    if "blender" not in said:
+        blender.close()
+        return RuntimeError(f"'{exe}' cannot import bpy: it answered {_one_line(json.dumps(said))}")
+    if blender.p.returncode is None:
+        with _lock:
+            _idle.append(blender)
     return str(said["blender"])
 
 
@@ -179,7 +187,8 @@ class _Blender:
             self.lines.put(raw.decode("utf-8", "replace").rstrip("\n"))
         self.lines.put(None)
 
-    def ask(self, path: Path, timeout: float) -> dict[str, Any]:
+    def ask(self, path: Path | str, timeout: float) -> dict[str, Any]:
+        """Its answer to a job file's path (or to "--version")."""
         start = self.told  # what it wrote to standard error since its last job (or its start) is this job's
         try:
             self.p.stdin.write(f"{path}\n".encode())

@@ -258,9 +258,17 @@ def test_missing_blender_is_a_skip(monkeypatch, tmp_path):
     assert res.status == "skip" and "\n" not in res.reason
 
 
-FAKE = r"""#!/bin/sh
-# a fake Blender Python: answers --version like the real one, then crashes or talks garbage
-if [ "$2" = "--version" ]; then echo 'minirt-cycles {"blender": "5.0.1"}'; exit 0; fi
+# A fake Blender Python: answers the version like the real one (on the command line, or as a serving
+# process's first question), then crashes or talks garbage on its first job.
+ANSWERS_VERSION = r"""if [ "$2" = "--version" ]; then echo 'minirt-cycles {"blender": "5.0.1"}'; exit 0; fi
+if [ "$2" = "--serve" ]; then read question; echo 'minirt-cycles {"blender": "5.0.1"}'; echo minirt-cycles-done; \
+  read job; fi
+"""
+FAKE = (
+    r"""#!/bin/sh
+"""
+    + ANSWERS_VERSION
+    + r"""
 case "$FAKE_MODE" in
   segv) kill -SEGV $$ ;;
   fail) echo "Error: Python: Traceback ... RuntimeError: simulated bpy failure" >&2; exit 1 ;;
@@ -268,6 +276,7 @@ case "$FAKE_MODE" in
 esac
 exit 3
 """
+)
 
 
 @pytest.mark.parametrize(
@@ -290,8 +299,7 @@ def test_a_crashing_blender_is_an_error_and_the_others_finish(monkeypatch, tmp_p
 
 def test_a_hanging_blender_times_out(monkeypatch, tmp_path):
     fake = tmp_path / "python-hang"
-    fake.write_text('#!/bin/sh\n[ "$2" = "--version" ] && { echo \'minirt-cycles {"blender": "5.0.1"}\'; exit 0; }\n'
-                    "sleep 600\n")  # fmt: skip
+    fake.write_text("#!/bin/sh\n" + ANSWERS_VERSION + "sleep 600\n")
     fake.chmod(0o755)
     monkeypatch.setenv(run.ENV, str(fake))
     scene = _scene("matte", 8)
@@ -381,3 +389,16 @@ def test_one_blender_serves_jobs_one_after_another_as_a_new_one_would(oracle, mo
     sc = _scene("three_balls", 24)
     assert np.array_equal(oracle.render(sc, oracle.adapt(resolve(sc))).color, first.color)
     assert len(spawned) == 2
+
+
+def test_the_version_question_and_the_first_render_share_one_blender(oracle, monkeypatch):
+    """Blender's version is asked of the process that then serves the first render: bpy imported once."""
+    for b in list(run._idle):
+        b.close()
+    run._version.cache_clear()
+    spawned = []
+    monkeypatch.setattr(run, "_Blender", lambda exe, _B=run._Blender: spawned.append(_B(exe)) or spawned[-1])
+    assert oracle.available() == (True, "Blender 5.0.1 (Cycles, CPU)")
+    sc = _scene("three_balls", 16)
+    assert oracle.render(sc, oracle.adapt(resolve(sc))).ok
+    assert len(spawned) == 1
