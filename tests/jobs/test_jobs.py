@@ -288,8 +288,8 @@ def test_a_child_started_from_a_passing_thread_outlives_the_thread_not_minirt():
     if shutil.which("setpriv") is None:  # no parent-death signal at all here: nothing to keep alive
         pytest.skip("setpriv is not installed")
     box: list = []
-    # the thread lives on a moment after the spawn: setpriv must have set the signal before it ends
-    t = threading.Thread(target=lambda: (box.append(processes.spawn(["sleep", "30"])), time.sleep(0.3)))
+    # the thread ends once setpriv has set the signal and become `sleep` (before that, no signal is set)
+    t = threading.Thread(target=lambda: (box.append(processes.spawn(["sleep", "30"])), _became(box[0].pid, "sleep")))
     t.start()
     t.join()
     time.sleep(0.5)
@@ -304,6 +304,13 @@ def test_a_child_started_from_a_passing_thread_outlives_the_thread_not_minirt():
         box = []
         t = threading.Thread(target=lambda: box.append(processes.spawn(["sleep", "30"])))
         t.start(); t.join()
+        for _ in range(300):  # until setpriv has set the signal and become `sleep`
+            try:
+                if open(f"/proc/{box[0].pid}/comm").read().strip() == "sleep":
+                    break
+            except OSError:
+                pass
+            time.sleep(0.01)
         print(box[0].pid, flush=True)
         time.sleep(60)
     """)
@@ -316,6 +323,19 @@ def test_a_child_started_from_a_passing_thread_outlives_the_thread_not_minirt():
             break
         time.sleep(0.1)
     assert not _alive(child), "left running after minirt's SIGKILL"
+
+
+def _became(pid: int, name: str) -> None:
+    """Wait (up to 3 s) until process ``pid`` runs ``name`` (setpriv has done its work and exec'd it)."""
+    from pathlib import Path
+
+    for _ in range(300):
+        try:
+            if Path(f"/proc/{pid}/comm").read_text().strip() == name:
+                return
+        except OSError:
+            pass
+        time.sleep(0.01)
 
 
 def _alive(pid: int) -> bool:
