@@ -12,10 +12,10 @@ serves jobs one after another, each from a fresh empty file (``read_factory_sett
 a new process's pixels (tested; the EXRs' headers hold the date and the render time either way).
 Importing ``bpy`` costs ~0.55 CPU-s, the price of every render when each had a process of its own (a check
 of the bundled scenes runs eight). The processes are started as renderers are (minirt.jobs.processes: a
-session of their own, killed with minirt), kept idle between jobs, one per render running at once, and end
-when minirt closes their input at its exit. A job that fails leaves its process serving; one that times
-out, crashes or exits takes it with it (the next job starts another), with the one-line reason a one-job
-process gave.
+session of their own, killed with minirt), kept idle between jobs (~300 MB resident each), one per render
+running at once, and end when minirt closes their input at its exit. A job that fails leaves its process
+serving; one that times out, crashes or exits takes it with it (the next job starts another), with the
+one-line reason a one-job process gave.
 """
 
 from __future__ import annotations
