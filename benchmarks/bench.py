@@ -263,7 +263,7 @@ def _write_floor(px: int, cfg: Config) -> dict[str, Any]:
     buffers a full f64 render writes -- colour, position, normal and five terms, t as float64, the shape id
     as int32 -- in either of the film's layouts (minirt.reference.film): "outputs", the kernel's own outputs,
     one array a component (204 bytes a pixel), the layout of a render from 2^18 pixels (this one); and
-    "packets", (x, y, z, 0) float64 packets scattered from a loop (``film.scatter_out``, 268 bytes a pixel),
+    "packets", (x, y, z, 0) float64 packets scattered from a loop (``film.queue_out``, 268 bytes a pixel),
     that of smaller renders. A render can take no less than the longer of its trace and its writes.
 
     Dr.Jit writes outputs with non-temporal stores and packet scatters with ordinary ones (a cache line read

@@ -15,8 +15,9 @@ A backend that could not run returns status "skip" or "error" with a reason and 
 A backend may hand a 3-vector buffer over as ``Planes``, its three (H, W) components: the arrays its
 kernels wrote, one allocation each, which NumPy cannot view as one (H, W, 3) array. The field stacks them
 into one the first time it is read, and keeps that; a writer that wants the components (an EXR's channels)
-takes them with ``components``, and never pays for the stack. The reference tracer's large renders do
-this: the stack is a copy of every buffer, as long as the trace itself (three_balls 1024^2, f64).
+takes the buffer as it is held (``held``, ``components``), and never pays for the stack. The reference
+tracer's large renders do this: the stack is a copy of every buffer, as long as the trace itself
+(three_balls 1024^2, f64).
 """
 
 from __future__ import annotations
@@ -36,10 +37,6 @@ class Planes(tuple):
 
     def stack(self) -> np.ndarray:
         return np.stack(self, axis=-1)
-
-
-def _stacked(v: Any) -> Any:
-    return v.stack() if isinstance(v, Planes) else v
 
 
 class _Vector:

@@ -5,7 +5,7 @@ them, in one of two layouts. Where the first level is straight-line code (large 
 component is one of the kernel's own outputs (``planar_out``), which NumPy reads as three (h, w) arrays
 (``read``: ``Planes``, stacked only if a reader asks for the (h, w, 3) array; an EXR writes the
 components). Where the first level runs inside a loop (small renders) its values are not the kernel's
-outputs; they are written from the loop as float64 (x, y, z, 0) packets, one per ray (``scatter_out``),
+outputs; they are written from the loop as float64 (x, y, z, 0) packets, one per ray (``queue_out``),
 viewed by NumPy as (h, w, 3) without a copy (``view3``). The two hold the same bits. What is read back
 later goes through ``interleave``, one kernel over 3 N lanes. Zeros
 are canonical (+0.0) in every buffer, so a skipped term and a computed zero carry the same bits. A
@@ -23,23 +23,6 @@ import numpy as np
 from minirt.model.result import Planes, RenderResult
 
 
-def scatter_out(out: dict[str, Any], vectors: dict[str, Any], n: int, hit=None, masked=()) -> None:
-    """Queue the writes of 3-vectors (width n, or 1: a constant) into new float64 buffers out[name]
-    of 4 n, (x, y, z, 0) per ray: they run in the next kernel, the one that computes them. NumPy
-    views them as (n, 4)[:, :3] (``view3``). The same values as ``interleave``: the names in
-    ``masked`` are 0 where ``hit`` is false, zeros canonical.
-
-    Four, not three, per ray: Dr.Jit writes a power-of-two packet from a vector register with
-    contiguous stores, where a 3-vector is three scattered stores per lane -- slow on x86 (AVX-512
-    scatters): on three_balls 1024^2 one 3-vector buffer cost ~1.5 ms of scatters, a 4-packet ~0.25
-    ms, for a third more bytes. Every buffer is allocated before the first write is queued:
-    allocating one would run the kernel of the writes queued before it."""
-    bufs = out_buffers(vectors, n)
-    queue_out(bufs, vectors, n, hit, masked)
-    del bufs["zero"]
-    out.update(bufs)
-
-
 def out_buffers(names, n: int) -> dict[str, Any]:
     """New float64 buffers of 4 n for ``queue_out`` (and "zero", an opaque 0.0), allocated now:
     allocating one later would run the kernel of the writes queued before it."""
@@ -51,7 +34,16 @@ def out_buffers(names, n: int) -> dict[str, Any]:
 
 
 def queue_out(bufs: dict[str, Any], vectors: dict[str, Any], n: int, hit=None, masked=(), active=True) -> None:
-    """The writes of ``scatter_out`` into buffers from ``out_buffers`` (where ``active``)."""
+    """Queue the writes of 3-vectors (width n, or 1: a constant) into buffers from ``out_buffers`` (where
+    ``active``), (x, y, z, 0) per ray: they run in the next kernel, the one that computes them. NumPy views
+    them as (n, 4)[:, :3] (``view3``). The same values as ``interleave``: the names in ``masked`` are 0 where
+    ``hit`` is false, zeros canonical. This is how a loop writes its first level (its values are not the
+    kernel's outputs; ``planar_out`` is the straight-line code's way).
+
+    Four, not three, per ray: Dr.Jit writes a power-of-two packet from a vector register with contiguous
+    stores, where a 3-vector is three scattered stores per lane -- slow on x86 (AVX-512 scatters): on
+    three_balls 1024^2 one 3-vector buffer cost ~1.5 ms of scatters, a 4-packet ~0.25 ms, for a third
+    more bytes. Every buffer is allocated before the first write is queued (``out_buffers``)."""
     A64, A4 = dr.llvm.Array3f64, dr.llvm.Array4f64
     zero = bufs["zero"]
     i = dr.arange(dr.llvm.UInt32, n)
@@ -65,25 +57,28 @@ def queue_out(bufs: dict[str, Any], vectors: dict[str, Any], n: int, hit=None, m
         dr.scatter(bufs[name], A4(x[0], x[1], x[2], zero), i, active)
 
 
-def planar_out(out: dict[str, Any], vectors: dict[str, Any], hit=None, masked=()) -> None:
+def planar_out(out: dict[str, Any], vectors: dict[str, Any], hit=None, masked=()) -> list[Any]:
     """The 3-vectors as float64 Dr.Jit arrays in out[name], for the caller to evaluate as its kernel's own
-    outputs: one array a component, written with the kernel's streaming stores -- a render's buffers in
-    1.1x the time of its trace, where 4-packet scatters (``scatter_out``) took 2.1x (three_balls 1024^2,
-    f64: benchmarks/bench.py, "planar_outputs"). The same values as ``scatter_out``: the names in
-    ``masked`` are 0 where ``hit`` is false, zeros canonical. A component that is one constant for every
-    ray may stay an array of width 1 (``read`` widens it)."""
+    outputs (returned, in order): one array a component, written with the kernel's streaming stores -- a
+    render's buffers in 1.1x the time of its trace, where 4-packet scatters (``queue_out``) took 2.1x
+    (three_balls 1024^2, f64: benchmarks/bench.py, "planar_outputs"). The same values as ``queue_out``'s:
+    the names in ``masked`` are 0 where ``hit`` is false, zeros canonical. A component that is one constant
+    for every ray may stay an array of width 1 (``read`` widens it)."""
     A64 = dr.llvm.Array3f64
     zero = dr.opaque(dr.llvm.Float64, 0.0)
+    written = []
     for name, v in vectors.items():
         x = A64(v)
         if name in masked:
             x = dr.select(hit, x, 0.0)
         out[name] = x + zero
+        written.append(out[name])
+    return written
 
 
 def read(buf, h: int, w: int) -> np.ndarray | Planes:
     """A buffer of either layout as NumPy, without a copy: ``Planes`` of a ``planar_out`` vector (a
-    width-1 component widened), the (h, w, 3) view of a ``scatter_out`` packet buffer."""
+    width-1 component widened), the (h, w, 3) view of a ``queue_out`` packet buffer."""
     if not isinstance(buf, dr.llvm.Array3f64):
         return view3(buf, h, w)
     comps = (np.asarray(c) for c in buf)
@@ -91,7 +86,7 @@ def read(buf, h: int, w: int) -> np.ndarray | Planes:
 
 
 def view3(buf, h: int, w: int) -> np.ndarray:
-    """A buffer written by ``scatter_out`` as an (h, w, 3) NumPy view (no copy; strides 32 w, 32, 8)."""
+    """A buffer written by ``queue_out`` as an (h, w, 3) NumPy view (no copy; strides 32 w, 32, 8)."""
     return np.asarray(buf).reshape(h, w, 4)[..., :3]
 
 
@@ -166,7 +161,7 @@ def paste(full: RenderResult, tile: RenderResult, y0: int) -> None:
     for name in ("color", "position", "normal", *tile.terms_names()):
         comps = tile.components(name)
         if comps is not None:
-            into = full.terms[name] if name in full.terms_names() else getattr(full, name)
+            into = full.held(name)  # the whole image's: arrays (empty_like)
             for k, c in enumerate(comps):
                 into[y0:y1, :, k] = c
     for k, v in tile.aux.items():

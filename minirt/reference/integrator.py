@@ -108,11 +108,9 @@ def _wavefront(
                 vectors = {"position": lvl.p, "normal": lvl.n} | {
                     "term." + k: v for k, v in lvl.terms.items() if terms is None or k in terms
                 }
-                written: dict[str, Any] = {}
-                film.planar_out(written, vectors, lvl.shape_id >= 0, masked=("position", "normal"))
-                out.update(written)
+                outputs += film.planar_out(out, vectors, lvl.shape_id >= 0, masked=("position", "normal"))
                 out["t"] = dr.llvm.Float64(lvl.t)
-                outputs += [out["t"], *written.values()]
+                outputs.append(out["t"])
                 if record:
                     outputs += [lvl.t, lvl.p, lvl.n, lvl.terms]
             elif level == 0 or record:
@@ -154,10 +152,8 @@ def _wavefront(
             if k == 0 and out is not None:
                 late = [k for k in ("reflection", "background") if k in lvl.terms and (terms is None or k in terms)]
                 vectors = {"color": c} | {"term." + name: lvl.terms[name] for name in late}
-                written = {}
-                film.planar_out(written, vectors)
-                out.update(written)
-                dr.eval(*extra, *written.values(), *([c, lvl.terms] if record else []))
+                written = film.planar_out(out, vectors)
+                dr.eval(*extra, *written, *([c, lvl.terms] if record else []))
             elif k == 0 or record:
                 dr.eval(c, lvl.terms, *extra)
             else:
@@ -222,12 +218,10 @@ def trace_fused(
         # planar_out``), in the order the packet buffers of the loop's path are made.
         wanted = term_names(tr, terms)
         vectors = {"color": c, "position": lvl.p, "normal": lvl.n} | {"term." + k: lvl.terms[k] for k in wanted}
-        written: dict[str, Any] = {}
-        film.planar_out(written, vectors, lvl.shape_id >= 0, masked=("position", "normal"))
-        out.update(written)
+        written = film.planar_out(out, vectors, lvl.shape_id >= 0, masked=("position", "normal"))
         out["t"] = dr.llvm.Float64(lvl.t)
         extra = [lvl.record[k] for k in ("tree", "shadow_margin") if k in lvl.record]
-        dr.eval(out["t"], lvl.shape_id, *extra, *written.values())
+        dr.eval(out["t"], lvl.shape_id, *extra, *written)
         return c, [lvl]
 
 
