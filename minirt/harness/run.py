@@ -98,7 +98,7 @@ class _Started:
             self.chosen = start_chosen(self.lane, waiting, scene, rules, self.refs)
             self.several = start_samples(self.lane, self.oracle_names, scene, rules, self.refs)
         except BaseException:
-            self.lane.shutdown(wait=True, cancel_futures=True)
+            self.cancel()
             raise
 
     def check(self, progress=None, variants=None) -> SceneCheck:

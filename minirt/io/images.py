@@ -166,14 +166,11 @@ def _exr_layout(result: RenderResult) -> tuple[list[Callable[[slice], np.ndarray
         # converted each into its channel, never stacked (a stack of a block's rows first took 3x longer:
         # 200 balls at 1024^2, 60 against 20 ms for the eight vectors).
         v = result.held(name)
-        if v is None:
+        if not isinstance(v, Planes):
+            add(prefix, v, comps)
             return
         names.extend(f"{prefix}.{comp}" if prefix else comp for comp in comps)
-        if isinstance(v, Planes):
-            blocks.extend((lambda rows, c=c: c[rows, :, None]) for c in v)
-        else:
-            a = np.asarray(v)
-            blocks.append(lambda rows: a[rows, :, :3])
+        blocks.extend((lambda rows, c=c: c[rows, :, None]) for c in v)
 
     vector("", "color")
     if result.hit is not None:
