@@ -88,20 +88,9 @@ def _stop(p: subprocess.Popen, graceful: bool = True) -> None:
     """Close the child's standard input (it closes its cluster), wait a little, then kill its group; not
     ``graceful``: kill it at once (a worker killed while writing a page leaves a temporary file, removed
     by the next write to that folder: minirt.io.atomic)."""
-    with contextlib.suppress(OSError):
-        if p.stdin:
-            p.stdin.close()
-    try:
-        p.wait(timeout=STOP_SECONDS if graceful else 0)
-    except subprocess.TimeoutExpired:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(p.pid, signal.SIGKILL)
-        p.wait()
-    finally:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(p.pid, signal.SIGKILL)  # what the cluster left in its group, if anything
-        if p.stdout:
-            p.stdout.close()
+    from minirt.jobs.processes import stop
+
+    stop(p, STOP_SECONDS if graceful else 0)
 
 
 def serve(workers: int) -> None:

@@ -136,6 +136,27 @@ def kill(p: subprocess.Popen) -> None:
         os.killpg(p.pid, signal.SIGKILL)
 
 
+def stop(p: subprocess.Popen, wait: float = 2.0) -> None:
+    """End a ``spawn``ed child that serves until its standard input closes (the embedded cluster, the
+    certified oracle's workers, Blender): its input closed, ``wait`` seconds for it to exit, else its
+    process group killed; then whatever it left in its group killed too, its output closed, and it no
+    longer counted by ``kill_all``."""
+    with contextlib.suppress(OSError):
+        if p.stdin:
+            p.stdin.close()
+    try:
+        p.wait(timeout=wait)
+    except subprocess.TimeoutExpired:
+        kill(p)
+        p.wait()
+    finally:
+        kill(p)  # what it left in its group, if anything
+        untrack(p)
+        with contextlib.suppress(OSError):
+            if p.stdout:
+                p.stdout.close()
+
+
 def kill_all() -> None:
     """Kill every live child (from a signal handler: no waiting here)."""
     for p in list(_live):

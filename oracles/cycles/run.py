@@ -183,8 +183,9 @@ class _Blender:
         threading.Thread(target=self._read, daemon=True, name="minirt-blender-out").start()
 
     def _read(self) -> None:
-        for raw in self.p.stdout:
-            self.lines.put(raw.decode("utf-8", "replace").rstrip("\n"))
+        with contextlib.suppress(ValueError, OSError):  # its output closed by close() (processes.stop)
+            for raw in self.p.stdout:
+                self.lines.put(raw.decode("utf-8", "replace").rstrip("\n"))
         self.lines.put(None)
 
     def ask(self, path: Path | str, timeout: float) -> dict[str, Any]:
@@ -231,16 +232,9 @@ class _Blender:
         with _lock:
             if self in _idle:
                 _idle.remove(self)
-        with contextlib.suppress(OSError):
-            self.p.stdin.close()
         if kill:
             processes.kill(self.p)
-        try:
-            self.p.wait(timeout=2)
-        except subprocess.TimeoutExpired:
-            processes.kill(self.p)
-            self.p.wait()
-        processes.untrack(self.p)
+        processes.stop(self.p)
         self.err.close()
 
 

@@ -361,22 +361,14 @@ class Workers:
 
     def close(self) -> None:
         import contextlib
-        import subprocess
 
         from minirt.jobs import processes
 
-        for p in self.procs:
+        for p in self.procs:  # every input closed first: they exit together
             with contextlib.suppress(OSError):
                 p.stdin.close()
         for p in self.procs:
-            try:
-                p.wait(timeout=2)
-            except subprocess.TimeoutExpired:
-                processes.kill(p)
-                p.wait()
-            processes.untrack(p)
-            with contextlib.suppress(OSError):
-                p.stdout.close()
+            processes.stop(p)
 
 
 def can_spread() -> bool:
