@@ -315,7 +315,7 @@ class ExactOracle(Oracle):
             return RenderResult.failed(NAME, w, h, "error", f"{type(e).__name__}: {msg}")
 
     def _render(self, scene: Scene, rules: Rules, pixels: np.ndarray, samples: int, workers: int, progress):
-        from minirt.oracles.exact.render import buffers, trace_pixels
+        from minirt.oracles.exact.render import buffers, trace_colours, trace_pixels
 
         w, h = scene.camera.width, scene.camera.height
         t0 = time.perf_counter()
@@ -329,19 +329,32 @@ class ExactOracle(Oracle):
                 uvs.append(np.stack([u[pixels], v[pixels]], axis=1))
         # Robust bounds are of one ray a pixel (what the judge rules on); the mean of several has none of its
         # own -- one sample's bounds are not the mean's -- so a render of several samples leaves them out
-        # (every pixel not robust), and with them more than half its time.
+        # (every pixel not robust), and with them more than half its time. Of the samples after the first
+        # only the colour is read: traced together, as colours alone.
         bounds = samples == 1
-        results = [trace_pixels(scene, rules, pixels, uv, workers, progress, bounds) for uv in uvs]
-        buf = buffers(w, h, results[0])
+        first = trace_pixels(scene, rules, pixels, uvs[0], workers, progress, bounds)
+        buf = buffers(w, h, first)
+        ties = [{"pixel": int(px.index), "decision": px.tie} for px in first if px.tie]
+        bits = np.array([px.bits for px in first], dtype=np.int64)
         if samples > 1:
-            buf["color"] = sum(buffers(w, h, r, terms=False)["color"] for r in results) / samples
-            for r in results[1:]:
-                b = buffers(w, h, r, terms=False)
-                buf["exact_tie"] |= b["exact_tie"]
-                buf["certified_bits"] = np.maximum(buf["certified_bits"], b["certified_bits"])
+            n = pixels.size
+            rest = trace_colours(scene, rules, np.tile(pixels, samples - 1), np.concatenate(uvs[1:]), workers,
+                                 progress)  # fmt: skip
+            total = 0 + buf["color"]  # the samples' images summed in order, then divided: the mean
+            for s in range(samples - 1):
+                img = np.zeros((h * w, 3))
+                img[pixels] = rest.color[s * n : (s + 1) * n]
+                total = total + img.reshape(h, w, 3)
+                tied = np.zeros(h * w, dtype=bool)
+                tied[[pixels[k - s * n] for k in rest.ties if s * n <= k < (s + 1) * n]] = True
+                buf["exact_tie"] |= tied.reshape(h, w)
+                mine = np.zeros(h * w, dtype=np.int32)
+                mine[pixels] = rest.bits[s * n : (s + 1) * n]
+                buf["certified_bits"] = np.maximum(buf["certified_bits"], mine.reshape(h, w))
+            buf["color"] = total / samples
+            ties += [{"pixel": int(pixels[k % n]), "decision": tie} for k, tie in rest.ties.items()]
+            bits = np.concatenate([bits, rest.bits])
         seconds = time.perf_counter() - t0
-        ties = [{"pixel": int(px.index), "decision": px.tie} for r in results for px in r if px.tie]
-        bits = np.concatenate([[px.bits for px in r] for r in results]) if pixels.size else np.zeros(0)
         aux = {k: buf[k] for k in AUX}
         # The model's colour is negative where the rules leave s·n or (r·s)^e unclamped (profile exercise);
         # the harness's pre-flight takes a negative colour for a broken renderer, and every check reads the

@@ -287,6 +287,49 @@ def test_several_samples_take_the_references_own_sub_pixel_positions():
     assert judge.reference_errors(ref, res)[0].sum() == 0
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_colours_alone_are_the_pixels_colours_ties_and_precisions(workers):
+    """The later samples of a several-sample render are traced as colours alone (render.trace_colours): the
+    colour, precision and tie of each ray as trace_pixels has them, in the order given, pixels repeated --
+    here every pixel of the tangent shadow ray's case at the corner and at the centre, twice, a tie among them."""
+    from minirt.oracles.exact import render as exact_render
+
+    scene = _scene(f"{FLOOR}\n{TANGENT_BALL}", 'ray_origin = "camera"\noffset = 0.0')
+    rules = resolve(scene)
+    n = scene.camera.width * scene.camera.height
+    idx = np.tile(np.arange(n), 4)
+    uv = np.repeat([[0.0, 0.0], [0.5, 0.5], [0.0, 0.0], [0.25, 0.75]], n, axis=0)
+    got = exact_render.trace_colours(scene, rules, idx, uv, workers)
+    tracer = exact_render.PixelTracer(scene, rules)
+    want = [tracer.pixel(int(i), u, v, False) for i, (u, v) in zip(idx, uv, strict=True)]
+    assert got.color.tolist() == [list(px.color) for px in want]
+    assert got.bits.tolist() == [px.bits for px in want]
+    assert got.ties == {k: px.tie for k, px in enumerate(want) if px.tie}
+    assert list(got.ties) == [14, 2 * n + 14]
+
+
+def test_a_several_sample_render_is_the_mean_of_its_samples_pixels():
+    """Its colour is the mean of each sample's Pixels, summed in sample order (bit for bit), its ties and
+    certified precisions those of every sample, on worker processes as in this one."""
+    from minirt.model import camera
+    from minirt.oracles.exact import render as exact_render
+
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=12, height=12, samples=4)
+    rules = resolve(scene)
+    pixels = np.arange(144)
+    total, bits = 0, np.zeros(144, dtype=np.int32)
+    for s in range(4):
+        u, v = camera.sample_offsets(4, s, 144)
+        pxs = exact_render.trace_pixels(scene, rules, pixels, np.stack([u, v], axis=1), bounds=False)
+        total = total + exact_render.buffers(12, 12, pxs)["color"]
+        bits = np.maximum(bits, [px.bits for px in pxs])
+    for workers in (1, 2):
+        res = _exact(scene, rules, samples=4, pixels="all", workers=workers)
+        assert np.array_equal(res.aux["color_exact"], total / 4)
+        assert np.array_equal(res.aux["certified_bits"].reshape(-1), bits)
+        assert res.meta["certified"]["pixels"] == 144 and res.meta["certified"]["bits"] == {"128": 576}
+
+
 def test_worker_processes_that_die_are_an_error_result_and_are_started_again(monkeypatch):
     from minirt.oracles.exact import render as exact_render
 
