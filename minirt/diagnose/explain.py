@@ -168,7 +168,7 @@ def _distinct(
     says 0 is rendered in full."""
     tol = FLOAT_TOL if is_float else 0
     vs = cache.subset(scene, b, stride)
-    d = np.abs(_coded(vs.color, a, is_float) - coded_a[stride]).max(-1) > tol
+    d = bitmap.channel_max(np.abs(_coded(vs.color, a, is_float) - coded_a[stride])) > tol
     if d.any():
         where = stride[d]
         va = cache.get(scene, a)
@@ -181,7 +181,7 @@ def _distinct(
         if (~ill).any():
             return int((~ill).sum())
     vb = cache.get(scene, b)
-    d = np.abs(_coded(vb.color.reshape(-1, 3), a, is_float) - coded_a).max(-1) > tol
+    d = bitmap.channel_max(np.abs(_coded(vb.color.reshape(-1, 3), a, is_float) - coded_a)) > tol
     where = np.flatnonzero(d)
     va = cache.get(scene, a)
     ill = va.shadow_ill.reshape(-1)[where] | vb.shadow_ill.reshape(-1)[where]
@@ -241,7 +241,7 @@ def distinct_pixels(
     ia, ib = bitmap.bitmap(va.color, ra), bitmap.bitmap(vb.color, rb)
     if ia.shape != ib.shape:
         return ia.shape[0] * ia.shape[1]
-    differ = (ia != ib).any(-1)
+    differ = bitmap.channel_any(ia != ib)
     if ra.transpose != rb.transpose or ra.rows != rb.rows or ra.channels != rb.channels:
         return int(differ.sum())  # the layouts differ: compared as stored, nothing to leave out
     where = np.flatnonzero(bitmap.undo_layout(differ[..., None], **bitmap.layout_of(ra))[..., 0].reshape(-1))

@@ -36,6 +36,7 @@ import numpy as np
 
 from minirt.diagnose.target import Target, _coded
 from minirt.diagnose.variants import Variant, VariantCache
+from minirt.model import bitmap
 from minirt.model import rules as rules_mod
 from minirt.model.effects import effects
 from minirt.model.rules import Rules
@@ -534,7 +535,7 @@ class _Search:
                             img = self.target.in_layout(cand)
                             if img.shape[:2] != self.target._model_shape:
                                 continue
-                            d = np.abs(coded - img.reshape(-1, 3)[at]).max(-1)
+                            d = bitmap.channel_max(np.abs(coded - img.reshape(-1, 3)[at]))
                             key = (*self.target.score(d, ~sill), len(rules.differs(cand)))
                             if best_key is None or key < best_key:
                                 best, best_key = cand, key

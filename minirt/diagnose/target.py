@@ -71,9 +71,9 @@ class Target:
                 return None
             img = img.reshape(-1, 3)[idx]
         if self.is_float:
-            return np.abs(img - bitmap.transfer(color, rules.gamma)).max(-1)
+            return bitmap.channel_max(np.abs(img - bitmap.transfer(color, rules.gamma)))
         enc = bitmap.encode(color, rules.encoding, rules.gamma)
-        return np.abs(enc.astype(np.int16) - img).max(-1)
+        return bitmap.channel_max(np.abs(enc.astype(np.int16) - img))
 
     _model_shape: tuple[int, int] = (0, 0)
 

@@ -244,7 +244,7 @@ class VariantCache:
         except MinirtError:  # beyond float32's range: no float32 tracer could draw it; nothing to add
             return None, np.zeros(v.color.shape[:2], dtype=bool)
         a, b = bitmap.encode(v.color), bitmap.encode(c32)
-        return c32.astype(np.float32), (np.abs(a.astype(np.int16) - b) > LEVEL_TOL).any(-1)
+        return c32.astype(np.float32), bitmap.channel_any(np.abs(a.astype(np.int16) - b) > LEVEL_TOL)
 
     def subset32(self, scene: Scene, rules: Rules, idx: np.ndarray) -> Variant | None:
         """The candidate traced in float32 on the pixels ``idx`` (None beyond float32's range)."""

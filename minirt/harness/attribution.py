@@ -30,11 +30,13 @@ def attribute_rules(
 ) -> tuple[dict[str, int], dict[str, np.ndarray]]:
     """Rule effects: pixels of the scene-rules image that each rule the oracle cannot follow changes,
     singly (what the rule does in the reference; ``diagnose_oracle`` says what explains the oracle)."""
+    from minirt.model import bitmap
+
     base = refs.get(rules)
     counts, masks = {}, {}
     for name in rules.differs(followed):
         alt = refs.get(replace(rules, **{name: getattr(followed, name)}))
-        m = (alt.color8() != base.color8()).any(-1) | (alt.hit != base.hit)
+        m = bitmap.channel_any(alt.color8() != base.color8()) | (alt.hit != base.hit)
         counts[name], masks[name] = int(m.sum()), m
     return counts, masks
 
@@ -80,7 +82,7 @@ def diagnose_oracle(scene: Scene, rules: Rules, followed: Rules, res: RenderResu
     out = RuleDiagnosis(ran=True, declared=declared, pixels=h * w)
     before = variants.renders
     base = variants.get(one, given)
-    d8 = np.abs(bitmap.encode(base.color).astype(np.int16) - img.astype(np.int16)).max(-1)
+    d8 = bitmap.channel_max(np.abs(bitmap.encode(base.color).astype(np.int16) - img.astype(np.int16)))
     if not (d8 > dg.LEVEL_TOL).any():
         out.reason = "no search needed: the image is the scene's rules' within one 8-bit level on every pixel"
         out.unexplained_mask = np.zeros((h, w), dtype=bool)

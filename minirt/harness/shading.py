@@ -16,6 +16,7 @@ import numpy as np
 from minirt.harness import backends
 from minirt.harness.results import Check
 from minirt.harness.tolerances import THRESHOLDS
+from minirt.model import bitmap
 from minirt.model.result import RenderResult, edge_classes
 from minirt.model.scene import Scene
 
@@ -113,7 +114,7 @@ def shading_exercise(ref, res, classes, edges) -> Check:
     (also the averaged image of the reference's own samples, minirt.harness.compare's ``_samples_run``)."""
     a8, b8 = ref.color8().astype(int), res.color8().astype(int)
     dch = np.abs(a8 - b8)
-    d8 = dch.max(axis=-1)
+    d8 = bitmap.channel_max(dch)
     traced = res.traced  # a render of chosen pixels is judged where it traced
     if traced is not None:
         edges = edges | ~traced
@@ -123,7 +124,7 @@ def shading_exercise(ref, res, classes, edges) -> Check:
     x = np.clip(np.nan_to_num(ref.color), 0.0, 1.0) * 255 + 0.5
     tie = np.abs(x - np.rint(x)) <= THRESHOLDS["color8_tie_rel"].value * x
     one_any = judged & (d8 == 1)
-    one = one_any & ((dch == 1) & ~tie).any(axis=-1)
+    one = one_any & bitmap.channel_any((dch == 1) & ~tie)
     frac_one = float(one.sum() / max(judged.sum(), 1))
     cd = color_differences(ref.color8(), res.color8(), traced)
     rel = np.abs(ref.color - res.color) / np.maximum(np.abs(ref.color), 1e-3)

@@ -34,3 +34,17 @@ def test_encode_is_transfer_then_quantise(encoding, gamma, dtype):
 def test_encode_names_an_unknown_encoding():
     with pytest.raises(ValueError, match="unknown encoding"):
         bitmap.encode(np.zeros((1, 1, 3)), "ceil")
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.float64, np.float32])
+def test_channel_max_and_any_are_numpys_reductions_over_the_last_axis(dtype):
+    """The elementwise forms the diagnosis and the checks use: the same values as max(-1) and any(-1),
+    NaN in any channel included, for images and flat pixel lists."""
+    rng = np.random.default_rng(3)
+    d = rng.integers(-300, 300, size=(17, 13, 3)).astype(dtype)
+    if np.issubdtype(dtype, np.floating):
+        d[2, 3, 1], d[5, 5, 0], d[7, 1, 2] = np.nan, np.inf, -np.inf
+    for a in (d, d.reshape(-1, 3)):
+        assert np.array_equal(bitmap.channel_max(a), a.max(-1), equal_nan=np.issubdtype(dtype, np.floating))
+        m = a > 200
+        assert np.array_equal(bitmap.channel_any(m), m.any(-1))
