@@ -49,12 +49,14 @@ def check_backend(
     rendered=None,
     explain: bool = True,
     samples_rendered=None,
+    busy=None,
 ) -> BackendCheck:
     """``rendered``: the backend's render of (scene, rules, options) when it was started earlier (a
     concurrent.futures.Future or a RenderResult), else it is rendered here; ``samples_rendered``: the same
     for the several-sample render of ``_samples_run`` (``start_samples``). ``explain=False`` leaves out
     what only explains the verdict -- the rule effects and the rule diagnosis, renders of their own --
-    for runs that want verdicts alone (a fuzzing campaign)."""
+    for runs that want verdicts alone (a fuzzing campaign). ``busy()``: whether other renders of the check
+    are running beside this one (minirt.harness.run's); the rule diagnosis then runs on one Dr.Jit thread."""
     t0 = time.perf_counter()
     followed = backends.rules_for(name, rules) if backends.info(name).available else rules
     bc = BackendCheck(backend=name, verdict="skip", rules_followed=followed.as_dict())
@@ -109,10 +111,29 @@ def check_backend(
         bc.rule_diagnosis = RuleDiagnosis(reason=f"{name} {why}: no rule setting can explain its colour")
     elif pre.verdict == "fail":
         bc.rule_diagnosis = RuleDiagnosis(reason=f"{name}'s image failed pre-flight")
+    elif busy is not None and _small_kernels(scene) and busy():
+        # The diagnosis traces hundreds of candidates, each a kernel of a few milliseconds on a few-ball scene.
+        # While other renders fill the cores, Dr.Jit's second thread mostly waits for a core at each kernel's
+        # end: the bundled scenes' check took 17.3-18.3 s and 31-33 CPU-s with it, 16.3-16.7 s and 27-28 CPU-s
+        # without (the same documents). Longer kernels pay for both threads even then: a 1,024-ball scene's
+        # diagnosis (3.4 s, Blender rendering beside it) on one thread made its check 1.9 s longer.
+        from minirt.jit import engine
+
+        with engine.threads(1):
+            bc.rule_diagnosis = diagnose_oracle(scene, rules, followed, res, variants)
     else:
         bc.rule_diagnosis = diagnose_oracle(scene, rules, followed, res, variants)
     bc.seconds = time.perf_counter() - t0
     return bc
+
+
+def _small_kernels(scene: Scene) -> bool:
+    """Whether the scene's candidate renders are short kernels: at most FULL_RENDER_BALLS balls (beyond which a
+    ray's cost grows with the balls it passes, minirt.diagnose.variants)."""
+    from minirt.diagnose.variants import FULL_RENDER_BALLS
+    from minirt.model.scene import Ball
+
+    return sum(isinstance(s, Ball) for s in scene.shapes) <= FULL_RENDER_BALLS
 
 
 def _check_options(name: str, scene: Scene, followed: Rules, refs: ReferenceCache) -> dict[str, Any]:

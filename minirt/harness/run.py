@@ -101,7 +101,11 @@ class _Started:
             self.cancel()
             raise
 
-    def check(self, progress=None, variants=None) -> SceneCheck:
+    def running(self) -> bool:
+        """Whether a render this scene's check started is still running."""
+        return any(not f.done() for f in (*self.chosen.values(), *self.several.values()))
+
+    def check(self, progress=None, variants=None, busy=None) -> SceneCheck:
         scene, rules, sc = self.scene, self.rules, self.sc
         with self.lane:
             got = {**self.rendered, **self.chosen}
@@ -111,7 +115,7 @@ class _Started:
                 if progress:
                     progress(scene.name, name, i, len(self.oracle_names))
                 checked[name] = check_backend(scene, rules, name, self.refs, variants=variants, rendered=got.get(name),
-                                              samples_rendered=self.several.get(name))  # fmt: skip
+                                              samples_rendered=self.several.get(name), busy=busy)  # fmt: skip
         sc.backends = {name: checked[name] for name in self.oracle_names}  # in the order asked, however they ran
         sc.verdict = worst([b.verdict for b in sc.backends.values()])  # no oracle: skip, nothing was compared
         return sc
@@ -161,11 +165,18 @@ def run(
                     if k < len(paths) and k not in begun:
                         begun[k] = _Started(paths[k], names, *loaded[k], rendered[k])
                 tick = None if progress is None else (lambda *a, i=i: progress(i, *a))
-                scenes.append(begun.pop(i).check(tick, variants))
+                this = begun.pop(i)
+                busy = lambda this=this: this.running() or _running(rendered, begun.values())  # noqa: E731
+                scenes.append(this.check(tick, variants, busy))
         finally:
             for started in begun.values():  # an error or an interrupt: the next scene's renders are not waited for
                 started.cancel()
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
+
+
+def _running(rendered: list[dict], begun) -> bool:
+    """Whether any render started ahead, or of a scene begun ahead, is still running."""
+    return any(not f.done() for r in rendered for f in r.values()) or any(b.running() for b in begun)
 
 
 def _fits_in_memory(scenes: list[Scene], names, local_workers: int) -> None:

@@ -7,6 +7,7 @@ overrides the library Dr.Jit picks.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 
 from minirt.errors import MinirtError
@@ -35,3 +36,19 @@ def require_llvm() -> None:
     ok, why = llvm_status()
     if not ok:
         raise MinirtError(why)
+
+
+@contextlib.contextmanager
+def threads(n: int):
+    """Dr.Jit's thread pool at ``n`` threads within the block, as it was after (the pool is the process's)."""
+    import drjit as dr
+
+    before = dr.thread_count()
+    if before == n:
+        yield
+        return
+    dr.set_thread_count(n)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(before)

@@ -125,3 +125,34 @@ def test_settings_no_pixel_shows_are_not_findings():
     assert not d.undeclared and "background" not in d.rules_explaining
     assert all(n > 0 for n in d.explained.values()) and set(d.explained) == set(d.rules_explaining)
     assert not set(d.cannot_tell) & set(d.rules_explaining)
+
+
+@pytest.mark.parametrize(("busy", "max_balls", "threads"), [(True, 16, 1), (False, 16, 2), (True, 1, 2), (None, 16, 2)])
+def test_the_diagnosis_runs_on_one_jit_thread_beside_other_renders_on_few_balls(monkeypatch, busy, max_balls, threads):
+    """While other renders of a run are still going (``busy``) and the scene's candidate kernels are short (at
+    most FULL_RENDER_BALLS balls), the rule diagnosis runs on one Dr.Jit thread, and the pool is as it was
+    after; alone, or on many balls, on the pool as it is."""
+    import drjit as dr
+
+    from minirt.diagnose import variants as variants_mod
+    from minirt.harness import compare
+    from minirt.harness.references import ReferenceCache
+
+    scene = load_scene(SCENE).with_overrides(width=SIZE[0], height=SIZE[1])
+    rules = resolve(scene)
+    followed = replace(rules, clamp=True)  # an image the scene's rules do not draw: a search runs
+    drawn = render(scene, followed)
+    seen = []
+    real = compare.diagnose_oracle
+    monkeypatch.setattr(compare, "diagnose_oracle", lambda *a: seen.append(dr.thread_count()) or real(*a))
+    monkeypatch.setattr(variants_mod, "FULL_RENDER_BALLS", max_balls)
+    before = dr.thread_count()
+    dr.set_thread_count(2)
+    try:
+        flag = None if busy is None else (lambda: busy)
+        bc = compare.check_backend(scene, rules, "povray", ReferenceCache(scene), rendered=drawn, busy=flag)
+        after = dr.thread_count()
+    finally:
+        dr.set_thread_count(before)
+    assert seen == [threads] and after == 2
+    assert bc.rule_diagnosis.ran and "clamp" in bc.rule_diagnosis.rules_explaining
