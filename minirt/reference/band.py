@@ -41,7 +41,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from minirt.model import camera
-from minirt.model.roots import ball_roots
+from minirt.model.roots import ball_roots, row_norm
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
 
@@ -55,9 +55,13 @@ class _Candidate:
         self.cos, self.owner = np.ones(n), np.zeros(n, dtype=np.int64)
 
     def take(self, where: np.ndarray, src: _Candidate | tuple) -> None:
+        """Where ``where``, the candidate ``src`` (another's, or (t, nd, cos, owner)), written in place: each
+        _Candidate owns its arrays, so a copy from one never aliases another."""
         t, nd, cos, owner = (src.t, src.nd, src.cos, src.owner) if isinstance(src, _Candidate) else src
-        self.t, self.nd = np.where(where, t, self.t), np.where(where, nd, self.nd)
-        self.cos, self.owner = np.where(where, cos, self.cos), np.where(where, owner, self.owner)
+        np.copyto(self.t, t, where=where)
+        np.copyto(self.nd, nd, where=where)
+        np.copyto(self.cos, cos, where=where)
+        np.copyto(self.owner, owner, where=where)
 
 
 class _Nearest:
@@ -208,7 +212,7 @@ def _result(nearest: _Nearest, sil, graze, origin, st, o, bound: float | None) -
         "near": near,
         "hit_nd": hit_nd,
         "hit_cos": hit_cos,
-        "origin_norm": np.linalg.norm(o, axis=1),  # |o|, for oracles whose origin rounding scales with it
+        "origin_norm": row_norm(o),  # |o|, for oracles whose origin rounding scales with it
     }
 
 
@@ -373,8 +377,8 @@ class _Balls:
                 f = o[ray] - self.mid[node]
                 dd = d[ray]
                 b = np.einsum("ij,ij->i", f, dd)
-                h = np.linalg.norm(f - b[:, None] * dd, axis=1)
-                keep = h <= reach[node] + slack[node] + SLACK * np.linalg.norm(f, axis=1)
+                h = row_norm(f - b[:, None] * dd)
+                keep = h <= reach[node] + slack[node] + SLACK * row_norm(f)
                 ray, node = ray[keep], node[keep]
                 count = t.count[node]
                 for j in range(int(count.max(initial=0))):

@@ -37,6 +37,7 @@ from minirt.errors import MinirtError
 from minirt.model import camera
 from minirt.model.effects import effects
 from minirt.model.result import RenderResult
+from minirt.model.roots import row_norm
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
 
@@ -48,7 +49,7 @@ HAZARD_PREVIEW_PIXELS = 2**18  # offset hazards of a render without buffers are 
 def _surface(shape, x: np.ndarray) -> np.ndarray:
     """The shape's implicit function at points x (N, 3): > 0 outside a ball / on a plane's normal side."""
     if isinstance(shape, Ball):
-        return np.linalg.norm(x - np.asarray(shape.center), axis=-1) - shape.radius
+        return row_norm(x - np.asarray(shape.center)) - shape.radius
     return x @ np.asarray(shape.normal) - shape.distance
 
 
@@ -203,7 +204,7 @@ def _crosses(p: np.ndarray, q: np.ndarray, c: np.ndarray, r: np.ndarray) -> np.n
     """Per (point, ball) pair: whether the ball's implicit function |x - C| - r, as computed, changes sign
     between p and q (``_jumped``'s test of a ball, found on the grid or through the tree)."""
     with np.errstate(invalid="ignore"):
-        return np.sign(np.linalg.norm(p - c, axis=-1) - r) != np.sign(np.linalg.norm(q - c, axis=-1) - r)
+        return np.sign(row_norm(p - c) - r) != np.sign(row_norm(q - c) - r)
 
 
 def _pad(balls: _Balls, p: np.ndarray, q: np.ndarray) -> float:
