@@ -53,10 +53,11 @@ def check_backend(
 ) -> BackendCheck:
     """``rendered``: the backend's render of (scene, rules, options) when it was started earlier (a
     concurrent.futures.Future or a RenderResult), else it is rendered here; ``samples_rendered``: the same
-    for the several-sample render of ``_samples_run`` (``start_samples``). ``explain=False`` leaves out
-    what only explains the verdict -- the rule effects and the rule diagnosis, renders of their own --
-    for runs that want verdicts alone (a fuzzing campaign). ``busy()``: whether other renders of the check
-    are running beside this one (minirt.harness.run's); the rule diagnosis then runs on one Dr.Jit thread."""
+    for the several-sample render of ``_samples_run`` or ``_stochastic_run`` (``start_samples``).
+    ``explain=False`` leaves out what only explains the verdict -- the rule effects and the rule diagnosis,
+    renders of their own -- for runs that want verdicts alone (a fuzzing campaign). ``busy()``: whether
+    other renders of the check are running beside this one (minirt.harness.run's); the rule diagnosis then
+    runs on one Dr.Jit thread."""
     t0 = time.perf_counter()
     followed = backends.rules_for(name, rules) if backends.info(name).available else rules
     bc = BackendCheck(backend=name, verdict="skip", rules_followed=followed.as_dict())
@@ -92,7 +93,7 @@ def check_backend(
         bc.checks["shading"] = check_shading(scene, ref, res, geom)
         model = known.shading_model if known else None
         if scene.samples > 1 and model == "physical":
-            bc.checks["stochastic"] = _stochastic_run(scene, followed, name, refs, geom)
+            bc.checks["stochastic"] = _stochastic_run(scene, followed, name, refs, geom, samples_rendered)
         if scene.samples > 1 and model == "exercise":
             bc.checks["samples"] = _samples_run(scene, followed, name, refs, samples_rendered)
         bc.verdict = worst([c.verdict for c in bc.checks.values()])
@@ -143,8 +144,17 @@ def _check_options(name: str, scene: Scene, followed: Rules, refs: ReferenceCach
     return b.check_options(scene, refs.get(followed, samples=1)) if b.chooses_pixels else {}
 
 
-def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache, geom: Check) -> Check:
-    res = backends.render(name, scene, rules, {"mode": "sensor", "spp": scene.samples})
+def _sensor_options(name: str, scene: Scene, followed: Rules, refs: ReferenceCache) -> dict[str, Any]:
+    return {"mode": "sensor", "spp": scene.samples}
+
+
+def _stochastic_run(scene: Scene, rules: Rules, name: str, refs: ReferenceCache, geom: Check, rendered=None) -> Check:
+    """A physical model's own several-sample render (its sensor, ``spp`` the scene's samples; ``rendered``: that
+    render started earlier, a Future) against the reference's, statistically (minirt.harness.stochastic)."""
+    if rendered is not None:
+        res = rendered.result()
+    else:
+        res = backends.render(name, scene, rules, _sensor_options(name, scene, rules, refs))
     if not res.ok:
         return Check("skip" if res.status == "skip" else "error", reason=res.reason)
     ref = refs.get(rules)
@@ -225,13 +235,17 @@ def start_chosen(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, re
 
 
 def start_samples(pool: ThreadPoolExecutor, names, scene: Scene, rules: Rules, refs: ReferenceCache) -> dict[str, Any]:
-    """``start_ahead`` for the several-sample renders ``_samples_run`` compares (a scene of samples > 1, an
-    oracle of the exercise's model), once the reference is rendered: those that run apart."""
+    """``start_ahead`` for the several-sample renders of a scene of samples > 1, once the reference is
+    rendered: of an oracle of the exercise's model, the reference's own samples (``_samples_run``); of a
+    physical model, its sensor's (``_stochastic_run``) -- those that run apart."""
     if scene.samples <= 1:
         return {}
-    return _start_after_reference(
-        pool, names, rules, lambda b: b.shading_model == "exercise", scene, refs, _samples_options
-    )
+    return {
+        **_start_after_reference(pool, names, rules, lambda b: b.shading_model == "exercise", scene, refs,
+                                 _samples_options),
+        **_start_after_reference(pool, names, rules, lambda b: b.shading_model == "physical", scene, refs,
+                                 _sensor_options),
+    }  # fmt: skip
 
 
 def _start_after_reference(pool, names, rules: Rules, wanted, scene: Scene, refs: ReferenceCache, options_for):

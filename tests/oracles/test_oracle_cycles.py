@@ -402,3 +402,24 @@ def test_the_version_question_and_the_first_render_share_one_blender(oracle, mon
     sc = _scene("three_balls", 16)
     assert oracle.render(sc, oracle.adapt(resolve(sc))).ok
     assert len(spawned) == 1
+
+
+def test_a_sensor_render_started_ahead_is_the_one_rendered_in_line(monkeypatch):
+    """A scene of samples > 1: the stochastic check's sensor render of a physical model that runs apart
+    (Blender) starts with the reference (harness.compare.start_samples), not on the check's own thread;
+    the stochastic check is the one a render in line gives."""
+    from minirt.harness import compare
+    from minirt.harness import run as run_module
+    from minirt.harness.references import ReferenceCache
+
+    path = ROOT / "scenes" / "soft.toml"
+    scene = load_scene(path).with_overrides(width=32, height=32, samples=4)
+    rules = resolve(scene)
+    started = []
+    monkeypatch.setattr(run_module, "start_samples", lambda *a: started.append(got := compare.start_samples(*a)) or got)
+    sc = check_scene(path, ["reference", "cycles"], size=(32, 32), loaded=(scene, rules))
+    assert list(started[0]) == ["cycles"]
+    ahead = sc.backends["cycles"].checks["stochastic"]
+    in_line = compare.check_backend(scene, rules, "cycles", ReferenceCache(scene)).checks["stochastic"]
+    assert ahead.verdict == in_line.verdict and ahead.verdict in ("pass", "warn")
+    assert ahead.figures == in_line.figures
