@@ -42,6 +42,7 @@ Conventions bridged (none: this is the model the reference tracer computes in fl
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from typing import Any, ClassVar
@@ -156,7 +157,12 @@ def choose_pixels(scene: Scene, requested: Any) -> np.ndarray:
 
 def stratified(w: int, h: int, count: int = SAMPLE_PIXELS) -> np.ndarray:
     """One pixel of each block of a grid of about ``count`` blocks over the image, drawn by a seeded PCG64:
-    the same pixels for the same size."""
+    the same pixels for the same size (made once per size: ~25 ms of a check's thread for each scene)."""
+    return _stratified(w, h, count).copy()
+
+
+@functools.lru_cache(maxsize=16)
+def _stratified(w: int, h: int, count: int) -> np.ndarray:
     side = max(1.0, math.sqrt(w * h / count))
     bx, by = max(1, round(w / side)), max(1, round(h / side))
     xs = np.linspace(0, w, bx + 1).astype(np.int64)
