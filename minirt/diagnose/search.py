@@ -417,7 +417,7 @@ class _Search:
 
         def beyond(x: float, at: np.ndarray) -> np.ndarray:
             r = replace(rules, offset=x)
-            v = self.cache.subset(self.scene, r, at)
+            v = self.cache.subset(self.scene, r, at, probe=True)
             d = self.target.difference(v.color, r, at)
             return self.target.beyond(d) & ~v.shadow_ill
 
@@ -558,7 +558,7 @@ class _Search:
         def l1(x: int) -> float:
             if x not in memo:
                 r = replace(rules, specular_exponent=x)
-                v = self.cache.subset(self.scene, r, at)
+                v = self.cache.subset(self.scene, r, at, probe=True)
                 d = self.target.difference(v.color, r, at)
                 memo[x] = math.inf if d is None else float(d[~v.shadow_ill].sum())
             return memo[x]

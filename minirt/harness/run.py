@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from minirt.harness import backends
-from minirt.harness.attribution import VARIANT_CACHE_BYTES
+from minirt.harness.attribution import check_variants
 from minirt.harness.compare import check_backend, check_text, start_ahead, start_chosen, start_samples
 from minirt.harness.references import ReferenceCache
 from minirt.harness.results import BackendCheck, CheckResult, SceneCheck, worst
@@ -150,10 +150,8 @@ def run(
     _fits_in_memory([s for s, _ in loaded], names, 0 if scheduler else workers if workers > 1 else 0)
     if workers > 1 or scheduler is not None or cache is not None:
         return _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache)
-    from minirt.diagnose import VariantCache
-
     importing = _import_ahead(names, [s for s, _ in loaded])
-    variants = VariantCache(VARIANT_CACHE_BYTES)
+    variants = check_variants()
     # POV-Ray and Cycles run as separate processes: their renders of every scene start now, in the scenes'
     # order on AHEAD threads of their own, and overlap the reference's, Mitsuba's and Embree's work in this
     # process (the cores are otherwise idle while Python waits for POV-Ray). The same results, in less time.

@@ -502,16 +502,14 @@ def refresh_sample(out: Path = Path("reports/sample"), size: int = 64, backends:
     Run from the repository root: ``make sample``.
     """
     from minirt.harness import backends as bk
-    from minirt.harness.attribution import VARIANT_CACHE_BYTES
+    from minirt.harness.attribution import check_variants
     from minirt.harness.run import check_scene
 
     root = Path(__file__).resolve().parents[2]  # the repository: minirt/pages/report.py
     paths = sorted((root / "scenes").glob("*.toml"))
     names = bk.parse_backends(backends)
-    from minirt.diagnose.variants import VariantCache
-
     here = Path.cwd().resolve() == root  # relative paths on the page when run from the repository root
-    variants = VariantCache(VARIANT_CACHE_BYTES)  # one for the run's rule diagnoses
+    variants = check_variants()  # one for the run's rule diagnoses
     scenes = [check_scene(p.relative_to(root) if here else p, names, (size, size), variants=variants)
               for p in paths]  # fmt: skip
     result = CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
