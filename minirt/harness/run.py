@@ -6,7 +6,6 @@ either after a memory pre-check (minirt.jobs.memory).
 
 from __future__ import annotations
 
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -150,7 +149,6 @@ def run(
     _fits_in_memory([s for s, _ in loaded], names, 0 if scheduler else workers if workers > 1 else 0)
     if workers > 1 or scheduler is not None or cache is not None:
         return _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache)
-    importing = _import_ahead(names, [s for s, _ in loaded])
     variants = check_variants()
     # POV-Ray and Cycles run as separate processes: their renders of every scene start now, in the scenes'
     # order on AHEAD threads of their own, and overlap the reference's, Mitsuba's and Embree's work in this
@@ -171,39 +169,7 @@ def run(
         finally:
             for started in begun.values():  # an error or an interrupt: the next scene's renders are not waited for
                 started.cancel()
-            if importing is not None:
-                importing.join()
     return CheckResult(verdict=worst([s.verdict for s in scenes]), scenes=scenes)
-
-
-def _import_ahead(names, scenes: list[Scene]) -> threading.Thread | None:
-    """Import on a thread of its own the libraries this run's checks will load when they first compare
-    colours: colour-science (CIEDE2000) and FLIP for an oracle that shades, SciPy's statistics for a scene of
-    several samples and an oracle of a physical model. The checks' thread waited ~1.7 s for those imports
-    (measured in the bundled scenes' check), now made while it renders the first references; a check that
-    reaches an import still under way waits for it (Python's module locks). The caller joins the thread
-    before it returns, so no import is under way when the process ends."""
-    from minirt.harness import shading
-
-    oracles = [backends.get(n) for n in backends.oracles_among(names)]
-    todo = []
-    if any(b.shades for b in oracles):
-        todo.append(shading.import_metrics)
-    if any(s.samples > 1 for s in scenes) and any(b.shading_model == "physical" for b in oracles):
-        todo.append(lambda: __import__("scipy.stats"))
-    if not todo:
-        return None
-
-    def imports() -> None:
-        for f in todo:
-            try:
-                f()
-            except Exception:  # fails again where the check imports it, which says why
-                continue
-
-    thread = threading.Thread(target=imports, name="minirt-imports", daemon=True)
-    thread.start()
-    return thread
 
 
 def _running(rendered: list[dict], begun) -> bool:

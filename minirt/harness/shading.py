@@ -59,13 +59,6 @@ def _colour() -> Any:
         return colour
 
 
-def import_metrics() -> None:
-    """Import what ``color_differences`` uses (colour-science, FLIP), ahead of its first call."""
-    import flip_evaluator  # noqa: F401
-
-    _colour()
-
-
 def color_differences(a8: np.ndarray, b8: np.ndarray, traced: np.ndarray | None = None) -> dict[str, float]:
     """CIEDE2000 (colour-science) and FLIP (flip-evaluator) on 8-bit images read as sRGB display values.
     ``traced``: where ``b8`` holds data (None: everywhere); the figures are of those pixels, and FLIP's

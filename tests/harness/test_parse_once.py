@@ -74,25 +74,3 @@ def _timeless(v):
     if isinstance(v, list):
         return [_timeless(x) for x in v]
     return v
-
-
-@pytest.mark.parametrize(
-    ("names", "imported"), [(["reference", "embree"], []), (["reference", "mitsuba"], ["metrics"])]
-)
-def test_a_run_imports_the_colour_metrics_ahead_on_a_thread_it_joins(monkeypatch, names, imported):
-    """A run with an oracle that shades imports colour-science and FLIP on a thread of its own while it renders
-    the first references (minirt.harness.run._import_ahead), and that thread has ended when the run returns;
-    a run with no shading oracle imports nothing ahead."""
-    import threading
-
-    from minirt.harness import run as run_module
-    from minirt.harness import shading
-
-    seen = []
-    monkeypatch.setattr(shading, "import_metrics", lambda: seen.append(("metrics", threading.current_thread().name)))
-    from minirt.model.bundled import find_scene
-
-    res = run_module.run([find_scene("exercise")], names, size=(16, 16))
-    assert res.verdict in ("pass", "warn")
-    assert [what for what, _ in seen] == imported and all(name == "minirt-imports" for _, name in seen)
-    assert not any(t.name == "minirt-imports" for t in threading.enumerate())
