@@ -17,8 +17,9 @@ import numpy as np
 
 from minirt.harness.results import INCONCLUSIVE, Check
 from minirt.harness.tolerances import THRESHOLDS, geometry_tolerance
-from minirt.model import camera
+from minirt.model import bitmap, camera
 from minirt.model.result import RenderResult
+from minirt.model.roots import row_norm
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
 from minirt.reference import band
@@ -55,7 +56,7 @@ def preflight(ref: RenderResult, res: RenderResult, need_color: bool) -> Check:
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle between vectors, stable for tiny angles (atan2 of |a x b| and a . b, not acos)."""
-    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.einsum("...i,...i", a, b)))
+    return np.degrees(np.arctan2(row_norm(np.cross(a, b)), np.einsum("...i,...i", a, b)))
 
 
 def check_geometry(
@@ -87,7 +88,7 @@ def check_geometry(
     for name in ("position", "normal", "color"):
         a, b = getattr(res, name), getattr(ref, name)
         if a is not None and b is not None:
-            bad = (~np.isfinite(a) & np.isfinite(b)).any(axis=-1)
+            bad = bitmap.channel_any(~np.isfinite(a) & np.isfinite(b))
             nonfinite |= bad
             said[name] = int(bad.sum())
     nf_out = nonfinite & ~tol.band
@@ -109,7 +110,7 @@ def check_geometry(
     # in length as in direction (radians), so the per-pixel normal tolerance bounds both; never below 1e-3
     # (an encoding's resolution: POV-Ray's split channels give 4.8e-7). Far from the origin a float32 or a
     # cancelling discriminant makes dp / r large, and its band holds those pixels (fuzz far_7_2: |n| 0.9).
-    n_len = np.abs(np.linalg.norm(res.normal, axis=-1) - 1.0)
+    n_len = np.abs(row_norm(res.normal) - 1.0)
     len_viol = judged & (n_len > np.maximum(1e-3, np.radians(tol.normal_deg)))
     figures = {
         "pixels": int(ref.hit.size),
