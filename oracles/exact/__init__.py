@@ -347,17 +347,17 @@ class ExactOracle(Oracle):
             rest = trace_colours(scene, rules, np.tile(pixels, samples - 1), np.concatenate(uvs[1:]), workers,
                                  progress)  # fmt: skip
             total = 0 + buf["color"]  # the samples' images summed in order, then divided: the mean
-            for s in range(samples - 1):
+            for color in rest.color.reshape(samples - 1, n, 3):
                 img = np.zeros((h * w, 3))
-                img[pixels] = rest.color[s * n : (s + 1) * n]
+                img[pixels] = color
                 total = total + img.reshape(h, w, 3)
-                tied = np.zeros(h * w, dtype=bool)
-                tied[[pixels[k - s * n] for k in rest.ties if s * n <= k < (s + 1) * n]] = True
-                buf["exact_tie"] |= tied.reshape(h, w)
-                mine = np.zeros(h * w, dtype=np.int32)
-                mine[pixels] = rest.bits[s * n : (s + 1) * n]
-                buf["certified_bits"] = np.maximum(buf["certified_bits"], mine.reshape(h, w))
             buf["color"] = total / samples
+            tied = np.zeros(h * w, dtype=bool)
+            tied[[pixels[k % n] for k in rest.ties]] = True
+            buf["exact_tie"] |= tied.reshape(h, w)
+            most = np.zeros(h * w, dtype=np.int32)
+            most[pixels] = rest.bits.reshape(samples - 1, n).max(axis=0)
+            buf["certified_bits"] = np.maximum(buf["certified_bits"], most.reshape(h, w))
             ties += [{"pixel": int(pixels[k % n]), "decision": tie} for k, tie in rest.ties.items()]
             bits = np.concatenate([bits, rest.bits])
         seconds = time.perf_counter() - t0

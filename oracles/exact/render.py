@@ -302,17 +302,10 @@ def trace_pixels(
             if progress and (n + 1) % 256 == 0:
                 progress(n + 1, len(idx))
         return out
-    parts = max(workers * 4, 1)
-    batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts]), bounds) for k in range(parts)]
-    got: dict[int, Pixel] = {}
-    done = 0
-    for part in _pool(workers).run(batches):
-        for px in part:
-            got[px.index] = px
-        done += len(part)
-        if progress:
-            progress(done, len(idx))
-    return [got[i] for i in idx]
+    got: list = [None] * len(idx)
+    for at, part in _dealt(scene, rules, idx, pos, workers, progress, bounds):
+        got[at] = part
+    return got
 
 
 def trace_colours(scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarray, workers: int = 1,
@@ -325,18 +318,28 @@ def trace_colours(scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarra
     pos = [(float(u), float(v)) for u, v in uv]
     if workers <= 1 or len(idx) < 64:
         return Colours.of(tracer_for(scene, rules), idx, pos, progress)
-    parts = max(workers * 4, 1)
-    batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts]), False, True) for k in range(parts)]
     out = Colours(np.zeros((len(idx), 3)), np.zeros(len(idx), dtype=np.int32), {})
-    done = 0
-    for k, part in enumerate(_pool(workers).run(batches)):
-        out.color[k::parts], out.bits[k::parts] = part.color, part.bits
-        out.ties.update({k + parts * j: tie for j, tie in part.ties.items()})
-        done += len(part.bits)
-        if progress:
-            progress(done, len(idx))
+    order = range(len(idx))
+    for at, part in _dealt(scene, rules, idx, pos, workers, progress, bounds=False, colours=True):
+        out.color[at], out.bits[at] = part.color, part.bits
+        out.ties.update({order[at][j]: tie for j, tie in part.ties.items()})
     out.ties = dict(sorted(out.ties.items()))
     return out
+
+
+def _dealt(scene: Scene, rules: Rules, idx: list[int], pos: list, workers: int, progress, bounds: bool = True,
+           colours: bool = False):  # fmt: skip
+    """The rays dealt out to ``workers`` processes in interleaved batches (neighbouring pixels cost alike), as
+    ``trace_pixels`` and ``trace_colours`` trace them: (the slice of the rays' order a batch holds, its result)
+    in the batches' order, as each is ready, ``progress`` told of the rays done."""
+    parts = workers * 4
+    batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts]), bounds, colours) for k in range(parts)]
+    done = 0
+    for k, part in enumerate(_pool(workers).run(batches)):
+        yield slice(k, None, parts), part
+        done += len(batches[k].indices)
+        if progress:
+            progress(done, len(idx))
 
 
 _POOLS: dict[int, Workers] = {}
