@@ -33,6 +33,7 @@ from minirt.harness.references import ReferenceCache
 from minirt.harness.results import ORDER, BackendCheck, Check, RuleDiagnosis, worst
 from minirt.harness.shading import check_shading, edge_classes, edge_pixels, shading_exercise
 from minirt.harness.stochastic import check_stochastic
+from minirt.jit import engine
 from minirt.model.backend import farthest_hit
 from minirt.model.rules import Rules, resolve
 from minirt.model.scene import Scene
@@ -112,18 +113,16 @@ def check_backend(
         bc.rule_diagnosis = RuleDiagnosis(reason=f"{name} {why}: no rule setting can explain its colour")
     elif pre.verdict == "fail":
         bc.rule_diagnosis = RuleDiagnosis(reason=f"{name}'s image failed pre-flight")
-    elif busy is not None and _small_kernels(scene) and busy():
-        # The diagnosis traces hundreds of candidates, each a kernel of a few milliseconds on a few-ball scene.
-        # While other renders fill the cores, Dr.Jit's second thread mostly waits for a core at each kernel's
-        # end: the bundled scenes' check took 17.3-18.3 s and 31-33 CPU-s with it, 16.3-16.7 s and 27-28 CPU-s
-        # without (the same documents). Longer kernels pay for both threads even then: a 1,024-ball scene's
-        # diagnosis (3.4 s, Blender rendering beside it) on one thread made its check 1.9 s longer.
-        from minirt.jit import engine
-
-        with engine.threads(1):
-            bc.rule_diagnosis = diagnose_oracle(scene, rules, followed, res, variants)
     else:
-        bc.rule_diagnosis = diagnose_oracle(scene, rules, followed, res, variants)
+        # The diagnosis traces hundreds of candidates, each a kernel of a few milliseconds on a few-ball scene.
+        # While other renders fill the cores (``busy``), Dr.Jit's second thread mostly waits for a core at each
+        # kernel's end: without it the bundled scenes' check used 0.93x the CPU in the same wall time (0.99x,
+        # 5 pairs; the same documents), a core's share the other processes then have. Longer kernels pay for
+        # both threads even then: a 1,024-ball scene's diagnosis (3.4 s, Blender rendering beside it) on one
+        # thread made its check 1.9 s longer.
+        one_thread = busy is not None and _small_kernels(scene) and busy()
+        with engine.threads(1) if one_thread else contextlib.nullcontext():
+            bc.rule_diagnosis = diagnose_oracle(scene, rules, followed, res, variants)
     bc.seconds = time.perf_counter() - t0
     return bc
 
