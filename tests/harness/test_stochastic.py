@@ -1,5 +1,5 @@
 """The statistics of stochastic renders (minirt.harness.stochastic): Welch's test with the variance floor,
-pinned to the former hand-written test and to SciPy's, and Sidak's correction."""
+pinned to the former hand-written test and to SciPy's (bit for bit), and Sidak's correction."""
 
 from __future__ import annotations
 
@@ -92,6 +92,50 @@ def test_z_test_is_scipys_welch_test_without_the_floor(monkeypatch):
     ref = ttest_ind(sa, sb, axis=1, equal_var=False)
     p, _, _ = z_test(sa.mean(1), sa.var(1, ddof=1), 5, sb.mean(1), sb.var(1, ddof=1), 9, np.ones(50, bool))
     assert np.abs(p - ref.pvalue).max() <= 1e-12 and ref.pvalue.min() < 0.05
+
+
+@pytest.mark.parametrize(("n_a", "n_b"), [(4, 4), (2, 64), (64, 1024), (16, 3)])
+def test_welch_is_scipys_bit_for_bit(n_a, n_b):
+    """z_test's Welch test, written on scipy.special.stdtr to spare the check the import of scipy.stats,
+    gives the very bits of scipy.stats.ttest_ind_from_stats and of the t law's sf: zero variances on one
+    side or both, equal means, infinite and NaN differences included."""
+    from scipy.stats import t as student_t
+    from scipy.stats import ttest_ind_from_stats
+
+    from minirt.harness.stochastic import DOF_NORMAL, _welch
+
+    rng = np.random.default_rng(n_a * 7 + n_b)
+    a = rng.random((24, 24, 3))
+    b = a + rng.normal(0, 0.05, a.shape)
+    sa, sb = rng.random(a.shape) * 0.3, rng.random(a.shape) * 0.3
+    sa[0], sb[0], sa[1], sb[2, :5] = 0.0, 0.0, 0.0, 1e-9
+    b[3] = a[3]
+    b[4, 0], b[4, 1], b[4, 2] = np.inf, -np.inf, np.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ours = _welch(a, sa, n_a, b, sb, n_b)
+        theirs = ttest_ind_from_stats(a, sa, n_a, b, sb, n_b, equal_var=False).pvalue
+    assert np.array_equal(ours, theirs, equal_nan=True)
+    assert np.isnan(ours).any() and (ours == 1.0).any() and (ours < 1e-6).any()
+
+    from scipy.special import stdtr
+
+    x = np.abs(np.concatenate([(a - b).ravel(), [0.0, 1e-300, 40.0]])) / np.sqrt(1e-6)
+    assert np.array_equal(2 * stdtr(DOF_NORMAL, -x), 2 * student_t.sf(x, DOF_NORMAL), equal_nan=True)
+
+
+def test_a_check_of_stochastic_renders_does_not_import_scipy_stats():
+    """The point of writing the test on scipy.special: z_test leaves scipy.stats unimported."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from minirt.harness.stochastic import z_test\n"
+        "a = np.ones((4, 4, 3)); z_test(a, a, 4, a, a, 4, a > 0)\n"
+        "print('scipy.stats' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
 
 
 def test_sidak_alpha():
