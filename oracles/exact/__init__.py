@@ -321,7 +321,7 @@ class ExactOracle(Oracle):
             return RenderResult.failed(NAME, w, h, "error", f"{type(e).__name__}: {msg}")
 
     def _render(self, scene: Scene, rules: Rules, pixels: np.ndarray, samples: int, workers: int, progress):
-        from minirt.oracles.exact.render import buffers, trace_colours, trace_pixels
+        from minirt.oracles.exact.render import buffers, trace_colours, trace_columns
 
         w, h = scene.camera.width, scene.camera.height
         t0 = time.perf_counter()
@@ -338,10 +338,10 @@ class ExactOracle(Oracle):
         # (every pixel not robust), and with them more than half its time. Of the samples after the first
         # only the colour is read: traced together, as colours alone.
         bounds = samples == 1
-        first = trace_pixels(scene, rules, pixels, uvs[0], workers, progress, bounds)
+        first = trace_columns(scene, rules, pixels, uvs[0], workers, progress, bounds)
         buf = buffers(w, h, first)
-        ties = [{"pixel": int(px.index), "decision": px.tie} for px in first if px.tie]
-        bits = np.array([px.bits for px in first], dtype=np.int64)
+        ties = [{"pixel": int(first.index[k]), "decision": tie} for k, tie in first.ties.items()]
+        bits = first.bits.astype(np.int64)
         if samples > 1:
             n = pixels.size
             rest = trace_colours(scene, rules, np.tile(pixels, samples - 1), np.concatenate(uvs[1:]), workers,

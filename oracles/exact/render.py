@@ -219,6 +219,69 @@ class PixelTracer:
         return px
 
 
+@dataclass
+class Pixels:
+    """Traced pixels' values as columns, in the order traced: what ``buffers`` reads of each Pixel. A worker
+    answers a batch with these few arrays rather than a Pixel object a pixel: pickling, unpickling and
+    spreading ~50,000 Pixels into buffers cost a check of the bundled scenes ~0.5 CPU-s of minirt's own
+    process, on the threads its checks wait for."""
+
+    index: np.ndarray  # (N,) row-major pixel indices
+    shape_id: np.ndarray  # (N,) int32
+    t: np.ndarray  # (N,)
+    position: np.ndarray  # (N, 3)
+    normal: np.ndarray  # (N, 3)
+    color: np.ndarray  # (N, 3)
+    terms: dict[str, np.ndarray]  # each of TERMS, (N, 3): 0 where a pixel has none
+    color_rad: np.ndarray  # (N,)
+    t_rel: np.ndarray  # (N,)
+    bits: np.ndarray  # (N,) int32
+    ties: dict[int, str]  # position in the order -> the decision no precision certified
+    robust: np.ndarray  # (N,) bool
+    robust_geometry: np.ndarray  # (N,) bool
+    t_bounds: np.ndarray  # (N, 2)
+    color_lo: np.ndarray  # (N, 3)
+    color_hi: np.ndarray  # (N, 3)
+    normal_lo: np.ndarray  # (N, 3)
+    normal_hi: np.ndarray  # (N, 3)
+
+    @classmethod
+    def empty(cls, n: int) -> Pixels:
+        return cls(
+            np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int32), np.full(n, np.inf), np.zeros((n, 3)),
+            np.zeros((n, 3)), np.zeros((n, 3)), {k: np.zeros((n, 3)) for k in TERMS}, np.zeros(n), np.zeros(n),
+            np.zeros(n, dtype=np.int32), {}, np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), np.full((n, 2), np.inf),
+            np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)),
+        )  # fmt: skip
+
+    @classmethod
+    def of(cls, pixels: list[Pixel]) -> Pixels:
+        out = cls.empty(len(pixels))
+        for k, px in enumerate(pixels):
+            out.index[k], out.shape_id[k], out.t[k] = px.index, px.shape_id, px.t
+            out.position[k], out.normal[k], out.color[k] = px.position, px.normal, px.color
+            for name, v in px.terms.items():
+                out.terms[name][k] = v
+            out.color_rad[k], out.t_rel[k], out.bits[k] = px.color_rad, px.t_rel, px.bits
+            if px.tie:
+                out.ties[k] = px.tie
+            out.robust[k], out.robust_geometry[k], out.t_bounds[k] = px.robust, px.robust_geometry, px.t_bounds
+            (out.color_lo[k], out.color_hi[k]), (out.normal_lo[k], out.normal_hi[k]) = px.color_bounds, px.normal_bounds
+        return out
+
+    def put(self, at: slice, part: Pixels) -> None:
+        """``part``'s pixels into positions ``at`` of this order."""
+        for name, v in vars(part).items():
+            if name == "terms":
+                for k, col in v.items():
+                    self.terms[k][at] = col
+            elif name == "ties":
+                order = range(len(self.index))[at]
+                self.ties.update({order[j]: tie for j, tie in v.items()})
+            else:
+                getattr(self, name)[at] = v
+
+
 @dataclass(frozen=True)
 class Batch:
     """Pixels for one worker: the scene and rules, the pixels' indices and sub-pixel positions."""
@@ -229,6 +292,7 @@ class Batch:
     uv: tuple[tuple[float, float], ...]
     bounds: bool = True
     colours: bool = False  # the colours alone (``Colours``), not Pixels
+    columns: bool = False  # the pixels as columns (``Pixels``), not a list of Pixel
 
 
 @dataclass
@@ -273,11 +337,12 @@ def tracer_for(scene: Scene, rules: Rules) -> PixelTracer:
     return tracer
 
 
-def run_batch(batch: Batch) -> list[Pixel] | Colours:
+def run_batch(batch: Batch) -> list[Pixel] | Pixels | Colours:
     tracer = tracer_for(batch.scene, batch.rules)
     if batch.colours:
         return Colours.of(tracer, batch.indices, batch.uv)
-    return [tracer.pixel(i, u, v, batch.bounds) for i, (u, v) in zip(batch.indices, batch.uv, strict=True)]
+    got = [tracer.pixel(i, u, v, batch.bounds) for i, (u, v) in zip(batch.indices, batch.uv, strict=True)]
+    return Pixels.of(got) if batch.columns else got
 
 
 def trace_pixels(
@@ -308,6 +373,21 @@ def trace_pixels(
     return got
 
 
+def trace_columns(scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarray, workers: int = 1, progress=None,
+                  bounds: bool = True) -> Pixels:  # fmt: skip
+    """``trace_pixels``' pixels as columns (``Pixels``), in the same order: each worker process answers with
+    its batch's columns."""
+    idx = [int(i) for i in indices]
+    pos = [(float(u), float(v)) for u, v in uv]
+    if workers <= 1 or len(idx) < 64:
+        return Pixels.of(trace_pixels(scene, rules, indices, uv, 1, progress, bounds))
+    out = Pixels.empty(len(idx))
+    for at, part in _dealt(scene, rules, idx, pos, workers, progress, bounds, columns=True):
+        out.put(at, part)
+    out.ties = dict(sorted(out.ties.items()))
+    return out
+
+
 def trace_colours(scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarray, workers: int = 1,
                   progress=None) -> Colours:  # fmt: skip
     """The certified colours alone of the given rays (row-major pixel indices, which may repeat, and sub-pixel
@@ -328,12 +408,13 @@ def trace_colours(scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarra
 
 
 def _dealt(scene: Scene, rules: Rules, idx: list[int], pos: list, workers: int, progress, bounds: bool = True,
-           colours: bool = False):  # fmt: skip
+           colours: bool = False, columns: bool = False):  # fmt: skip
     """The rays dealt out to ``workers`` processes in interleaved batches (neighbouring pixels cost alike), as
     ``trace_pixels`` and ``trace_colours`` trace them: (the slice of the rays' order a batch holds, its result)
     in the batches' order, as each is ready, ``progress`` told of the rays done."""
     parts = workers * 4
-    batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts]), bounds, colours) for k in range(parts)]
+    batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts]), bounds, colours, columns)
+               for k in range(parts)]  # fmt: skip
     done = 0
     for k, part in enumerate(_pool(workers).run(batches)):
         yield slice(k, None, parts), part
@@ -438,9 +519,11 @@ def can_spread() -> bool:
     return not multiprocessing.current_process().daemon
 
 
-def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str, np.ndarray]:
-    """Image buffers (H, W[, 3]) from the traced pixels; pixels not traced: a miss, colour 0, not rendered."""
-    n = w * h
+def buffers(w: int, h: int, pixels: list[Pixel] | Pixels, terms: bool = True) -> dict[str, np.ndarray]:
+    """Image buffers (H, W[, 3]) from the traced pixels (a list of Pixel, or their columns); pixels not traced:
+    a miss, colour 0, not rendered."""
+    px = pixels if isinstance(pixels, Pixels) else Pixels.of(pixels)
+    n, i = w * h, px.index
     sid = np.full(n, -1, dtype=np.int32)
     t = np.full(n, np.inf)
     pos, nrm, col = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
@@ -450,15 +533,14 @@ def buffers(w: int, h: int, pixels: list[Pixel], terms: bool = True) -> dict[str
     n_lo, n_hi = np.zeros((n, 3)), np.zeros((n, 3))
     bits, crad, trel = np.zeros(n, dtype=np.int32), np.zeros(n), np.zeros(n)
     term = {k: np.zeros((n, 3)) for k in TERMS}
-    for px in pixels:
-        i = px.index
-        sid[i], t[i], pos[i], nrm[i], col[i] = px.shape_id, px.t, px.position, px.normal, px.color
-        rendered[i], tie[i], bits[i], crad[i], trel[i] = True, bool(px.tie), px.bits, px.color_rad, px.t_rel
-        for k, v in px.terms.items():
-            term[k][i] = v
-        robust[i], t_b[i], (c_lo[i], c_hi[i]), (n_lo[i], n_hi[i]) = (
-            px.robust, px.t_bounds, px.color_bounds, px.normal_bounds)  # fmt: skip
-        robust_geometry[i] = px.robust_geometry
+    sid[i], t[i], pos[i], nrm[i], col[i] = px.shape_id, px.t, px.position, px.normal, px.color
+    rendered[i], bits[i], crad[i], trel[i] = True, px.bits, px.color_rad, px.t_rel
+    tie[i[list(px.ties)]] = True
+    for k, v in px.terms.items():
+        term[k][i] = v
+    robust[i], t_b[i], c_lo[i], c_hi[i], n_lo[i], n_hi[i] = (
+        px.robust, px.t_bounds, px.color_lo, px.color_hi, px.normal_lo, px.normal_hi)  # fmt: skip
+    robust_geometry[i] = px.robust_geometry
     hit = sid >= 0
     out = {
         "shape_id": sid.reshape(h, w),

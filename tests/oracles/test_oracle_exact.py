@@ -199,8 +199,8 @@ def test_a_checks_certified_render_runs_beside_the_others_with_the_same_result(m
     options = get("exact").check_options(scene, ReferenceCache(scene).get(rules, samples=1))
     assert options["workers"] == 2 and get("exact").runs_apart(options)
     started = []
-    real = exact_render.trace_pixels
-    monkeypatch.setattr(exact_render, "trace_pixels", lambda *a, **k: started.append(a[4]) or real(*a, **k))
+    real = exact_render.trace_columns
+    monkeypatch.setattr(exact_render, "trace_columns", lambda *a, **k: started.append(a[4]) or real(*a, **k))
     sc = check_scene(path, ["reference", "exact", "embree"], size=(72, 72))
     assert list(sc.backends) == ["exact", "embree"] and started == [2]
     here = backends.render("exact", scene, rules, {**options, "workers": 1})
@@ -306,6 +306,48 @@ def test_colours_alone_are_the_pixels_colours_ties_and_precisions(workers):
     assert got.bits.tolist() == [px.bits for px in want]
     assert got.ties == {k: px.tie for k, px in enumerate(want) if px.tie}
     assert list(got.ties) == [14, 2 * n + 14]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_pixels_as_columns_are_the_pixels_values(workers):
+    """A check's render reads its pixels as columns (render.Pixels: a worker's answer is a few arrays, not a
+    Pixel object a pixel): each column holds the Pixels' values in the order given, bounds and a tie among
+    them -- the tangent shadow ray's case, every pixel at two sub-pixel positions, twice."""
+    from minirt.oracles.exact import render as exact_render
+
+    scene = _scene(f"{FLOOR}\n{TANGENT_BALL}", 'ray_origin = "camera"\noffset = 0.0')
+    rules = resolve(scene)
+    n = scene.camera.width * scene.camera.height
+    idx = np.tile(np.arange(n), 4)
+    uv = np.repeat([[0.0, 0.0], [0.5, 0.5], [0.0, 0.0], [0.25, 0.75]], n, axis=0)
+    got = exact_render.trace_columns(scene, rules, idx, uv, workers)
+    want = exact_render.trace_pixels(scene, rules, idx, uv)
+    for name in ("index", "shape_id", "t", "position", "normal", "color", "color_rad", "t_rel", "bits", "robust",
+                 "robust_geometry", "t_bounds"):  # fmt: skip
+        assert np.array_equal(getattr(got, name), np.array([getattr(px, name) for px in want]), equal_nan=True), name
+    assert np.array_equal(got.color_lo, [px.color_bounds[0] for px in want])
+    assert np.array_equal(got.normal_hi, [px.normal_bounds[1] for px in want])
+    for k, col in got.terms.items():
+        assert np.array_equal(col, [px.terms.get(k, (0.0, 0.0, 0.0)) for px in want]), k
+    assert got.ties == {k: px.tie for k, px in enumerate(want) if px.tie} and list(got.ties) == [14, 2 * n + 14]
+    assert got.robust.any() and got.terms["diffuse"].any()
+
+
+def test_buffers_from_columns_are_the_buffers_from_pixels():
+    """``buffers`` from a worker pool's columns and from this process's Pixel objects: the same arrays, bit for bit."""
+    from minirt.oracles.exact import render as exact_render
+
+    scene = load_scene(find_scene("three_balls")).with_overrides(width=16, height=12)
+    rules = resolve(scene)
+    idx = np.arange(0, 16 * 12, 2)
+    uv = np.full((idx.size, 2), 0.5)
+    a = exact_render.buffers(16, 12, exact_render.trace_pixels(scene, rules, idx, uv))
+    b = exact_render.buffers(16, 12, exact_render.trace_columns(scene, rules, idx, uv, workers=2))
+    assert set(a) == set(b) and set(a["terms"]) == set(b["terms"]) and {"reflection", "specular"} <= set(a["terms"])
+    for k in a:
+        for x, y in ((a[k], b[k]),) if k != "terms" else ((a[k][t], b[k][t]) for t in a[k]):
+            assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True), k
+    assert a["rendered"].sum() == idx.size
 
 
 def test_a_several_sample_render_is_the_mean_of_its_samples_pixels():
