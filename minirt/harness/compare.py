@@ -120,15 +120,15 @@ def check_backend(
         # 5 pairs; the same documents), a core's share the other processes then have. Longer kernels pay for
         # both threads even then: a 1,024-ball scene's diagnosis (3.4 s, Blender rendering beside it) on one
         # thread made its check 1.9 s longer.
-        one_thread = busy is not None and _small_kernels(scene) and busy()
+        one_thread = busy is not None and small_kernels(scene) and busy()
         with engine.threads(1) if one_thread else contextlib.nullcontext():
             bc.rule_diagnosis = diagnose_oracle(scene, rules, followed, res, variants)
     bc.seconds = time.perf_counter() - t0
     return bc
 
 
-def _small_kernels(scene: Scene) -> bool:
-    """Whether the scene's candidate renders are short kernels: at most FULL_RENDER_BALLS balls (beyond which a
+def small_kernels(scene: Scene) -> bool:
+    """Whether the scene's renders in this process are short kernels: at most FULL_RENDER_BALLS balls (beyond which a
     ray's cost grows with the balls it passes, minirt.diagnose.variants)."""
     from minirt.diagnose.variants import FULL_RENDER_BALLS
     from minirt.model.scene import Ball

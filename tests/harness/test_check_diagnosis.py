@@ -156,3 +156,29 @@ def test_the_diagnosis_runs_on_one_jit_thread_beside_other_renders_on_few_balls(
         dr.set_thread_count(before)
     assert seen == [threads] and after == 2
     assert bc.rule_diagnosis.ran and "clamp" in bc.rule_diagnosis.rules_explaining
+
+
+@pytest.mark.parametrize(
+    ("names", "max_balls", "threads"), [(["povray"], 16, 1), (["povray"], 1, 2), (["embree"], 16, 2)]
+)
+def test_a_run_checks_few_balls_on_one_jit_thread_beside_other_processes(monkeypatch, names, max_balls, threads):
+    """A run whose renders started ahead share the cores (POV-Ray's) checks a scene of short kernels (at most
+    FULL_RENDER_BALLS balls) -- its references, its oracles' checks -- on one Dr.Jit thread, and leaves the
+    pool as it was; on many balls, or with no render of another process, on the pool as it is."""
+    import drjit as dr
+
+    from minirt.diagnose import variants as variants_mod
+    from minirt.harness import run as run_module
+
+    seen = []
+    real = run_module.check_backend
+    monkeypatch.setattr(run_module, "check_backend", lambda *a, **k: seen.append(dr.thread_count()) or real(*a, **k))
+    monkeypatch.setattr(variants_mod, "FULL_RENDER_BALLS", max_balls)
+    before = dr.thread_count()
+    dr.set_thread_count(2)
+    try:
+        res = run_module.run([SCENE, ROOT / "scenes" / "three_balls.toml"], ["reference", *names], SIZE)
+        after = dr.thread_count()
+    finally:
+        dr.set_thread_count(before)
+    assert seen == [threads, threads] and after == 2 and res.verdict == "pass"
