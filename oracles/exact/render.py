@@ -276,8 +276,7 @@ class Pixels:
                 for k, col in v.items():
                     self.terms[k][at] = col
             elif name == "ties":
-                order = range(len(self.index))[at]
-                self.ties.update({order[j]: tie for j, tie in v.items()})
+                _ties_into(self.ties, len(self.index), at, v)
             else:
                 getattr(self, name)[at] = v
 
@@ -377,10 +376,10 @@ def trace_columns(scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarra
                   bounds: bool = True) -> Pixels:  # fmt: skip
     """``trace_pixels``' pixels as columns (``Pixels``), in the same order: each worker process answers with
     its batch's columns."""
+    if workers <= 1 or len(indices) < 64:
+        return Pixels.of(trace_pixels(scene, rules, indices, uv, 1, progress, bounds))
     idx = [int(i) for i in indices]
     pos = [(float(u), float(v)) for u, v in uv]
-    if workers <= 1 or len(idx) < 64:
-        return Pixels.of(trace_pixels(scene, rules, indices, uv, 1, progress, bounds))
     out = Pixels.empty(len(idx))
     for at, part in _dealt(scene, rules, idx, pos, workers, progress, bounds, columns=True):
         out.put(at, part)
@@ -399,19 +398,25 @@ def trace_colours(scene: Scene, rules: Rules, indices: np.ndarray, uv: np.ndarra
     if workers <= 1 or len(idx) < 64:
         return Colours.of(tracer_for(scene, rules), idx, pos, progress)
     out = Colours(np.zeros((len(idx), 3)), np.zeros(len(idx), dtype=np.int32), {})
-    order = range(len(idx))
     for at, part in _dealt(scene, rules, idx, pos, workers, progress, bounds=False, colours=True):
         out.color[at], out.bits[at] = part.color, part.bits
-        out.ties.update({order[at][j]: tie for j, tie in part.ties.items()})
+        _ties_into(out.ties, len(idx), at, part.ties)
     out.ties = dict(sorted(out.ties.items()))
     return out
+
+
+def _ties_into(ties: dict[int, str], n: int, at: slice, part: dict[int, str]) -> None:
+    """A batch's ties, keyed by position in the batch, into ``ties``, keyed by position in the whole order of
+    ``n`` rays (the batch holds positions ``at``, ``_dealt``'s slice)."""
+    order = range(n)[at]
+    ties.update({order[j]: tie for j, tie in part.items()})
 
 
 def _dealt(scene: Scene, rules: Rules, idx: list[int], pos: list, workers: int, progress, bounds: bool = True,
            colours: bool = False, columns: bool = False):  # fmt: skip
     """The rays dealt out to ``workers`` processes in interleaved batches (neighbouring pixels cost alike), as
-    ``trace_pixels`` and ``trace_colours`` trace them: (the slice of the rays' order a batch holds, its result)
-    in the batches' order, as each is ready, ``progress`` told of the rays done."""
+    ``trace_pixels``, ``trace_columns`` and ``trace_colours`` trace them: (the slice of the rays' order a batch
+    holds, its result) in the batches' order, as each is ready, ``progress`` told of the rays done."""
     parts = workers * 4
     batches = [Batch(scene, rules, tuple(idx[k::parts]), tuple(pos[k::parts]), bounds, colours, columns)
                for k in range(parts)]  # fmt: skip

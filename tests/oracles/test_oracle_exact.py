@@ -287,6 +287,15 @@ def test_several_samples_take_the_references_own_sub_pixel_positions():
     assert judge.reference_errors(ref, res)[0].sum() == 0
 
 
+def _tangent_shadow_rays():
+    """The tangent shadow ray's case (a tie at pixel 14), every pixel at the corner, the centre, the corner
+    again and (0.25, 0.75): its scene, rules, pixel count, and the rays' pixel indices and sub-pixel positions."""
+    scene = _scene(f"{FLOOR}\n{TANGENT_BALL}", 'ray_origin = "camera"\noffset = 0.0')
+    n = scene.camera.width * scene.camera.height
+    uv = np.repeat([[0.0, 0.0], [0.5, 0.5], [0.0, 0.0], [0.25, 0.75]], n, axis=0)
+    return scene, resolve(scene), n, np.tile(np.arange(n), 4), uv
+
+
 @pytest.mark.parametrize("workers", [1, 2])
 def test_colours_alone_are_the_pixels_colours_ties_and_precisions(workers):
     """The later samples of a several-sample render are traced as colours alone (render.trace_colours): the
@@ -294,11 +303,7 @@ def test_colours_alone_are_the_pixels_colours_ties_and_precisions(workers):
     here every pixel of the tangent shadow ray's case at the corner and at the centre, twice, a tie among them."""
     from minirt.oracles.exact import render as exact_render
 
-    scene = _scene(f"{FLOOR}\n{TANGENT_BALL}", 'ray_origin = "camera"\noffset = 0.0')
-    rules = resolve(scene)
-    n = scene.camera.width * scene.camera.height
-    idx = np.tile(np.arange(n), 4)
-    uv = np.repeat([[0.0, 0.0], [0.5, 0.5], [0.0, 0.0], [0.25, 0.75]], n, axis=0)
+    scene, rules, n, idx, uv = _tangent_shadow_rays()
     got = exact_render.trace_colours(scene, rules, idx, uv, workers)
     tracer = exact_render.PixelTracer(scene, rules)
     want = [tracer.pixel(int(i), u, v, False) for i, (u, v) in zip(idx, uv, strict=True)]
@@ -315,11 +320,7 @@ def test_pixels_as_columns_are_the_pixels_values(workers):
     them -- the tangent shadow ray's case, every pixel at two sub-pixel positions, twice."""
     from minirt.oracles.exact import render as exact_render
 
-    scene = _scene(f"{FLOOR}\n{TANGENT_BALL}", 'ray_origin = "camera"\noffset = 0.0')
-    rules = resolve(scene)
-    n = scene.camera.width * scene.camera.height
-    idx = np.tile(np.arange(n), 4)
-    uv = np.repeat([[0.0, 0.0], [0.5, 0.5], [0.0, 0.0], [0.25, 0.75]], n, axis=0)
+    scene, rules, n, idx, uv = _tangent_shadow_rays()
     got = exact_render.trace_columns(scene, rules, idx, uv, workers)
     want = exact_render.trace_pixels(scene, rules, idx, uv)
     for name in ("index", "shape_id", "t", "position", "normal", "color", "color_rad", "t_rel", "bits", "robust",
