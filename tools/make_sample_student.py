@@ -5,7 +5,7 @@
   would (min(255, floor(256·c))), with float32-like rounding noise on the colours.
 - scenes/samples/three_balls.student.png: scenes/three_balls.toml with bugs seen in a real solution of
   the exercise: a closest-hit search that starts at a finite "infinity" (t_max = 9.5), a ball's normal
-  p - c used in the diffuse term without dividing by the radius (raw_normals = "shading"), bytes written
+  p - c used in the diffuse term without dividing by the radius (raw_normals_ball = "shading"), bytes written
   as min(255, floor(256·c)); and one the rule table does not have -- the blue ball's diffuse colour
   typed as (0.1, 0.1, 0.9) instead of the scene's -- which the grade reports as a group of unexplained
   pixels on that ball where it faces the light.
@@ -41,7 +41,7 @@ def main() -> None:
     _said(OUT)
 
     scene = load_scene(OUT.parent.parent / "three_balls.toml")
-    rules = replace(resolve(scene), t_max=9.5, raw_normals="shading", encoding="floor256")
+    rules = replace(resolve(scene), t_max=9.5, raw_normals_ball="shading", encoding="floor256")
     shapes = list(scene.shapes)
     blue = next(k for k, s in enumerate(shapes) if s.material.name == "blue")
     m = shapes[blue].material

@@ -120,15 +120,38 @@ SENTENCES: dict[str, Callable[[Any, Any], str]] = {
         if yours != float("inf")
         else f"you count every hit however far; here hits beyond t = {ex:g} are ignored."
     ),
-    "raw_normals": lambda yours, ex: (
-        {
-            "shading": "you use the normal without normalising it in the diffuse term s·n",
-            "reflection": "you use the normal without normalising it when you reflect the ray (r = d − 2(d·n)n)",
-            "both": "you use the normal without normalising it, in the diffuse term s·n and in the reflection",
-            "none": "you use unit normals",
-        }[yours]
-        + " (a ball's p − c not divided by its radius, a plane's normal as written in the scene); "
-        + ("the exercise's normal is of unit length ((p − c)/r, Appendix 2)." if ex == "none" else f"here: {ex}.")
+    "raw_normals_ball": lambda yours, ex: _raw_words("ball", "p − c not divided by its radius", yours, ex),
+    "raw_normals_plane": lambda yours, ex: _raw_words("plane", "normal as written in the scene", yours, ex),
+    "shadow_rays": _two_ways(
+        False,
+        "you never test for shadows: every point gets its diffuse and highlight terms, even behind another "
+        "shape (a shadow test that is always true or never runs, e.g. `if (t = MAX)`); the exercise casts a "
+        "shadow ray to the light from every hit.",
+        "you cast shadow rays; here no point is ever in shadow.",
+    ),
+    "ball_normal": _two_ways(
+        "inward",
+        "your ball normal points into the ball (c − p instead of p − c): the lit side gets a negative diffuse "
+        "term and secondary rays start inside; the exercise's normal is (p − c)/r (Appendix 2).",
+        "your ball normal points out of the ball; here it points in.",
+    ),
+    "light": _two_ways(
+        "direction",
+        "you use the light's position as the direction towards it: s is the same at every point, not "
+        "(light − p) normalised; the exercise's s points from each hit point to the light.",
+        "your s points from each hit point to the light; here it is the light's position taken as a direction.",
+    ),
+    "hit_point": _two_ways(
+        "origin",
+        "you compute the hit point as t·d, leaving out the ray's start: p = t·d instead of p = o + t·d, so "
+        "normals, light directions and secondary rays come from the wrong point.",
+        "your hit point is o + t·d; here it is t·d.",
+    ),
+    "specular_s": _two_ways(
+        "-s",
+        "your highlight uses −s (the direction from the light to the point) in (r·s)^n; the exercise's s points "
+        "from the point to the light, so your highlight sits on the wrong side where the power is odd or cut.",
+        "your highlight uses s; here −s.",
     ),
     "encoding": lambda yours, ex: (
         f"you write a colour c as {_enc_words(yours)}; the exercise writes {_enc_words(ex)} (AdjustColor)."
@@ -155,6 +178,22 @@ SENTENCES: dict[str, Callable[[Any, Any], str]] = {
         "your image is not transposed; here it is.",
     ),
 }
+
+
+def _raw_words(kind: str, what: str, yours: str, ex: str) -> str:
+    """rules raw_normals_ball and raw_normals_plane."""
+    uses = {
+        "shading": "in the diffuse term s·n",
+        "reflection": "when you reflect the ray (r = d − 2(d·n)n)",
+        "both": "in the diffuse term s·n and in the reflection",
+    }
+    head = (
+        f"you use the {kind}'s normal without normalising it {uses[yours]}"
+        if yours != "none"
+        else (f"you use the {kind}'s unit normal")
+    )
+    tail = "the exercise's normal is of unit length ((p − c)/r, Appendix 2)" if ex == "none" else f"here: {ex}"
+    return f"{head} (a {kind}'s {what}); {tail}."
 
 
 def _offset_words(v: Any) -> str:

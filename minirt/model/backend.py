@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from minirt.model import rules as rules_mod
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
@@ -214,8 +215,11 @@ class Backend:
     packages: ClassVar[tuple[str, ...]] = ()  # the Python distributions it renders with (`minirt doctor`)
     export_as: ClassVar[str | None] = None  # `minirt export --to NAME`; None: no export
     export_what: ClassVar[str] = ""  # what that export writes, for --help
-    # rule name -> values this backend reproduces, preferred first. A rule not listed: any value.
+    # rule name -> values this backend reproduces, preferred first. A rule not listed: any value -- except
+    # the rules from real solutions' bugs (rules.BUG_RULES), which a backend follows only at their
+    # defaults unless it lists them or ``follows_bugs`` says it follows every one (the reference does).
     supported: ClassVar[dict[str, tuple[Any, ...]]] = {}
+    follows_bugs: ClassVar[bool] = False
 
     def available(self) -> tuple[bool, str]:
         """(usable, reason or version line)."""
@@ -230,6 +234,10 @@ class Backend:
         for name, values in self.supported.items():
             if getattr(rules, name) not in values:
                 changes[name] = values[0]
+        if not self.follows_bugs:
+            for name in rules_mod.BUG_RULES:
+                if name not in self.supported and getattr(rules, name) != rules_mod.default(name):
+                    changes[name] = rules_mod.default(name)
         return replace(rules, **changes)
 
     def cannot_follow(self, rules: Rules) -> list[str]:

@@ -60,7 +60,7 @@ def effects(scene: Scene, rules: Rules) -> Effects:
     specular = lit and any(_any(m.specular) for m in mats)
     # Shadows matter whenever a lit term exists: even a lone plane blocks its own shadow rays when
     # the light is behind it (one-sided, fixed offset), and a ball shadows its own back.
-    shadows = (diffuse or specular) and bool(scene.shapes)
+    shadows = (diffuse or specular) and bool(scene.shapes) and rules.shadow_rays  # rule shadow_rays: a test at all
     reflective = [s for s in scene.shapes if _any(s.material.reflection)]
     reflection = scene.max_depth > 0 and bool(reflective)
     depth = 0

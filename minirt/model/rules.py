@@ -21,7 +21,13 @@ Trace rules (``TRACE_RULES``) change what is traced:
 | specular_exponent | 8                             | 8                                  | 16                |
 | pixel_shift       | (0, 0) (pixels)               | (0, 0)                             | (0, 0)            |
 | t_max             | inf (every hit counts)        | inf                                | inf               |
-| raw_normals       | "none" (unit normals)         | "none"                             | "none"            |
+| raw_normals_ball  | "none" (unit normals)         | "none"                             | "none"            |
+| raw_normals_plane | "none"                        | "none"                             | "none"            |
+| shadow_rays       | true (a shadow test)          | true                               | true              |
+| ball_normal       | "outward" ((p - c) / r)       | "outward"                          | "outward"         |
+| light             | "position" (s = (L - p)/|L-p|)| "position"                         | "position"        |
+| hit_point         | "ray" (o + t d)               | "ray"                              | "ray"             |
+| specular_s        | "s" ((r·s)^e)                 | "s"                                | "s"               |
 
 (1) s·n raw, the specular term only where r·s > 0. (2) hit + offset·(the new ray's direction).
 (3) Offset by the hit point's error bound on the side the new ray leaves to -- except from a ball under
@@ -29,22 +35,37 @@ near_root_only = true, where secondary rays always start outside the ball: start
 from a point facing away from the light), near_root_only would not see the ball and every back-face
 self-shadow would be lost; outside, the ball blocks, as under a numeric offset along the normal.
 
-Two rules come from bugs seen in real solutions rather than from a reading of the exercise (their
-defaults are the exercise's reading; ``grade`` finds their values from a student's image). The source of
-both: a public C++ solution of this exercise (its bitmap.cpp and vector3.cpp, Ray, Ball, Plane, Scene),
-whose ``Scene::TraceRay`` starts its closest-hit search at ``double t = 30000;`` (pixel units), whose
-``Ball::getNormal`` returns ``at - middle`` and whose ``Plane::getNormal`` returns the normal as given.
+The rules from ``t_max`` on come from bugs seen in real solutions rather than from a reading of the
+exercise (``BUG_RULES``; their defaults are the exercise's reading, no oracle follows them, and ``grade``
+finds their values from a student's image). Each names the code it models:
 
-- ``t_max``: the closest-hit search starts at a finite "infinity", so hits of camera and reflected rays
-  beyond it are ignored: the far part of a ground plane turns to background at the horizon. Shadow
-  rays keep the shadow_range rule (the light is nearer than any such cut-off in the scenes where it
-  shows).
-- ``raw_normals``: the normal used without normalising it -- a ball's p - c not divided by the radius
-  (the exercise's Appendix 2 gives (p - c) / r), a plane's normal as written in the scene (the exercise
-  stores a plane as (n, a) without saying n is of unit length). "shading": in the diffuse term s·n;
-  "reflection": in the reflected direction r = d - 2 (d·n) n (the highlight's r·s uses that r as
-  computed; the reflected ray's direction is r normalised, as that solution's Ray normalises its
-  direction); "both". The secondary rays' offset stays along the unit normal.
+- ``t_max`` -- a public C++ solution of this exercise (its bitmap.cpp and vector3.cpp, Ray, Ball, Plane,
+  Scene) whose ``Scene::TraceRay`` starts its closest-hit search at ``double t = 30000;`` (pixel units):
+  hits of camera and reflected rays beyond it are ignored, and the far part of a ground plane turns to
+  background at the horizon. Shadow rays keep the shadow_range rule (the light is nearer than any such
+  cut-off in the scenes where it shows).
+- ``raw_normals_ball``, ``raw_normals_plane`` -- the same solution's ``Ball::getNormal`` returns
+  ``at - middle`` (p - c, not divided by the radius; the exercise's Appendix 2 gives (p - c) / r) and its
+  ``Plane::getNormal`` the normal as written in the scene (the exercise stores a plane as (n, a) without
+  saying n is of unit length). Real code keeps the two kinds apart -- a solution may normalise one and not
+  the other -- and uses the normal twice: "shading", in the diffuse term s·n; "reflection", in the
+  reflected direction r = d - 2 (d·n) n (the highlight's r·s uses that r as computed; the reflected ray's
+  direction is r normalised, as that solution's Ray normalises its direction); "both". The secondary
+  rays' offset stays along the unit normal. ``raw_normals = VALUE`` in a scene's [model] or ``--rule``
+  sets both (the one rule of earlier versions).
+- ``shadow_rays`` false -- a 2013 solution whose shadow test reads ``if (t = MAX)`` (an assignment, always
+  true): no point is ever in shadow; every hit gets its diffuse and specular terms.
+- ``ball_normal`` "inward" -- the same solution's ball normal is ``center - p``: c - p, pointing into the
+  ball. The diffuse term s·n changes sign; the reflected direction does not (n appears twice); the
+  secondary rays' offset ("a small fraction of normal") moves them into the ball.
+- ``light`` "direction" -- the same solution uses the light's position as the direction towards it:
+  s = L / |L| at every point, not (L - p) / |L - p|. The shadow ray leaves along that s; under
+  shadow_range "to-light" it is still cut at the light's distance |L - p|.
+- ``hit_point`` "origin" -- the same solution computes the hit point as ``t * d``, without the ray's
+  start: p = t d for every ray (the camera's, from the image plane, and the reflected ones). The normal,
+  the light direction and the secondary rays' start are computed from that p.
+- ``specular_s`` "-s" -- a solution whose highlight uses the direction from the light to the point
+  (the incoming light's direction, -s) where the exercise takes s: (r·(-s))^e.
 
 Output rules (``OUTPUT_RULES``) say how the 8-bit bitmap is written; the tracer ignores them (see
 minirt.model.bitmap): ``encoding`` "round" (floor(c·255 + 0.5); eth2014: "floor256", min(255,
@@ -78,7 +99,13 @@ class Rules:
     offset_along: str = "normal"
     pixel_shift: tuple[float, float] = (0.0, 0.0)
     t_max: float = math.inf
-    raw_normals: str = "none"
+    raw_normals_ball: str = "none"
+    raw_normals_plane: str = "none"
+    shadow_rays: bool = True
+    ball_normal: str = "outward"
+    light: str = "position"
+    hit_point: str = "ray"
+    specular_s: str = "s"
     # Output rules: how the bitmap is written (minirt.model.bitmap); the tracer ignores them.
     encoding: str = "round"
     gamma: str = "linear"
@@ -116,9 +143,29 @@ TRACE_RULES: tuple[str, ...] = (
     "specular_exponent",
     "pixel_shift",
     "t_max",
-    "raw_normals",
+    "raw_normals_ball",
+    "raw_normals_plane",
+    "shadow_rays",
+    "ball_normal",
+    "light",
+    "hit_point",
+    "specular_s",
 )
-QUIET_AT_DEFAULT: tuple[str, ...] = ("t_max", "raw_normals")
+# The rules from real solutions' bugs (see the module's docstring): no oracle follows them
+# (``minirt.model.backend.Backend.adapt``), and documents leave them out at their defaults.
+BUG_RULES: tuple[str, ...] = (
+    "t_max",
+    "raw_normals_ball",
+    "raw_normals_plane",
+    "shadow_rays",
+    "ball_normal",
+    "light",
+    "hit_point",
+    "specular_s",
+)
+QUIET_AT_DEFAULT: tuple[str, ...] = BUG_RULES
+# Names a scene's [model] or --rule may use for several rules at once: raw_normals sets both kinds.
+ALIASES: dict[str, tuple[str, ...]] = {"raw_normals": ("raw_normals_ball", "raw_normals_plane")}
 OUTPUT_RULES: tuple[str, ...] = ("encoding", "gamma", "rows", "channels", "transpose")
 _DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(Rules)}
 
@@ -168,7 +215,13 @@ CHOICES: dict[str, tuple[Any, ...]] = {
     "specular_exponent": (f"<an integer 1..{SPECULAR_EXPONENT_MAX}>",),
     "pixel_shift": (f'<"dx,dy" in pixels, |d| <= {PIXEL_SHIFT_MAX:g}>',),
     "t_max": ("<a number > 0, or inf>",),
-    "raw_normals": ("none", "shading", "reflection", "both"),
+    "raw_normals_ball": ("none", "shading", "reflection", "both"),
+    "raw_normals_plane": ("none", "shading", "reflection", "both"),
+    "shadow_rays": (True, False),
+    "ball_normal": ("outward", "inward"),
+    "light": ("position", "direction"),
+    "hit_point": ("ray", "origin"),
+    "specular_s": ("s", "-s"),
     "encoding": ("round", "floor256", "floor"),
     "gamma": ("linear", "srgb", "2.2"),
     "rows": ("top-down", "bottom-up"),
@@ -185,6 +238,11 @@ _VALUES: dict[str, tuple[Any, ...]] = {
     # A diagnosis finds t_max's value from the image (minirt.diagnose.search), not from this list
     "t_max": (math.inf, T_MAX_FLIP),
 }
+
+
+def default(name: str) -> Any:
+    """The exercise's value of one rule (the field's default)."""
+    return _DEFAULTS[name]
 
 
 def values(name: str) -> tuple[Any, ...]:
@@ -272,9 +330,25 @@ def _as_dict(rules: Rules) -> dict[str, Any]:
     return d
 
 
+def expand_aliases(model: dict[str, Any]) -> dict[str, Any]:
+    """A [model] table or --rule overrides with every alias (``ALIASES``) replaced by the rules it sets, in
+    place (a rule given by its own name as well wins over the alias)."""
+    if not any(name in ALIASES for name in model):
+        return model
+    out: dict[str, Any] = {}
+    for name, value in model.items():
+        if name in ALIASES:
+            for target in ALIASES[name]:
+                out.setdefault(target, value)
+        else:
+            out[name] = value
+    return out
+
+
 def validate_model_table(profile: str, model: dict[str, Any]) -> list[str]:
     """Problems with a scene's profile name and [model] overrides, one line each (empty if fine)."""
     problems = []
+    model = expand_aliases(model)
     if profile not in PROFILES:
         problems.append(f"render.profile: unknown profile {profile!r} (known: {', '.join(PROFILES)})")
     for name, value in model.items():
@@ -311,7 +385,7 @@ def resolve(scene: Scene, profile: str | None = None, overrides: dict[str, Any] 
     if name not in PROFILES:
         raise MinirtError(f"unknown profile {name!r} (known: {', '.join(PROFILES)})")
     rules = PROFILES[name]
-    merged = {**scene.model, **(overrides or {})}
+    merged = {**expand_aliases(scene.model), **expand_aliases(overrides or {})}
     problems = validate_model_table(name, merged)
     if problems:
         raise MinirtError(*problems)

@@ -1,8 +1,9 @@
 """The reference tracer as a backend: the same interface as every oracle (minirt.model.backend).
 
-It follows every rule (``supported`` is empty: any value of any rule), shades the exercise's own model,
-traces in float64 by default (``--precision f32`` for float32), and writes an image larger than one tile
-tile by tile as it is traced (``streams``). Its memory figures are measured like the oracles' (minirt.jobs.memory).
+It follows every rule (``supported`` is empty and ``follows_bugs`` true: any value of any rule), shades the
+exercise's own model, traces in float64 by default (``--precision f32`` for float32), and writes an image
+larger than one tile tile by tile as it is traced (``streams``). Its memory figures are measured like the
+oracles' (minirt.jobs.memory).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ class Reference(Backend):
     shading_model: ClassVar[str | None] = "exercise"
     reports_progress: ClassVar[bool] = True  # tile by tile
     packages: ClassVar[tuple[str, ...]] = ("drjit",)
+    follows_bugs: ClassVar[bool] = True
     # ``minirt check`` keeps the reference render for the report: 450 bytes a pixel; a render keeps 220 and
     # runs with 430 (Dr.Jit's working buffers); measured as the oracles' figures (minirt.jobs.memory)
     check_kept: ClassVar[int] = 450

@@ -27,13 +27,24 @@ def hit_point_and_normal(tr: Tracer, shape_id, o, d, t) -> tuple[Any, Any]:
     The hit shape's constants are selected first and the formula applied once, not once per
     shape: a third of the divisions with three balls, and the same operations on the same values
     for every ray, so the same bits.
+
+    Rules from real solutions' bugs: hit_point "origin" takes p = t d (the ray's start left out), and
+    ball_normal "inward" turns a ball's normal into (C - p) / r -- after the error-bound offset's
+    re-projection, which needs the outward one.
     """
-    p = o + t * d
+    p = t * d
+    origin = tr.values.rule(tr.rules.hit_point == "origin")
+    if origin is not True:
+        p = o + p if origin is False else dr.select(origin, p, o + p)
     n, ball = tr.values.frame(shape_id)
     if ball is None:  # a scene without balls
         return p, n
     c, r, inv_r, is_ball = ball
-    return ball_normal(tr, p, d, c, r, inv_r, is_ball, n)
+    p, n = ball_normal(tr, p, d, c, r, inv_r, is_ball, n)
+    inward = tr.values.rule(tr.rules.ball_normal == "inward")
+    if inward is not False:
+        n = dr.select(is_ball if inward is True else is_ball & inward, -n, n)
+    return p, n
 
 
 def ball_normal(tr: Tracer, p, d, c, r, inv_r, is_ball, n) -> tuple[Any, Any]:

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import drjit as dr
 
 from minirt.model.rules import SPECULAR_EXPONENT_MAX
+from minirt.model.scene import Ball
 from minirt.reference import interaction, shapes
 
 if TYPE_CHECKING:
@@ -172,11 +173,12 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
     # origin has |n|^2 - 1 ~ 1e-10, and a ray of that length, solved as if unit, lands 1.5e-3 inside a
     # planet 1.6e7 away -- its shadow ray then starts inside and sees no blocker (the campaign's far_6005_0).
     r_dir = dr.normalize(r)
-    # rule raw_normals: the normal as a solution that never normalises it has it, of length r for a ball
-    # (p - c) and |n| as written for a plane (values.normal_length); the offset keeps the unit one. Under
-    # ``runtime`` both switches are read at run time: one kernel for every value (a diagnosis tries them all).
-    raw_shading = values.rule(rules.raw_normals in ("shading", "both"))
-    raw_reflection = values.rule(rules.raw_normals in ("reflection", "both"))
+    # rules raw_normals_ball, raw_normals_plane: the normal as a solution that never normalises it has it, of
+    # length r for a ball (p - c) and |n| as written for a plane (values.normal_length); the offset keeps the
+    # unit one. Under ``runtime`` the switches are read at run time: one kernel for every value (a diagnosis
+    # tries them all).
+    raw_shading = _per_kind(tr, shape_id, "shading")
+    raw_reflection = _per_kind(tr, shape_id, "reflection")
     nr = None
     if raw_shading is not False or raw_reflection is not False:
         nr = ns * values.normal_length(shape_id)
@@ -198,9 +200,17 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
         # The light exactly at the hit point has no direction: that point is unlit (not 0/0).
         at_light = ~(light_dist > 0)
         s = dr.select(at_light, zero, to_light * (1.0 / dr.select(at_light, 1, light_dist)))
+        as_direction = values.rule(rules.light == "direction")
+        if as_direction is not False:
+            # rule light "direction": the light's position used as the direction towards it, the same s at
+            # every point (a light at the origin has none: unlit, as above)
+            l_len = dr.norm(lpos)
+            at_light = ~(l_len > 0) if as_direction is True else dr.select(as_direction, ~(l_len > 0), at_light)
+            s_fixed = dr.select(at_light, zero, lpos * (1.0 / dr.select(at_light, 1, l_len)))
+            s = s_fixed if as_direction is True else dr.select(as_direction, s_fixed, s)
         sn = dr.dot(s, ns)
         lit = hit & ~at_light
-        if fx.shadows:
+        if fx.shadows and rules.shadow_rays:  # rule shadow_rays false: no shadow test at all
             so = interaction.offset_origin(tr, p, ns, err, s, outward)
             blocked, shadow_ts = shadow_blocked(tr, so, s, light_dist, record)
             lit = hit & ~blocked
@@ -230,6 +240,9 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
             local = local + terms["diffuse"]
         if fx.specular:
             rs = dr.dot(r, s)
+            negated = values.rule(rules.specular_s == "-s")
+            if negated is not False:  # rule specular_s "-s": (r·(-s))^e, the incoming light's direction
+                rs = -rs if negated is True else dr.select(negated, -rs, rs)
             e = rules.specular_exponent
             if tr.runtime:
                 pw = _power_runtime(rs, dr.opaque(T.UInt, e), SPECULAR_EXPONENT_MAX.bit_length())
@@ -270,10 +283,31 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
     return lvl, spawn
 
 
+def _per_kind(tr: Tracer, shape_id, use: str) -> Any:
+    """Where the hit shape's normal is used unnormalised for ``use`` ("shading" or "reflection"): rules
+    raw_normals_ball and raw_normals_plane, per shape kind. A Python bool where the answer is the same for
+    every ray (compiled in), else a Dr.Jit mask (is the hit shape a ball, and the rules read at run time)."""
+    rules, values = tr.rules, tr.values
+    ball = values.rule(rules.raw_normals_ball in (use, "both"))
+    plane = values.rule(rules.raw_normals_plane in (use, "both"))
+    kinds = {isinstance(s, Ball) for s in tr.scene.shapes}
+    if kinds == {True}:
+        return ball
+    if kinds <= {False}:
+        return plane
+    if ball is plane:  # both compiled in, and equal
+        return ball
+
+    def mask(x):
+        return tr.T.Bool(x) if isinstance(x, bool) else x
+
+    return dr.select(values.is_ball(shape_id), mask(ball), mask(plane))
+
+
 def has_margins(tr: Tracer) -> bool:
     """Whether shading records shadow margins when asked: only where shadow rays are cast (``shade``)."""
     fx = tr.effects
-    return fx.shadows and (fx.diffuse or fx.specular)
+    return fx.shadows and tr.rules.shadow_rays and (fx.diffuse or fx.specular)
 
 
 def background(tr: Tracer, hit) -> Any:

@@ -143,7 +143,6 @@ class CyclesOracle(Oracle):
         "offset_along": ("normal",),  # ("ray" needs a numeric offset)
         # rules from real solutions' bugs: a renderer has neither a finite "infinity" nor unnormalised normals
         "t_max": (math.inf,),
-        "raw_normals": ("none",),
         # ray_origin, pixel_sample, pixel_shift: any (the near clip and the camera's shift)
         # specular_exponent: any (no specular lobe: unsupported_terms)
     }

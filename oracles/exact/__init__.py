@@ -17,8 +17,9 @@ Conventions bridged (none: this is the model the reference tracer computes in fl
 - Offsets: a number, along the normal or the new ray, or "error-bound" (pbrt-v4's bound, as an exact
   offset from the exact hit point); an offset of 0 starts a ray exactly on its surface, where a root
   t = 0 does not count.
-- Every rule of the exercise's readings is followed; the two rules from real solutions' bugs (``t_max``,
-  ``raw_normals``) only at their defaults, as for every oracle (a check under another value says SKIP);
+- Every rule of the exercise's readings is followed; the rules from real solutions' bugs
+  (``rules.BUG_RULES``: ``t_max``, ``raw_normals_ball`` ...) only at their defaults, as for every oracle (a
+  check under another value says SKIP);
   the output rules are the bitmap's, as for every backend.
 - Pixels: the whole image up to ``WHOLE_IMAGE_PIXELS`` (512^2: ~10 s at 40 us a ray; campaign sizes are
   64^2 at most); a larger image a stratified sample of ``SAMPLE_PIXELS`` (one pixel of each block,
@@ -192,7 +193,7 @@ class ExactOracle(Oracle):
     check_kept: ClassVar[int] = 1900
     # Every hit counts and normals are of unit length: the exercise's model; the rules from real solutions'
     # bugs (minirt.model.rules) are graded by the reference, not judged here.
-    supported: ClassVar[dict[str, tuple[Any, ...]]] = {"t_max": (math.inf,), "raw_normals": ("none",)}
+    supported: ClassVar[dict[str, tuple[Any, ...]]] = {"t_max": (math.inf,)}
 
     def available(self) -> tuple[bool, str]:
         try:

@@ -57,7 +57,6 @@ class MitsubaOracle(Oracle):
         "offset_along": ("normal",),
         # rules from real solutions' bugs: a renderer has neither a finite "infinity" nor unnormalised normals
         "t_max": (math.inf,),
-        "raw_normals": ("none",),
         # ray_origin, pixel_sample and pixel_shift: any (custom rays are minirt.model.camera's, so they honour all
         # three; the sensor via near_clip and the principal point offsets).
         # specular_exponent: any (no specular lobe is simulated; see unsupported_terms).

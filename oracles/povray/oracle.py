@@ -85,7 +85,6 @@ class PovrayOracle(Oracle):
         "pixel_shift": ((0.0, 0.0),),
         # rules from real solutions' bugs: a renderer has neither a finite "infinity" nor unnormalised normals
         "t_max": (math.inf,),
-        "raw_normals": ("none",),
         # specular_exponent: any, as phong_size (POV-Ray's phong is (r·l)^phong_size, only where r·l > 0).
     }
 

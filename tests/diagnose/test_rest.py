@@ -2,7 +2,7 @@
 no rule explains.
 
 Student images come from tests/support/plain.py (the pure-Python transcription, which follows t_max and
-raw_normals on its own: p - c and the plane's normal as written, not the fast tracer's code) with
+raw_normals_* on its own: p - c and the plane's normal as written, not the fast tracer's code) with
 float32-like noise (tests/support/students.py). Acceptance:
 
 - an image made with each new rule is reproduced by ``minirt render --rule ...`` with the rules of the
@@ -61,10 +61,10 @@ def _reproduced_by_cli(tmp_path, g: grading.Grade, img: np.ndarray) -> int:
     "stem,change",
     [
         ("exercise", {"t_max": 6.5}),
-        ("three_balls", {"raw_normals": "shading"}),
-        ("three_balls", {"raw_normals": "reflection"}),
-        ("three_balls", {"raw_normals": "both"}),
-        ("colored_specular", {"raw_normals": "shading"}),  # its plane's normal is written [0, 2, 0]
+        ("three_balls", {"raw_normals_ball": "shading"}),
+        ("three_balls", {"raw_normals_ball": "reflection"}),
+        ("three_balls", {"raw_normals_ball": "both"}),
+        ("colored_specular", {"raw_normals_plane": "shading"}),  # its plane's normal is written [0, 2, 0]
     ],
     ids=lambda v: v if isinstance(v, str) else ",".join(f"{k}={v}" for k, v in v.items()),
 )
