@@ -146,10 +146,27 @@ def _print_grade(g, page: Path | None) -> None:
         err.print(f"  note: {terminal_text(note, MAX_MESSAGE)}")
     d = g.diagnosis
     for e in d.explained:
+        if e.rule in d.undetermined:
+            continue
         s = grading.sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule))
-        err.print(terminal_text(f"  {e.rule}={e.value} ({e.pixels} pixels): {s}", MAX_MESSAGE))
+        against = f", {e.against} against" if e.against else ""
+        err.print(terminal_text(f"  {e.rule}={e.value} ({e.pixels} pixels{against}): {s}", MAX_MESSAGE))
+    if d.one_of:
+        err.print(terminal_text(f"  one of: {d.one_of.sentence}", MAX_MESSAGE))
+    if d.broken_pixels:
+        err.print(f"  {d.broken_pixels} pixels the scene's own rules draw right are wrong under these rules")
+    for r in d.rejected:
+        err.print(
+            terminal_text(
+                f"  not named: {r.rule}={r.value} (the search took it; {r.pixels} pixels for, {r.against} "
+                f"against, {r.neither} matching neither value)",
+                MAX_MESSAGE,
+            )
+        )
     for u in d.unexplained:
         err.print(terminal_text(f"  unexplained: {u.sentence}", MAX_MESSAGE))
+        if u.fit is not None:
+            err.print(terminal_text(f"    fitted: {u.fit.sentence}", MAX_MESSAGE))
         err.print(f"    one of them step by step: {terminal_text(g.probe_command(*u.example), MAX_MESSAGE)}")
     for i in d.indistinguishable:
         tell = (
@@ -158,7 +175,7 @@ def _print_grade(g, page: Path | None) -> None:
             else "no bundled scene tells them apart"
         )
         err.print(terminal_text(f"  cannot tell {i['rule']}={i['value']} from {i['as']} in this scene ({tell})"))
-    if d.changed:
+    if d.reproducing:
         err.print(f"  reproduce: {terminal_text(g.reproduce(), MAX_MESSAGE)}")
     if page is not None:
         out.print(f"wrote {terminal_text(page)}")

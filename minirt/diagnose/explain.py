@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from minirt.diagnose import rest
-from minirt.diagnose.search import SAMPLE, _moot, _moves, _Search, _valid
-from minirt.diagnose.target import FLOAT_TOL, Target, _coded
+from minirt.diagnose import evidence, fit, rest
+from minirt.diagnose.search import SAMPLE, Search, moot_rules, single_moves, valid_rules
+from minirt.diagnose.target import FLOAT_TOL, Target, coded_levels
 from minirt.diagnose.variants import VariantCache
 from minirt.model import bitmap
 from minirt.model import rules as rules_mod
@@ -26,10 +26,17 @@ from minirt.model.scene import Scene
 
 @dataclass
 class Explained:
+    """A rule of the answer and its evidence (minirt.diagnose.evidence): the pixels that putting it back to
+    the scene's value makes wrong, those it makes right (``against``), and those the rule changes that match
+    neither value (``neither``)."""
+
     rule: str
     value: str
     pixels: int
     mask: np.ndarray = field(repr=False)
+    against: int = 0
+    neither: int = 0
+    interval: tuple[float, float] | None = None  # a number's: the values that fit as well (offset, t_max)
 
 
 @dataclass
@@ -50,9 +57,26 @@ class Diagnosis:
     renders: int  # candidate renders looked at (VariantCache.requested): traced now or taken from the cache
     # the pixels still beyond tolerance under ``best``, grouped by what the reference knows of them
     unexplained: list[rest.Group] = field(default_factory=list)
+    # what the image does not bear out (minirt.diagnose.evidence): rules the search took and put back, the
+    # rules it cannot decide, and the pixels the answer makes wrong that the scene's own rules drew right
+    rejected: list[evidence.Rejected] = field(default_factory=list)
+    one_of: evidence.OneOf | None = None
+    broken_pixels: int = 0
+
+    @property
+    def undetermined(self) -> dict[str, list[Any]]:
+        """Rules the image cannot decide, each with the values that fit it equally."""
+        return self.one_of.values if self.one_of else {}
 
     @property
     def changed(self) -> dict[str, str]:
+        """The rules the diagnosis names: those the answer changes that the image decides."""
+        return {n: v for n, v in self.reproducing.items() if n not in self.undetermined}
+
+    @property
+    def reproducing(self) -> dict[str, str]:
+        """Every rule the answer changes, undecided ones at the value it took: the rules under which the
+        reference draws the image as the diagnosis explains it."""
         return {n: rules_mod.format_rule_value(n, getattr(self.best, n)) for n in self.given.differs(self.best)}
 
     @property
@@ -78,23 +102,46 @@ def diagnose(
     output rules: for an image whose encoding and layout are known (an oracle's ``color8()``)."""
     cache = cache or VariantCache()
     cache.requested = set()
-    search = _Search(scene, target, cache, outputs)
+    search = Search(scene, target, cache, outputs)
     best = search.run(given)
+    rejected: list[evidence.Rejected] = []
+    one_of = None
+    broken_pixels = 0
+    if alternatives:  # a grade: name only what the image bears out (minirt.diagnose.evidence)
+        best, found, rejected = evidence.confirm(search, given, best)
+        fixed, broken_pixels = evidence.broken(search, given, best)
+        if best != given and broken_pixels > fixed:  # breaks more than it explains: no answer
+            rejected += [
+                evidence.Rejected(n, rules_mod.format_rule_value(n, getattr(best, n)), fixed, broken_pixels, 0)
+                for n in given.differs(best)
+            ]
+            best, found, broken_pixels = given, [], 0
+        one_of = evidence.one_of(search, given, best)
     pair = [given, best]
     mg, _, ill_g = search.final_mask(given, pair)
     mb, off_b, ill_b = search.final_mask(best, pair)
     shape = search.target._model_shape
     explained = []
-    for name in given.differs(best):
-        back = replace(best, **{name: getattr(given, name)})
-        if not _valid(back):
-            back = replace(best, **{n: getattr(given, n) for n in _coupled(name)})
-        _, off_back, _ = search.final_mask(back, [])
-        gained = off_back & ~off_b & ~ill_b
-        explained.append(
-            Explained(name, rules_mod.format_rule_value(name, getattr(best, name)), int(gained.sum()), gained)
-        )
+    if alternatives:
+        for e in found:
+            for name in e.rules:
+                value = rules_mod.format_rule_value(name, getattr(best, name))
+                iv = search.interval(name, best) if name in ("offset", "t_max") else None
+                explained.append(Explained(name, value, e.pixels, e.mask, e.against, e.neither, iv))
+    else:
+        for name in given.differs(best):
+            back = replace(best, **{name: getattr(given, name)})
+            if not valid_rules(back):
+                back = replace(best, **{n: getattr(given, n) for n in _coupled(name)})
+            _, off_back, _ = search.final_mask(back, [])
+            gained = off_back & ~off_b & ~ill_b
+            explained.append(
+                Explained(name, rules_mod.format_rule_value(name, getattr(best, name)), int(gained.sum()), gained)
+            )
     explained.sort(key=lambda e: (-e.pixels, e.rule))
+    groups = rest.groups(scene, best, mb, cache.first_hits(scene, best)) if mb.any() else []
+    if alternatives and groups:
+        fit.fit_groups(scene, best, target, groups)
     return Diagnosis(
         given=given,
         best=best,
@@ -108,7 +155,10 @@ def diagnose(
         best_color=cache.get(scene, best).color,
         steps=search.steps,
         renders=len(cache.requested),
-        unexplained=rest.groups(scene, best, mb, cache.first_hits(scene, best)) if mb.any() else [],
+        unexplained=groups,
+        rejected=rejected,
+        one_of=one_of,
+        broken_pixels=broken_pixels,
     )
 
 
@@ -140,10 +190,10 @@ def _indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: T
     vb = cache.get(scene, best)
     h, w = vb.color.shape[:2]
     stride = np.arange(0, h * w, max(1, (h * w) // (4 * SAMPLE)))
-    coded = _coded(vb.color.reshape(-1, 3), best, target.is_float)
+    coded = coded_levels(vb.color.reshape(-1, 3), best, target.is_float)
     out = []
-    moot = _moot(scene, best)
-    for cand in _moves(best, rules_mod.TRACE_RULES):
+    moot = moot_rules(scene, best)
+    for cand in single_moves(best, rules_mod.TRACE_RULES):
         (name,) = best.differs(cand)
         if name in moot or _distinct(scene, best, cand, coded, stride, cache, target.is_float) == 0:
             value = getattr(cand, name)
@@ -168,7 +218,7 @@ def _distinct(
     says 0 is rendered in full."""
     tol = FLOAT_TOL if is_float else 0
     vs = cache.subset(scene, b, stride)
-    d = bitmap.channel_max(np.abs(_coded(vs.color, a, is_float) - coded_a[stride])) > tol
+    d = bitmap.channel_max(np.abs(coded_levels(vs.color, a, is_float) - coded_a[stride])) > tol
     if d.any():
         where = stride[d]
         va = cache.get(scene, a)
@@ -181,7 +231,7 @@ def _distinct(
         if (~ill).any():
             return int((~ill).sum())
     vb = cache.get(scene, b)
-    d = bitmap.channel_max(np.abs(_coded(vb.color.reshape(-1, 3), a, is_float) - coded_a)) > tol
+    d = bitmap.channel_max(np.abs(coded_levels(vb.color.reshape(-1, 3), a, is_float) - coded_a)) > tol
     where = np.flatnonzero(d)
     va = cache.get(scene, a)
     ill = va.shadow_ill.reshape(-1)[where] | vb.shadow_ill.reshape(-1)[where]
@@ -200,7 +250,12 @@ GRADING_SET = ("rules", "three_balls", "exercise")
 # the diffuse term, or cutting the highlight at s·n <= 0, barely shows -- only just past a ball's lit edge,
 # where a shadow ray can slip past its own ball (5 pixels, each one level, in three_balls at 256²). Under
 # the 2014 edition's rules (offset along the ray) they differ widely.
-SAME_UNDER_EXERCISE = {("clamp", frozenset({True, "specular"})): "eth2014"}
+SAME_UNDER_EXERCISE = {
+    ("clamp", frozenset({True, "specular"})): "eth2014",
+    # (r·(-s))^8 = (r·s)^8: an even power, unclamped, cannot show the sign of s; the 2014 edition cuts the
+    # highlight at r·s > 0, where it shows
+    ("specular_s", frozenset({"s", "-s"})): "eth2014",
+}
 
 
 def tells_apart(name: str, a: Any, b: Any, cache: VariantCache | None = None, min_pixels: int = 50) -> str | None:
@@ -214,6 +269,8 @@ def tells_apart(name: str, a: Any, b: Any, cache: VariantCache | None = None, mi
 
 def why_same(name: str, a: Any, b: Any) -> str:
     """Why no bundled scene tells two values apart (for the indistinguishable list)."""
+    if name == "specular_s":
+        return "the same image under an even exponent, unclamped: (r·(-s))^8 = (r·s)^8"
     if (name, frozenset({a, b})) in SAME_UNDER_EXERCISE:
         return (
             "the same image whenever secondary rays are offset along the normal and anything on the shadow ray "
@@ -252,6 +309,6 @@ def distinct_pixels(
 
 def _make_valid(r: Rules) -> Rules:
     """offset_along = "ray" with the error-bound offset is no rule set: use the 2014 edition's 1e-3."""
-    if not _valid(r) and r.offset == "error-bound":
+    if not valid_rules(r) and r.offset == "error-bound":
         return replace(r, offset=1e-3)
     return r

@@ -59,15 +59,19 @@ class Group:
     sentence: str
     example: tuple[int, int]  # (x, y) of one pixel in the group: `minirt probe --image` shows it
     mask: np.ndarray = field(repr=False)
+    fit: Any = None  # minirt.diagnose.fit.Fit: the exercise's formula fitted to the group (a grade's)
 
     def as_dict(self) -> dict[str, Any]:
-        return {
+        out = {
             "pixels": self.pixels,
             "shapes": self.shapes,
             "conditions": self.conditions,
             "sentence": self.sentence,
             "example": list(self.example),
         }
+        if self.fit is not None:
+            out["fit"] = self.fit.as_dict()
+        return out
 
 
 BOOLEAN = ("lit", "n_dot_s_positive", "r_dot_s_positive", "inside")

@@ -1,6 +1,6 @@
 """The search: which rule settings make the reference's render reproduce an image.
 
-Greedy descent in rule space from the scene's own rules (``_Search``; minirt.diagnose.explain's
+Greedy descent in rule space from the scene's own rules (``Search``; minirt.diagnose.explain's
 ``diagnose`` runs it and reports what each changed rule explains):
 
 - Output rules (encoding, gamma, layout) cost no render: the same colour is re-encoded; the best fit
@@ -15,7 +15,7 @@ Greedy descent in rule space from the scene's own rules (``_Search``; minirt.dia
 - A pixel matches a candidate if it matches its float64 or its float32 image (a float32 tracer may
   draw either where rounding decides); a rule with no float64 effect is tried in float32 too.
 - A descent stuck with pixels still wrong tries each traced change once more with the output rules that
-  fit it best (``_Search._paired``): a wrong gamma hides a trace rule's gain and the other way round.
+  fit it best (``Search._paired``): a wrong gamma hides a trace rule's gain and the other way round.
 - Greedy steps can take a rule that imitates the right one (a high exponent dims the wrong-side
   highlight that clamping removes) and stall: while pixels stay unexplained the descent restarts from
   the scene's rules with each rule the answer changed forbidden in the first step, and keeps what
@@ -34,41 +34,53 @@ from typing import Any
 
 import numpy as np
 
-from minirt.diagnose.target import Target, _coded
+from minirt.diagnose.target import Target, coded_levels
 from minirt.diagnose.variants import Variant, VariantCache
 from minirt.model import bitmap
 from minirt.model import rules as rules_mod
 from minirt.model.effects import effects
 from minirt.model.rules import Rules
-from minirt.model.scene import Scene
+from minirt.model.scene import Ball, Scene
 
 
-def _valid(r: Rules) -> bool:
-    """A rule set the tracer accepts (the one cross-rule constraint: offset_along = "ray" needs a number)."""
+def valid_rules(r: Rules) -> bool:
+    """Whether the tracer accepts this rule set (the one cross-rule constraint: offset_along = "ray" needs a number)."""
     return not rules_mod.validate_model_table("exercise", r.as_dict())
 
 
-def _moot(scene: Scene, rules: Rules) -> set[str]:
+def moot_rules(scene: Scene, rules: Rules) -> set[str]:
     """Rules that provably change no pixel of this scene (minirt.model.effects): the exponent and the
-    clamp without lit terms, the background when it is black, offsets without secondary rays."""
+    clamp without lit terms, the background when it is black, offsets without secondary rays; the rules
+    from real solutions' bugs where nothing they act on is there (no balls, no lit terms, every normal of
+    unit length as written)."""
     fx = effects(scene, rules)
     out = set()
     if not fx.specular:
-        out.add("specular_exponent")
+        out |= {"specular_exponent", "specular_s"}
     if not (fx.diffuse or fx.specular):
-        out.add("clamp")
+        out |= {"clamp", "light", "shadow_rays"}
     if not any(scene.background):
         out.add("background")
     if not (fx.shadows or fx.reflection):
         out |= {"offset", "offset_along"}
+    balls = [s for s in scene.shapes if isinstance(s, Ball)]
+    planes = [s for s in scene.shapes if not isinstance(s, Ball)]
+    if not balls:
+        out.add("ball_normal")
+    if all(b.radius == 1 for b in balls):
+        out.add("raw_normals_ball")
+    if all(p.written == 1 for p in planes):
+        out.add("raw_normals_plane")
     return out
 
 
-# Rules whose value the search finds from the image (``_Search._found``) rather than from a list of values.
+# Rules whose value the search finds from the image (``Search._found``) rather than from a list of values.
 FOUND = ("t_max",)
 
 
-def _moves(current: Rules, names: tuple[str, ...], moot: set[str] = frozenset()) -> list[Rules]:
+def single_moves(current: Rules, names: tuple[str, ...], moot: set[str] = frozenset()) -> list[Rules]:
+    """Every valid rule set one rule away from ``current``: each rule of ``names`` (but those ``moot`` and
+    those whose value is read off the image, ``FOUND``) at each of its candidate values."""
     out = []
     for name in names:
         if name in moot or name in FOUND:
@@ -76,7 +88,7 @@ def _moves(current: Rules, names: tuple[str, ...], moot: set[str] = frozenset())
         for v in rules_mod.values(name):
             if v != getattr(current, name):
                 cand = replace(current, **{name: v})
-                if _valid(cand):
+                if valid_rules(cand):
                     out.append(cand)
     return out
 
@@ -87,7 +99,7 @@ def _profile_moves(current: Rules) -> list[Rules]:
     out = []
     for p in rules_mod.PROFILES.values():
         cand = replace(current, **{n: getattr(p, n) for n in rules_mod.TRACE_RULES})
-        if cand != current and _valid(cand):
+        if cand != current and valid_rules(cand):
             out.append(cand)
     return out
 
@@ -148,7 +160,10 @@ class _Subset:
     before: np.ndarray | None = None  # the current rules' class of each
 
 
-class _Search:
+class Search:
+    """The descent over rule space for one image (``run``), and the scores of rule sets on it (``either``,
+    ``compare``, ``final_mask``) that the diagnosis's evidence reuses: every render goes through the cache."""
+
     def __init__(self, scene: Scene, target: Target, cache: VariantCache, outputs: bool = True):
         self.outputs = outputs  # False: the image's output rules are known (the start's); never searched
         self.scene, self.target, self.cache = scene, target, cache
@@ -156,6 +171,11 @@ class _Search:
         self._exponents: dict[Rules, int] = {}
         self._offsets: dict[Rules, float | None] = {}
         self._either: dict[Rules, np.ndarray | None] = {}  # ``either``'s differences, per rule set
+        # What the diagnosis's "one of" looks at (minirt.diagnose.evidence): every rule set compared on every
+        # pixel, and the interval of values a number read off the image could take, per (rule, the other rules
+        # with that one at 0.0 for the offset, inf for t_max: ``interval``)
+        self.compared: list[Rules] = []
+        self.intervals: dict[tuple[str, Rules], tuple[float, float]] = {}
         target._model_shape = (scene.camera.height, scene.camera.width)
 
     def full(self, rules: Rules) -> tuple[np.ndarray | None, Variant]:
@@ -186,9 +206,12 @@ class _Search:
         those it breaks, each matched by its float64 or float32 image. A pixel ill-conditioned in either
         never counts: it is looked at only where the two differ, as elsewhere it adds the same to both."""
         (da, va), (db, vb) = self.either(a), self.either(b)
+        for r in (a, b):
+            if r not in self.compared:
+                self.compared.append(r)
         if da is None or db is None:
             return None if db is None else (1 << 40, 0)
-        differ = np.flatnonzero((self._cls(da) != self._cls(db)).reshape(-1))
+        differ = np.flatnonzero((self.classes(da) != self.classes(db)).reshape(-1))
         keep = ~(self.ill_at(a, va, differ) | self.ill_at(b, vb, differ) | self.flips(a)[differ])
         sa = self.target.score(da.reshape(-1)[differ], keep)
         sb = self.target.score(db.reshape(-1)[differ], keep)
@@ -200,7 +223,7 @@ class _Search:
         rules' flips are left out while searching, so a student's float32 acne never reads as a rule."""
         return self.cache.get(self.scene, rules, f32=True).f32_flips.reshape(-1)
 
-    def _cls(self, d: np.ndarray) -> np.ndarray:
+    def classes(self, d: np.ndarray) -> np.ndarray:
         """Per pixel: 0 exact, 1 one level off, 2 beyond tolerance."""
         return np.where(self.target.beyond(d), 2, np.where(self.target.off(d), 1, 0)).astype(np.int8)
 
@@ -209,7 +232,7 @@ class _Search:
         answer changed forbidden in the first step, and keep what explains most. A greedy step can take
         a rule that imitates the right one (a high exponent dims the wrong-side highlight that clamping
         removes) and then stall; the restart lets the right one go first."""
-        first = self._best_output(start)
+        first = self.best_output(start)
         self.steps = []
         best = self._descend(start, first)
         path = self.steps
@@ -240,6 +263,62 @@ class _Search:
         where = np.flatnonzero(self.target.beyond(d).reshape(-1))
         return int((~(self.ill_at(rules, v, where) | self.flips(rules)[where])).sum())
 
+    def interval(self, name: str, rules: Rules) -> tuple[float, float] | None:
+        """The interval of ``name``'s values (offset, t_max) that fit as well as ``rules``' own, as the search
+        read it off the image with the other rules as in ``rules``; None when it did not, or when ``rules``'
+        value lies outside it."""
+        other = replace(rules, **{name: 0.0 if name == "offset" else math.inf}).traced()
+        iv = self.intervals.get((name, other))
+        x = getattr(rules, name)
+        if iv is None or not isinstance(x, float) or not (iv[0] <= x <= iv[1]):
+            return None
+        return iv
+
+    def moot(self, rules: Rules) -> set[str]:
+        """``moot_rules`` of this search's scene."""
+        return moot_rules(self.scene, rules)
+
+    def subset_of(self, rules: Rules) -> _Subset | None:
+        """The pixels a step from ``rules`` scores candidates on (a stride of the wrong ones and of the right
+        ones, with their weights); None when the layout does not fit."""
+        dc, _ = self.either(rules)
+        if dc is None:
+            return None
+        cls = self.classes(dc).reshape(-1)
+        wrong, right = np.flatnonzero(cls > 0), np.flatnonzero(cls == 0)
+        wrong_s = wrong[:: max(1, wrong.size // (4 * SAMPLE))]
+        right_s = right[:: max(1, right.size // SAMPLE)]
+        sub = _Subset(
+            idx=np.concatenate([wrong_s, right_s]),
+            n_wrong=wrong_s.size,
+            w_weight=wrong.size / max(1, wrong_s.size),
+            r_weight=right.size / max(1, right_s.size),
+        )
+        sub.before = cls[sub.idx]
+        return sub
+
+    def best_offset_everywhere(self, rules: Rules) -> float | None:
+        """The numeric offset that fits best with the other rules of ``rules`` (``_best_offset`` on the
+        pixels a step from ``rules`` would score)."""
+        sub = self.subset_of(rules)
+        return None if sub is None else self._best_offset(rules, sub)
+
+    def quick_not_worse(self, a: Rules, b: Rules) -> bool:
+        """Could b fit the image as well as a? On a stride of the pixels (b traced there only), b leaves at
+        most two more pixels beyond tolerance than a (room for a pixel ill-conditioned in b): a rule set
+        clearly worse there is not looked at on every pixel."""
+        h, w = self.target._model_shape
+        at = np.arange(0, h * w, max(1, (h * w) // (4 * SAMPLE)))
+        da, _ = self.either(a)
+        if da is None:
+            return True
+        vb = self.cache.subset(self.scene, b, at, probe=True)
+        db = self.target.difference(vb.color, b, at)
+        if db is None:
+            return False
+        ba, bb = self.target.beyond(da.reshape(-1)[at]), self.target.beyond(db) & ~vb.shadow_ill
+        return int((bb & ~ba).sum()) - int((ba & ~bb).sum()) <= 2
+
     def _descend(self, start: Rules, current: Rules, tabu: str | None = None) -> Rules:
         """Greedy steps from ``current`` until no single change (or profile) removes mismatching pixels.
 
@@ -258,24 +337,14 @@ class _Search:
             dc, vc = self.either(current)
             if dc is None:
                 return current
-            cls = self._cls(dc).reshape(-1)
-            wrong = np.flatnonzero(cls > 0)
-            if wrong.size == 0:
+            cls = self.classes(dc).reshape(-1)
+            if not (cls > 0).any():
                 return current
-            right = np.flatnonzero(cls == 0)
-            wrong_s = wrong[:: max(1, wrong.size // (4 * SAMPLE))]
-            right_s = right[:: max(1, right.size // SAMPLE)]
-            sub = _Subset(
-                idx=np.concatenate([wrong_s, right_s]),
-                n_wrong=wrong_s.size,
-                w_weight=wrong.size / wrong_s.size,
-                r_weight=right.size / max(1, right_s.size),
-            )
-            sub.before = cls[sub.idx]
+            sub = self.subset_of(current)
             flips = self.flips(current)
-            moot = _moot(self.scene, current)
+            moot = moot_rules(self.scene, current)
             names = rules_mod.TRACE_RULES + (rules_mod.OUTPUT_RULES if self.outputs else ())
-            singles = _moves(current, names, moot)
+            singles = single_moves(current, names, moot)
             if "specular_exponent" not in moot:  # beside the listed values, the best integer
                 e = self._best_exponent(current)
                 if e != current.specular_exponent and e not in rules_mod.values("specular_exponent"):
@@ -283,7 +352,7 @@ class _Search:
             # t_max read off the image's own hits competes with the listed values at every step (a stump on the
             # t buffer, no render); the cut found in reflections and the offset only when the descent is stuck
             t_max = self._best_t_max(current, cls, reflected=False)
-            if t_max is not None and t_max != current.t_max and _valid(replace(current, t_max=t_max)):
+            if t_max is not None and t_max != current.t_max and valid_rules(replace(current, t_max=t_max)):
                 singles.append(replace(current, t_max=t_max))
             singles += _profile_moves(current)
             singles = [c for c in singles if c not in seen]
@@ -326,7 +395,7 @@ class _Search:
             g = self.compare(current, c)
             if g is not None and g > (0, 0):
                 self.steps.append({"rules": current.differs(c), "gain": g[0], "gain_one_level": g[1]})
-                refit = self._best_output(c)
+                refit = self.best_output(c)
                 return c if refit in seen else refit
         return None
 
@@ -341,7 +410,7 @@ class _Search:
         for c in singles if self.outputs else ():
             if c.traced() == current.traced():
                 continue
-            refit = self._best_output(c)
+            refit = self.best_output(c)
             if refit != c and refit not in seen and refit not in out:
                 out.append(refit)
         return out
@@ -358,7 +427,7 @@ class _Search:
             x = self._best_offset(current, sub)
             if x is not None and x != current.offset:
                 out.append(replace(current, offset=x))
-        return [c for c in out if _valid(c)]
+        return [c for c in out if valid_rules(c)]
 
     def _best_t_max(self, rules: Rules, cls: np.ndarray, reflected: bool = True) -> float | None:
         """The t_max whose cut best matches the wrong pixels: the pixels sorted by their farthest hit (their
@@ -398,7 +467,9 @@ class _Search:
         if score[k] <= 0:
             return None
         lo = float(tt[k + 1]) if k + 1 < tt.size else 0.0
-        return simplest(lo, float(tt[k]))
+        x = simplest(lo, float(tt[k]))
+        self.intervals[("t_max", replace(rules, t_max=math.inf).traced())] = (lo, float(tt[k]))
+        return x
 
     def _best_offset(self, rules: Rules, sub: _Subset) -> float | None:
         """The numeric offset that fits the image best with the other rules as they are, found rather than
@@ -428,6 +499,7 @@ class _Search:
         a, b = runs[0], runs[-1]
         if a == 0:
             self._offsets[key] = 0.0
+            self.intervals[("offset", key)] = (0.0, grid[b])
             return 0.0
 
         # Narrow the bracket around the best run in rounds, each a finer grid on the pixels of the whole
@@ -445,6 +517,7 @@ class _Search:
                 lo, hi = xs[run[0] - 1], xs[run[-1] + 1]
         x = simplest(lo, hi)
         self._offsets[key] = x
+        self.intervals[("offset", key)] = (lo, hi)
         return x
 
     def _one_step(self, start: Rules, name: str, value: Any) -> Variant | None:
@@ -452,7 +525,7 @@ class _Search:
         cache that is not shared (``VariantCache.share``) only one already there: the others are traced on
         the search's subset of pixels (``_traced``), all a single image's decision needs."""
         r = start if value == getattr(start, name) else replace(start, **{name: value})
-        if not _valid(r) or not (self.cache.share or r == start or self.cache.has(self.scene, r)):
+        if not valid_rules(r) or not (self.cache.share or r == start or self.cache.has(self.scene, r)):
             return None
         return self.cache.get(self.scene, r, pin=True)
 
@@ -494,7 +567,7 @@ class _Search:
             return None
         if color2 is not None:
             d = np.minimum(d, self.target.difference(color2, c, sub.idx))
-        before, after = sub.before, self._cls(d)
+        before, after = sub.before, self.classes(d)
         # ill-conditioned pixels count for neither; they matter only where the two differ
         keep = np.ones(sub.idx.size, dtype=bool)
         ch = np.flatnonzero(before != after)
@@ -513,7 +586,7 @@ class _Search:
         broke1 = count(r_, 0, 1) * sub.r_weight
         return fixed2 - worse - broke2, fixed1 - broke1 + worse - part
 
-    def _best_output(self, rules: Rules) -> Rules:
+    def best_output(self, rules: Rules) -> Rules:
         """The output rules (no render needed) that fit the image best for these traced rules: every
         encoding and gamma is encoded once and compared with the image in every layout, on a stride of
         about 4 SAMPLE pixels (single output-rule moves are verified in full later by the descent)."""
@@ -527,7 +600,7 @@ class _Search:
         best, best_key = rules, None
         for enc in encs:
             for gam in rules_mod.values("gamma"):
-                coded = _coded(color, replace(rules, encoding=enc, gamma=gam), self.target.is_float)
+                coded = coded_levels(color, replace(rules, encoding=enc, gamma=gam), self.target.is_float)
                 for tr in (False, True):
                     for rows in rules_mod.values("rows"):
                         for ch in rules_mod.values("channels"):

@@ -11,7 +11,7 @@ How an image is compared with a render (``Target.difference``, ``Target.score``)
 - Ill-conditioned pixels never count: a primary ray whose hit, closest shape or start inside a ball
   is within ``EPS_REL`` (a float32 tracer's rounding; minirt.diagnose.variants) of flipping
   (minirt.reference.band), a shadow ray that close to a ball's silhouette, a pixel whose float32 render
-  differs from its float64 one (minirt.diagnose.search's ``_Search.ill_at``, ``flips``). Comparing two
+  differs from its float64 one (minirt.diagnose.search's ``Search.ill_at``, ``flips``). Comparing two
   candidates, a pixel ill-conditioned in either is left out of both scores, so such a pixel never
   decides between them.
 """
@@ -96,7 +96,9 @@ class Target:
         return d > (FLOAT_TOL if self.is_float else LEVEL_TOL)
 
 
-def _coded(color: np.ndarray, rules: Rules, is_float: bool) -> np.ndarray:
+def coded_levels(color: np.ndarray, rules: Rules, is_float: bool) -> np.ndarray:
+    """A render's colour as an image of the target's kind holds it under ``rules``' output rules: 8-bit
+    levels (int16) or the gamma's floats -- what ``Target.difference`` compares, without the layout."""
     if is_float:
         return bitmap.transfer(color, rules.gamma)
     return bitmap.encode(color, rules.encoding, rules.gamma).astype(np.int16)

@@ -249,7 +249,7 @@ class Grade:
         if self.size_override:
             args += ["--width", str(self.size_override[0]), "--height", str(self.size_override[1])]
         if self.diagnosis:
-            for name, value in sorted(self.diagnosis.changed.items()):
+            for name, value in sorted(self.diagnosis.reproducing.items()):
                 args += ["--rule", f"{name}={value}"]
         return args
 
@@ -261,11 +261,12 @@ class Grade:
             return f"the image is the scene's model as given ({d.pixels} pixels)"
         k = len(d.unexplained)
         where = f", in {k} group{'s' if k != 1 else ''} by where they lie" if k else ""
-        if not d.changed:
+        undecided = f"; cannot decide {', '.join(sorted(d.undetermined))}" if d.undetermined else ""
+        if not d.changed and not d.undetermined:
             return f"{d.as_given_pixels} of {d.pixels} pixels differ; no rule setting explains them{where}"
-        rules = ", ".join(f"{k}={v}" for k, v in sorted(d.changed.items()))
+        rules = ", ".join(f"{k}={v}" for k, v in sorted(d.changed.items())) or "rules the image cannot decide"
         rest = f"; {d.mismatch_pixels} pixels still unexplained{where}" if d.mismatch_pixels else ""
-        return f"{d.as_given_pixels} of {d.pixels} pixels differ; explained by {rules}{rest}"
+        return f"{d.as_given_pixels} of {d.pixels} pixels differ; explained by {rules}{undecided}{rest}"
 
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -293,17 +294,32 @@ class Grade:
                     "rules": {n: rules_mod.format_rule_value(n, v) for n, v in d.given.as_dict().items()},
                 },
                 "diagnosis": {
+                    # the rules the image decides; ``undetermined`` those it cannot, with the values that fit
                     "rules": d.changed,
+                    "undetermined": d.undetermined,
+                    "undetermined_sentence": d.one_of.sentence if d.one_of else None,
                     "mismatch_pixels": d.mismatch_pixels,
+                    # pixels the answer draws wrong that the scene's own rules drew right
+                    "broken_pixels": d.broken_pixels,
+                    # evidence by leave-one-out: ``pixels`` wrong without the rule, ``against`` right without
+                    # it, ``neither``: changed by it and matching neither value (minirt.diagnose.evidence)
                     "explained": [
                         {
                             "rule": e.rule,
                             "value": e.value,
                             "pixels": e.pixels,
+                            "against": e.against,
+                            "neither": e.neither,
+                            "decided": e.rule not in d.undetermined,
+                            # a number read off the image: the values that fit as well (the named one is
+                            # the simplest inside)
+                            **({"interval": list(e.interval)} if e.interval else {}),
                             "sentence": sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule)),
                         }
                         for e in d.explained
                     ],
+                    # rules the search took that the image does not bear out, put back to the scene's value
+                    "rejected": [r.as_dict() for r in d.rejected],
                     "search": {"steps": d.steps, "renders": d.renders},
                     # where the pixels no rule setting explains lie (minirt.diagnose.rest), largest group first
                     "unexplained": [u.as_dict() for u in d.unexplained],

@@ -214,6 +214,9 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
             "value": e.value,
             "given": rules_mod.format_rule_value(e.rule, given),
             "pixels": e.pixels,
+            "against": e.against,
+            "neither": e.neither,
+            "decided": e.rule not in d.undetermined,
             "sentence": _rule_sentence(e.rule, yours, given),
             "picture": None,
         }
@@ -226,7 +229,9 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
     groups = []
     for k, u in enumerate(d.unexplained):
         item = {"pixels": u.pixels, "sentence": u.sentence, "example": u.example, "picture": None,
-                "probe": g.probe_command(*u.example)}  # fmt: skip
+                "probe": g.probe_command(*u.example),
+                "fit": u.fit.sentence if u.fit is not None else None,
+                "fit_reproduces": bool(u.fit is not None and u.fit.reproduces)}  # fmt: skip
         if base8 is not None and u.mask.shape == (h, w):
             item["picture"] = _picture(assets, f"{stem}-rest{k}.png", highlight(base8, u.mask, MASK_RGB), disp)
         groups.append(item)
@@ -238,7 +243,10 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
          "scene": i.get("scene_that_tells")}
         for i in d.indistinguishable
     ]  # fmt: skip
-    v["changed"] = bool(d.changed)
+    v["undetermined"] = d.one_of.sentence if d.one_of else ""
+    v["rejected"] = [r.as_dict() for r in d.rejected]
+    v["broken"] = d.broken_pixels
+    v["changed"] = bool(d.reproducing)
     v["unexplained"] = d.mismatch_pixels
     v["as_given"] = d.as_given_pixels
     v["reproduce"] = g.reproduce()

@@ -84,7 +84,7 @@ def test_page_content(single):
     assert "pixel_sample=center" in html and "rows=bottom-up" in html
     for e in d.explained:
         assert grading.sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule)) in html
-        assert f"{e.pixels} pixel(s) explained" in re.sub(r"</?b>", "", html)
+        assert f"evidence: {e.pixels} pixel(s) wrong without it" in re.sub(r"</?b>", "", html)
     assert f"{d.as_given_pixels} of {d.pixels} pixels differ" in html
     assert f"{int(d.ill.sum())} ill-conditioned pixel(s)" in html
     assert "clipped at 32" in html and "Cannot tell apart in this scene" in html

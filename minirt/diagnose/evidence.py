@@ -1,0 +1,371 @@
+"""What the image shows of each rule the search changed: evidence by leave-one-out, and "one of" where
+it cannot decide.
+
+The search (minirt.diagnose.search) returns the rule set that fits best; greedy steps can take a rule that
+gains a few pixels by accident, or that imitates a bug the table lacks. Before the diagnosis names a rule,
+``confirm`` puts it back to the scene's value in the final rule set and counts, on every pixel that is not
+ill-conditioned in either (``Search.ill_at``, float32 flips):
+
+- ``pixels``: made wrong by putting it back (the evidence for it);
+- ``against``: made right by putting it back (pixels the rule breaks);
+- ``neither``: pixels whose picture the rule changes (the two renders differ beyond tolerance) and that
+  match neither: the rule acts there, but the image shows something else.
+
+"Wrong" is beyond tolerance, except for a rule whose two values never differ by more than one level (the
+encoding, a gamma that barely moves): its only evidence is which one the image matches *exactly*.
+
+A rule is named only if pixels >= 1, pixels > against and pixels >= neither: it explains more than it breaks,
+and where it changes the picture the image mostly agrees with it. The weakest rule that fails is put back
+and every rule is weighed again (a rule's evidence depends on the others), until all hold. What is put
+back is listed (``Rejected``), with its counts, and the pixels it had claimed stay unexplained.
+
+``one_of`` then asks whether other rule sets fit the image exactly as well -- the same pixels beyond
+tolerance and (8-bit) nearly the same exact matches: the rule sets the search compared on every pixel,
+every single-rule change of the answer, the other ``offset_along`` with its own best offset, and for the
+numbers read off the image (offset, t_max, the exponent) the interval of values that fit equally. Rules on
+which such sets disagree are not named: they go to ``undetermined`` with the values that fit. A change of
+a rule the answer leaves at the scene's value whose image is the answer's own on every pixel is not one
+of these: the scene cannot tell the two apart, which ``indistinguishable`` says.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from minirt.diagnose.search import Search, single_moves, valid_rules
+from minirt.diagnose.target import coded_levels
+from minirt.model import bitmap
+from minirt.model import rules as rules_mod
+from minirt.model.rules import Rules
+
+# Rules only valid together: reverting one alone would leave offset_along = "ray" with "error-bound".
+COUPLED = (("offset", "offset_along"),)
+
+# Two rule sets fit "equally" when they leave the same pixels beyond tolerance and their exact 8-bit matches
+# differ by no more than a float32 tracer's rounding moves: a value within ~2^-22 (relative, a few dozen
+# roundings of 2^-24) of a rounding step lands on either side -- 255 · 2^-22 · 3 channels ≈ 2e-4 of the
+# pixels, so 1e-3 of them (plus one) is five times what rounding alone does.
+EQUAL_LEVELS = 1e-3
+
+# How far a search for the exponents that fit as well as the answer's goes, each way.
+EXPONENT_REACH = 16
+
+# A number read off the image (offset, t_max) whose interval of equally fitting values is this narrow
+# (relative) is decided: the diagnosis names the simplest number inside (search.simplest: what a student
+# writes, 0.5 / 1024 or 29.3) and gives the interval beside it. Wider, the image cannot decide it. 1 %: a
+# 200² image pins 0.5 / 1024 to 0.1 %, a t_max cut between two pixels' hits 29.28 and 29.31 to 0.1 %;
+# between 1e-6 and 1e-4 (two decades) no one number is the answer.
+NARROW = 0.01
+
+
+@dataclass
+class Evidence:
+    """One rule (or coupled pair) of the answer weighed by putting it back to the scene's value."""
+
+    rules: tuple[str, ...]
+    pixels: int  # made wrong by putting it back
+    against: int  # made right by putting it back: pixels the rule breaks
+    neither: int  # changed by the rule, matching neither value
+    mask: np.ndarray = field(repr=False)  # (H, W): the ``pixels``
+
+    @property
+    def holds(self) -> bool:
+        return self.pixels >= 1 and self.pixels > self.against and self.pixels >= self.neither
+
+    @property
+    def weight(self) -> int:
+        return self.pixels - self.against - self.neither
+
+
+@dataclass
+class Rejected:
+    """A rule the search took that the image does not bear out, with its counts (``Evidence``)."""
+
+    rule: str
+    value: str
+    pixels: int
+    against: int
+    neither: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "rule": self.rule,
+            "value": self.value,
+            "pixels": self.pixels,
+            "against": self.against,
+            "neither": self.neither,
+        }
+
+
+def groups_of(given: Rules, best: Rules) -> list[tuple[str, ...]]:
+    """The changed rules, as the units leave-one-out puts back: a coupled pair together when putting one back
+    alone would be no valid rule set."""
+    names = given.differs(best)
+    out: list[tuple[str, ...]] = []
+    for name in names:
+        back = replace(best, **{name: getattr(given, name)})
+        if valid_rules(back):
+            out.append((name,))
+            continue
+        pair = next(c for c in COUPLED if name in c)
+        unit = tuple(n for n in pair if n in names) or (name,)
+        if unit not in out:
+            out.append(unit)
+    return out
+
+
+def put_back(given: Rules, best: Rules, unit: tuple[str, ...]) -> Rules:
+    """``best`` with the rules of ``unit`` at the scene's values (the coupled rule too, where needed)."""
+    back = replace(best, **{n: getattr(given, n) for n in unit})
+    if not valid_rules(back):
+        pair = next(c for c in COUPLED if set(unit) & set(c))
+        back = replace(best, **{n: getattr(given, n) for n in pair})
+    return back
+
+
+class Weigher:
+    """Per-pixel classes (0 exact, 1 a level off, 2 beyond tolerance) of rule sets on one image, kept."""
+
+    def __init__(self, search: Search):
+        self.search = search
+        self._cls: dict[Rules, np.ndarray | None] = {}
+
+    def cls(self, rules: Rules) -> np.ndarray | None:
+        if rules not in self._cls:
+            d, _ = self.search.either(rules)
+            self._cls[rules] = None if d is None else self.search.classes(d).reshape(-1)
+        return self._cls[rules]
+
+    def ill(self, a: Rules, b: Rules, at: np.ndarray) -> np.ndarray:
+        """Ill-conditioned in either rule set, or drawn otherwise by a float32 render of either, at ``at``."""
+        s = self.search
+        va, vb = s.either(a)[1], s.either(b)[1]
+        return s.ill_at(a, va, at) | s.ill_at(b, vb, at) | s.flips(a)[at] | s.flips(b)[at]
+
+    def one_level(self, a: Rules, b: Rules) -> bool:
+        """Do a and b's images never differ by more than one level (or FLOAT_TOL) on any pixel? Then only
+        exact matches can tell them apart."""
+        s = self.search
+        isf = s.target.is_float
+        if isf or set(a.differs(b)) & {"rows", "channels", "transpose"}:
+            return False
+        ca, cb = s.cache.get(s.scene, a).color, s.cache.get(s.scene, b).color
+        da = coded_levels(ca.reshape(-1, 3), a, isf)
+        db = coded_levels(cb.reshape(-1, 3), b, isf)
+        return bool(bitmap.channel_max(np.abs(da - db)).max(initial=0) <= 1)
+
+    def evidence(self, best: Rules, back: Rules, unit: tuple[str, ...]) -> Evidence:
+        """``best`` weighed against ``back`` (``best`` with ``unit`` put back): see the module's docstring."""
+        cb, ck = self.cls(best), self.cls(back)
+        n = self.search.target._model_shape[0] * self.search.target._model_shape[1]
+        h, w = self.search.target._model_shape
+        if cb is None or ck is None:  # a layout that does not fit: the one that fits is all the evidence
+            mask = np.ones(n, bool) if ck is None else np.zeros(n, bool)
+            return Evidence(unit, n if ck is None else 0, n if cb is None else 0, 0, mask.reshape(h, w))
+        differ = np.flatnonzero(cb != ck)
+        keep = ~self.ill(best, back, differ)
+        a, k = cb[differ], ck[differ]
+        if self.one_level(best, back):
+            made_right, made_wrong = (k >= 1) & (a == 0), (a >= 1) & (k == 0)
+        else:
+            made_right, made_wrong = (k == 2) & (a < 2), (a == 2) & (k < 2)
+        mask = np.zeros(n, bool)
+        mask[differ[made_right & keep]] = True
+        neither = self._neither(best, back)
+        return Evidence(unit, int(mask.sum()), int((made_wrong & keep).sum()), neither, mask.reshape(h, w))
+
+    def _neither(self, best: Rules, back: Rules) -> int:
+        """Pixels beyond tolerance under both whose two renders differ beyond tolerance (written under best's
+        output rules; for output rules alone the pictures are the same colours: 0)."""
+        s = self.search
+        if not set(best.differs(back)) & set(rules_mod.TRACE_RULES):
+            return 0
+        cb, ck = self.cls(best), self.cls(back)
+        both = np.flatnonzero((cb == 2) & (ck == 2))
+        if both.size == 0:
+            return 0
+        isf = s.target.is_float
+        xb = coded_levels(s.cache.get(s.scene, best).color.reshape(-1, 3)[both], best, isf)
+        xk = coded_levels(s.cache.get(s.scene, back).color.reshape(-1, 3)[both], best, isf)
+        apart = s.target.beyond(bitmap.channel_max(np.abs(xb - xk)))
+        at = both[apart]
+        return int((~self.ill(best, back, at)).sum()) if at.size else 0
+
+
+def confirm(search: Search, given: Rules, best: Rules) -> tuple[Rules, list[Evidence], list[Rejected]]:
+    """Put back, one at a time and weakest first, every changed rule the image does not bear out (see the
+    module's docstring); return the rule set that is left, the evidence of each rule it changes, and what
+    was put back."""
+    weigh = Weigher(search)
+    rejected: list[Rejected] = []
+    while True:
+        found = [weigh.evidence(best, put_back(given, best, u), u) for u in groups_of(given, best)]
+        weak = [e for e in found if not e.holds]
+        if not weak:
+            return best, found, rejected
+        worst = min(weak, key=lambda e: (e.weight, e.pixels, e.rules))
+        for name in worst.rules:
+            value = rules_mod.format_rule_value(name, getattr(best, name))
+            rejected.append(Rejected(name, value, worst.pixels, worst.against, worst.neither))
+        best = put_back(given, best, worst.rules)
+
+
+def broken(weigh_search: Search, given: Rules, best: Rules) -> tuple[int, int]:
+    """(pixels beyond tolerance under ``given`` that ``best`` brings within it, pixels within tolerance under
+    ``given`` that ``best`` puts beyond it), leaving out pixels ill-conditioned in either."""
+    weigh = Weigher(weigh_search)
+    cg, cb = weigh.cls(given), weigh.cls(best)
+    if cg is None or cb is None:
+        return 0, 0
+    differ = np.flatnonzero((cg == 2) != (cb == 2))
+    keep = ~weigh.ill(given, best, differ)
+    fixed = (cg[differ] == 2) & (cb[differ] < 2) & keep
+    made = (cb[differ] == 2) & (cg[differ] < 2) & keep
+    return int(fixed.sum()), int(made.sum())
+
+
+# ---------------------------------------------------------------------------------------------------------
+@dataclass
+class OneOf:
+    """Rules the image cannot decide: each with the values that fit equally (a number's as an interval)."""
+
+    values: dict[str, list[Any]]  # rule -> values as --rule takes them (or {"from": lo, "to": hi})
+    alternatives: list[dict[str, str]]  # the equally fitting rule sets, restricted to those rules
+    sentence: str
+
+
+def same_tracer(a: Rules, b: Rules) -> bool:
+    """Are a and b one tracer written two ways? Pixel centres are pixel corners shifted by half a pixel, the
+    same rays bit for bit ((x + 0) + 0.5 = x + 0.5): no image can, or needs to, tell them apart."""
+
+    def shift(r: Rules) -> tuple[float, float]:
+        half = 0.5 if r.pixel_sample == "center" else 0.0
+        return (r.pixel_shift[0] + half, r.pixel_shift[1] + half)
+
+    return shift(a) == shift(b) and replace(a, pixel_sample="corner", pixel_shift=(0.0, 0.0)) == replace(
+        b, pixel_sample="corner", pixel_shift=(0.0, 0.0)
+    )
+
+
+def equal(search: Search, a: Rules, b: Rules) -> bool:
+    """Do a and b fit the image equally well (``EQUAL_LEVELS``; ill-conditioned pixels left out)?"""
+    g = search.compare(a, b)
+    if g is None:
+        return False
+    n = search.target._model_shape[0] * search.target._model_shape[1]
+    return g[0] == 0 and abs(g[1]) <= EQUAL_LEVELS * n + 1
+
+
+def _candidates(search: Search, given: Rules, best: Rules) -> list[Rules]:
+    """Rule sets that might fit as well as ``best``: compared during the search, one rule away, one named
+    rule put back and another changed (a pixel shift of half a pixel draws pixel centres), and the other
+    offset_along with its own best offset."""
+    out = [r for r in search.compared if r != best]
+    names = rules_mod.TRACE_RULES + (rules_mod.OUTPUT_RULES if search.outputs else ())
+    out += single_moves(best, names)
+    for unit in groups_of(given, best):
+        back = put_back(given, best, unit)
+        out += [m for m in single_moves(back, names, search.moot(back)) if not set(back.differs(m)) <= set(unit)]
+    if isinstance(best.offset, float) and "offset" not in search.moot(best):
+        for along in rules_mod.values("offset_along"):
+            other = replace(best, offset_along=along)
+            x = search.best_offset_everywhere(other)
+            if x is not None and valid_rules(replace(other, offset=x)):
+                out.append(replace(other, offset=x))
+    seen, unique = set(), []
+    for r in out:
+        if r not in seen and valid_rules(r):
+            seen.add(r)
+            unique.append(r)
+    return unique
+
+
+def one_of(search: Search, given: Rules, best: Rules) -> OneOf | None:
+    """The rules on which rule sets that fit as well as ``best`` disagree, among those that change a rule
+    ``best`` names (None when there are none)."""
+    named = set(given.differs(best))
+    equals: list[Rules] = []
+    for r in _candidates(search, given, best):
+        if same_tracer(best, r) or not search.quick_not_worse(best, r):
+            continue
+        if not equal(search, best, r):
+            continue
+        if not set(best.differs(r)) & named:
+            continue  # about a rule the answer does not name: ``indistinguishable`` says what the scene cannot show
+        equals.append(r)
+    values: dict[str, list[Any]] = {}
+    for name, (lo, hi) in _intervals(search, best).items():
+        values[name] = [{"from": lo, "to": hi}]
+    for r in equals:
+        for name in best.differs(r):
+            for v in (best, r):
+                shown = _value(search, name, v)
+                values.setdefault(name, [])
+                if shown not in values[name]:
+                    values[name].append(shown)
+    if not values:
+        return None
+    names = sorted(values)
+    alts = []
+    for r in [best, *equals]:
+        alt = {n: _shown(_value(search, n, r)) for n in names}
+        if alt not in alts:
+            alts.append(alt)
+    return OneOf(values, alts, _sentence(values, alts))
+
+
+def narrow(iv: tuple[float, float]) -> bool:
+    """Is an interval of equally fitting numbers narrow enough to name the simplest one (``NARROW``)?"""
+    lo, hi = iv
+    return hi <= lo * (1 + NARROW) or (lo == hi)
+
+
+def _value(search: Search, name: str, r: Rules) -> Any:
+    """Rule ``name`` of ``r`` as --rule takes it, or for a number read off the image the interval of values
+    that fit as well (``Search.interval``)."""
+    iv = search.interval(name, r) if name in ("offset", "t_max") else None
+    if iv is not None and not narrow(iv):
+        return {"from": iv[0], "to": iv[1]}
+    return rules_mod.format_rule_value(name, getattr(r, name))
+
+
+def _intervals(search: Search, best: Rules) -> dict[str, tuple[float, float]]:
+    """The numbers of ``best`` read off the image whose neighbours fit as well: the offset's and t_max's
+    brackets from the search, the exponents on either side that fit equally."""
+    out: dict[str, tuple[float, float]] = {}
+    for name in ("offset", "t_max"):
+        iv = search.interval(name, best)
+        if iv is not None and not narrow(iv) and getattr(best, name) != rules_mod.default(name):
+            out[name] = iv
+    e = best.specular_exponent
+    if e != rules_mod.default("specular_exponent") and "specular_exponent" not in search.moot(best):
+        lo = hi = e
+        for step in (-1, 1):
+            x = e + step
+            while abs(x - e) <= EXPONENT_REACH and 1 <= x <= rules_mod.SPECULAR_EXPONENT_MAX:
+                if not equal(search, best, replace(best, specular_exponent=x)):
+                    break
+                lo, hi = min(lo, x), max(hi, x)
+                x += step
+        if lo < hi:
+            out["specular_exponent"] = (lo, hi)
+    return out
+
+
+def _shown(v: Any) -> str:
+    if isinstance(v, dict):
+        return f"between {v['from']:g} and {v['to']:g}"
+    return str(v)
+
+
+def _sentence(values: dict[str, list[Any]], alts: list[dict[str, str]]) -> str:
+    if len(alts) > 1 and len(values) > 1:
+        options = " or ".join(", ".join(f"{k}={v}" for k, v in a.items()) for a in alts)
+        head = f"the image cannot decide {', '.join(sorted(values))}: {options} fit it equally well"
+    else:
+        parts = [f"your {k} is {' or '.join(_shown(v) for v in vs)}" for k, vs in sorted(values.items())]
+        head = "; ".join(parts) + ": the image fits each equally well"
+    return head + "; grade your program (minirt grade --program) to tell them apart."
