@@ -213,20 +213,6 @@ def confirm(search: Search, given: Rules, best: Rules) -> tuple[Rules, list[Evid
         best = put_back(given, best, worst.rules)
 
 
-def broken(weigh_search: Search, given: Rules, best: Rules) -> tuple[int, int]:
-    """(pixels beyond tolerance under ``given`` that ``best`` brings within it, pixels within tolerance under
-    ``given`` that ``best`` puts beyond it), leaving out pixels ill-conditioned in either."""
-    weigh = Weigher(weigh_search)
-    cg, cb = weigh.cls(given), weigh.cls(best)
-    if cg is None or cb is None:
-        return 0, 0
-    differ = np.flatnonzero((cg == 2) != (cb == 2))
-    keep = ~weigh.ill(given, best, differ)
-    fixed = (cg[differ] == 2) & (cb[differ] < 2) & keep
-    made = (cb[differ] == 2) & (cg[differ] < 2) & keep
-    return int(fixed.sum()), int(made.sum())
-
-
 # ---------------------------------------------------------------------------------------------------------
 @dataclass
 class OneOf:
@@ -297,7 +283,7 @@ def one_of(search: Search, given: Rules, best: Rules) -> OneOf | None:
             continue  # about a rule the answer does not name: ``indistinguishable`` says what the scene cannot show
         equals.append(r)
     values: dict[str, list[Any]] = {}
-    for name, (lo, hi) in _intervals(search, best).items():
+    for name, (lo, hi) in _intervals(search, given, best).items():
         values[name] = [{"from": lo, "to": hi}]
     for r in equals:
         for name in best.differs(r):
@@ -332,16 +318,17 @@ def _value(search: Search, name: str, r: Rules) -> Any:
     return rules_mod.format_rule_value(name, getattr(r, name))
 
 
-def _intervals(search: Search, best: Rules) -> dict[str, tuple[float, float]]:
-    """The numbers of ``best`` read off the image whose neighbours fit as well: the offset's and t_max's
-    brackets from the search, the exponents on either side that fit equally."""
+def _intervals(search: Search, given: Rules, best: Rules) -> dict[str, tuple[float, float]]:
+    """The numbers ``best`` names (changes from ``given``) read off the image whose neighbours fit as well:
+    the offset's and t_max's brackets from the search, the exponents on either side that fit equally."""
     out: dict[str, tuple[float, float]] = {}
+    named = set(given.differs(best))
     for name in ("offset", "t_max"):
         iv = search.interval(name, best)
-        if iv is not None and not narrow(iv) and getattr(best, name) != rules_mod.default(name):
+        if iv is not None and not narrow(iv) and name in named:
             out[name] = iv
     e = best.specular_exponent
-    if e != rules_mod.default("specular_exponent") and "specular_exponent" not in search.moot(best):
+    if "specular_exponent" in named and "specular_exponent" not in search.moot(best):
         lo = hi = e
         for step in (-1, 1):
             x = e + step

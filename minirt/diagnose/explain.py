@@ -109,17 +109,22 @@ def diagnose(
     broken_pixels = 0
     if alternatives:  # a grade: name only what the image bears out (minirt.diagnose.evidence)
         best, found, rejected = evidence.confirm(search, given, best)
-        fixed, broken_pixels = evidence.broken(search, given, best)
+    pair = [given, best]
+    mg, _, ill_g = search.final_mask(given, pair)
+    mb, off_b, ill_b = search.final_mask(best, pair)
+    if alternatives:
+        # the pixels the answer draws wrong that the scene's own rules drew right: counted, never the student's
+        fixed, broken_pixels = int((mg & ~mb).sum()), int((mb & ~mg).sum())
         if best != given and broken_pixels > fixed:  # breaks more than it explains: no answer
             rejected += [
                 evidence.Rejected(n, rules_mod.format_rule_value(n, getattr(best, n)), fixed, broken_pixels, 0)
                 for n in given.differs(best)
             ]
             best, found, broken_pixels = given, [], 0
+            pair = [given, best]
+            mg, _, ill_g = search.final_mask(given, pair)
+            mb, off_b, ill_b = search.final_mask(best, pair)
         one_of = evidence.one_of(search, given, best)
-    pair = [given, best]
-    mg, _, ill_g = search.final_mask(given, pair)
-    mb, off_b, ill_b = search.final_mask(best, pair)
     shape = search.target._model_shape
     explained = []
     if alternatives:

@@ -30,6 +30,11 @@ _NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False, strict=True)]
 # TOML arrays arrive as lists: the triple itself is lax (list -> tuple), its components stay strict.
 _Vec = Annotated[tuple[_Finite, _Finite, _Finite], Field(strict=False)]
 _Color = Annotated[tuple[_NonNeg, _NonNeg, _NonNeg], Field(strict=False)]
+# A material's colours may be negative: real solutions derive materials that way (a diffuse colour of
+# (0.1, -0.9, -0.9)), and grading their images needs the scene they rendered. Said as a warning
+# (``colour_warnings``), not refused. Bounded like geometry: beyond 1e100 squared terms overflow.
+_Signed = Annotated[float, Field(allow_inf_nan=False, strict=True, ge=-LIMIT, le=LIMIT)]
+_SignedColor = Annotated[tuple[_Signed, _Signed, _Signed], Field(strict=False)]
 
 
 def _at_least_tiny(v: float) -> float:
@@ -78,10 +83,10 @@ class _Render(_Strict):
 
 
 class _Material(_Strict):
-    ambient: _Color = (0.0, 0.0, 0.0)
-    diffuse: _Color = (0.0, 0.0, 0.0)
-    specular: _Color = (0.0, 0.0, 0.0)
-    reflection: _Color = (0.0, 0.0, 0.0)
+    ambient: _SignedColor = (0.0, 0.0, 0.0)
+    diffuse: _SignedColor = (0.0, 0.0, 0.0)
+    specular: _SignedColor = (0.0, 0.0, 0.0)
+    reflection: _SignedColor = (0.0, 0.0, 0.0)
 
 
 class _Ball(_Strict):
@@ -345,6 +350,24 @@ def _floats(v: tuple[float, ...]) -> Vec3:
 
 # 256 MiB: room for a scene of a million balls (about 100 MB of TOML); a larger file is a mistake
 MAX_SCENE_BYTES = 256 * 2**20
+
+
+def colour_warnings(scene: Scene) -> list[str]:
+    """One line per material with a negative colour component (allowed: see ``_SignedColor``)."""
+    out, seen = [], set()
+    for k, shape in enumerate(scene.shapes):
+        m = shape.material
+        if id(m) in seen:
+            continue
+        seen.add(id(m))
+        bad = [f"{term} {list(getattr(m, term))}" for term in ("ambient", "diffuse", "specular", "reflection")
+               if any(c < 0 for c in getattr(m, term))]  # fmt: skip
+        if bad:
+            out.append(
+                f"material {m.name or f'of shape {k}'!r} has negative colour components ({'; '.join(bad)}): "
+                "drawn as given, as a student's tracer would"
+            )
+    return out
 
 
 def load_scene(path: str | Path) -> Scene:

@@ -39,7 +39,7 @@ from minirt.model.effects import effects
 from minirt.model.result import RenderResult
 from minirt.model.roots import row_norm
 from minirt.model.rules import Rules
-from minirt.model.scene import Ball, Scene
+from minirt.model.scene import Ball, Scene, colour_warnings
 
 UNIT_ROUNDOFF = {"f64": 2.0**-53, "f32": 2.0**-24}
 DETAIL_FRACTION = 2.0**-8  # see the module docstring: a move beyond 1/256 of the scene's detail is visible
@@ -446,7 +446,8 @@ def scene_warnings(
     HAZARD_PREVIEW_PIXELS when larger; none when that render cannot be made: it said why itself)."""
     from minirt.reference import tracer  # deferred: the tracer imports Dr.Jit, needed only without ``reference``
 
-    lines = float32_warnings(scene, "float32 (" + ", ".join(float32_by) + ")") if float32_by else []
+    lines = colour_warnings(scene)
+    lines += float32_warnings(scene, "float32 (" + ", ".join(float32_by) + ")") if float32_by else []
     if rules.offset == "error-bound":
         return lines
     note = ""

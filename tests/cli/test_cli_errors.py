@@ -22,10 +22,10 @@ CASES = [
     ("bool is not a number", ("radius = 0.5", "radius = true"), "shapes[0].radius: must be a number"),
     ("nan", ("radius = 0.5", "radius = nan"), "shapes[0].radius: must be a finite number, got nan"),
     ("infinite", ("center = [0.0, 0.0, 4.0]", "center = [0.0, inf, 4.0]"), "shapes[0].center[1]: must be a finite"),
-    (
-        "negative colour",
-        ("diffuse = [0.5, 0.5, 0.5]", "diffuse = [0.5, -0.5, 0.5]"),
-        "materials.m.diffuse[1]: must be >= 0",
+    (  # (a material's colours may be negative: tests/diagnose/test_honest.py)
+        "negative light colour",
+        ("position = [10.0, 10.0, -1.0]", "position = [10.0, 10.0, -1.0]\ncolor = [1.0, -1.0, 1.0]"),
+        "light.color[1]: must be >= 0",
     ),
     ("radius zero", ("radius = 0.5", "radius = 0"), "shapes[0].radius: must be > 0, got 0"),
     ("radius negative", ("radius = 0.5", "radius = -1"), "shapes[0].radius: must be > 0, got -1"),
