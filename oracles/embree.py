@@ -68,6 +68,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from minirt.io.atomic import write_all
 from minirt.model import camera
 from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult, geometry_from_flat
@@ -574,15 +575,13 @@ class EmbreeOracle(Oracle):
 
         opts = self._options(options, scene)
         out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
         tscene = trimesh.Scene()
         for k, m in enumerate(shape_meshes(scene, opts["subdivisions"], opts["far_factor"])):
             tscene.add_geometry(m, node_name=f"shape{k}", geom_name=f"shape{k}")
         glb = out / "embree_scene.glb"
-        glb.write_bytes(tscene.export(file_type="glb"))
         tess = tessellation(opts["subdivisions"])
         notes = out / "embree_scene.json"
-        notes.write_text(
+        text = (
             json.dumps(
                 {
                     "mesh": glb.name,
@@ -599,7 +598,7 @@ class EmbreeOracle(Oracle):
             )
             + "\n"
         )
-        return [glb, notes]
+        return write_all({glb: tscene.export(file_type="glb"), notes: text})  # both whole, or neither
 
     # ---- the sweep (minirt.sweep): what accuracy costs in time ---------------------------------
     sweep_knobs: ClassVar[dict[str, Any]] = {"subdivisions": tuple(range(MAX_SUBDIVISIONS + 1))}

@@ -39,9 +39,51 @@ def write_image(path: str | Path, pixels: np.ndarray, channels: list[str] | None
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
             raise MinirtError(f"{path}: cannot write image: {oiio.geterror()}")
-        ok = out.open(str(tmp), spec) and out.write_image(a) and out.close()
-        if not ok:
-            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+        why = finished(out, tmp, written(out.open(str(tmp), spec) and out.write_image(a), out))
+        if why:
+            raise MinirtError(f"{path}: cannot write image: {why}")
+
+
+def written(ok: bool, out: Any) -> str | None:
+    """None when an OpenImageIO write succeeded, else why not (one line). OpenImageIO's PNG writer
+    records a short write -- a full disk -- as an error but still returns True: its error flag decides."""
+    if ok and not out.has_error:
+        return None
+    lines = out.geterror().splitlines()
+    return " ".join(lines[0].split()) if lines else "unknown error"
+
+
+def finished(out: Any, tmp: Path, why: str | None = None) -> str | None:
+    """Close ``out``, an OpenImageIO output writing the file ``tmp`` (``why``: an earlier write's
+    failure); None when the whole image reached the file, else why not (one line)."""
+    why = written(out.close(), out) or why
+    return why or _whole(tmp)
+
+
+PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # a PNG's last chunk: IEND, empty, its CRC
+CUT_SHORT = "the file was cut short: fewer bytes reached the disk than the image has (a full disk?)"
+
+
+def _whole(tmp: Path) -> str | None:
+    """OpenImageIO loses the error of the writes it makes at close (the last buffer): a PNG or an EXR
+    cut short at a full disk's end still "succeeds" (measured with OpenImageIO 3.2 under RLIMIT_FSIZE:
+    an 8,192-byte prefix of a 10 KB PNG, no error). So a PNG must end with its IEND chunk (it is written
+    in order, never sought back into); an EXR's first and last rows must read back (each a chunk of its
+    own; the offsets table is read on opening). A few bytes or two chunks read: no decoding of the image."""
+    if tmp.suffix.lower() == ".png":
+        with open(tmp, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - len(PNG_END)))
+            return None if f.read() == PNG_END else CUT_SHORT
+    inp = oiio.ImageInput.open(str(tmp))
+    if inp is None:
+        return CUT_SHORT
+    try:
+        s = inp.spec()
+        ok = inp.read_scanline(s.y, 0) is not None and inp.read_scanline(s.y + s.height - 1, 0) is not None
+    finally:
+        inp.close()
+    return None if ok else CUT_SHORT
 
 
 def _spec(w: int, h: int, c: int, fmt: Any, path: Path, channels: list[str] | None = None) -> Any:
@@ -94,8 +136,9 @@ def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, 
         for y0, tile in tiles:
             c8 = np.ascontiguousarray(tile.color8())
             png = opened("png", c8.shape[-1], oiio.UINT8, None)
-            if not png.write_scanlines(y0, y0 + tile.height, 0, c8):
-                raise MinirtError(f"{paths['png']}: cannot write image: {png.geterror()}")
+            why = written(png.write_scanlines(y0, y0 + tile.height, 0, c8), png)
+            if why:
+                raise MinirtError(f"{paths['png']}: cannot write image: {why}")
             blocks, names = _exr_layout(tile)
             exr = opened("exr", len(names), oiio.FLOAT, names)
             if buf is None:
@@ -103,8 +146,9 @@ def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, 
             _write_rows(exr, paths["exr"], blocks, y0, tile.height, buf)
             last = tile
         for key, (_, out) in outs.items():
-            if out is None or not out.close():
-                raise MinirtError(f"{paths[key]}: cannot write image: {'no rows' if out is None else out.geterror()}")
+            why = "no rows" if out is None else finished(out, outs[key][0])
+            if why:
+                raise MinirtError(f"{paths[key]}: cannot write image: {why}")
     assert last is not None
     meta = dict(last.meta)
     write_json(
@@ -234,8 +278,9 @@ def write_exr(path: str | Path, result: RenderResult, stop: threading.Event | No
         except BaseException:
             out.close()  # before the temporary file goes (OpenEXR says nothing of the missing rows; and no
             raise  # _quiet_stderr here: this may run on the background writer, and fd 2 is the process's)
-        if not out.close():
-            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+        why = finished(out, tmp)
+        if why:
+            raise MinirtError(f"{path}: cannot write image: {why}")
 
 
 def _write_rows(out: Any, path: Path, blocks, y0: int, height: int, buf: np.ndarray, stop=None) -> None:
@@ -245,8 +290,9 @@ def _write_rows(out: Any, path: Path, blocks, y0: int, height: int, buf: np.ndar
         if stop is not None and stop.is_set():
             raise _Abandoned(path)
         n = min(len(buf), height - y)
-        if not out.write_scanlines(y0 + y, y0 + y + n, 0, _fill(blocks, slice(y, y + n), buf[:n])):
-            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+        why = written(out.write_scanlines(y0 + y, y0 + y + n, 0, _fill(blocks, slice(y, y + n), buf[:n])), out)
+        if why:
+            raise MinirtError(f"{path}: cannot write image: {why}")
 
 
 class _Abandoned(Exception):

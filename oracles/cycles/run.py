@@ -133,7 +133,10 @@ def run_job(job: dict[str, Any], folder: Path, timeout: float) -> dict[str, Any]
     if exe is None:
         raise FileNotFoundError(INSTALL_HINT)
     path = folder / "job.json"
-    path.write_text(json.dumps(job), encoding="utf-8")
+    try:
+        path.write_text(json.dumps(job), encoding="utf-8")
+    except OSError as e:  # a full disk: the error names the file (a write's own error names none)
+        raise OSError(e.errno, e.strerror, str(path)) from None
     t0 = time.perf_counter()
     with _lock:
         blender = next((b for b in reversed(_idle) if b.exe == str(exe)), None)
@@ -150,6 +153,25 @@ def run_job(job: dict[str, Any], folder: Path, timeout: float) -> dict[str, Any]
             with _lock:
                 _idle.append(blender)
     return {**said, "wall": time.perf_counter() - t0}
+
+
+ZSTD_FRAME = b"\x28\xb5\x2f\xfd"  # a zstd frame's magic number: Blender 5 compresses its files so
+ZSTD_SEEK_TABLE_END = b"\xb1\xea\x92\x8f"  # the seekable format's last 4 bytes (Blender's compressed files)
+BLEND_END = b"ENDB"  # the code of an uncompressed .blend's last block (its header: at most 32 bytes)
+
+
+def whole_blend(path: Path) -> bool:
+    """Does the .blend Blender saved end as one does? Blender loses the error of its last write (a
+    full disk cut a 660 KB file at 614,400 bytes, and Blender said it saved), so the end is looked at:
+    a compressed file ends with its seek table's magic number, an uncompressed one with its ENDB block."""
+    with open(path, "rb") as f:
+        head = f.read(len(ZSTD_FRAME))
+        f.seek(0, os.SEEK_END)
+        f.seek(max(0, f.tell() - 32))
+        tail = f.read()
+    if head == ZSTD_FRAME:
+        return tail.endswith(ZSTD_SEEK_TABLE_END)
+    return head == b"BLEN" and BLEND_END in tail
 
 
 DONE = "minirt-cycles-done"  # the line after each job's answer: the process serves the next one
