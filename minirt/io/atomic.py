@@ -19,6 +19,7 @@ import contextlib
 import functools
 import os
 import re
+import stat
 import tempfile
 from pathlib import Path
 
@@ -68,6 +69,9 @@ def atomic_path(path: Path, mode: int | None = None):
     Python sees (an error, Ctrl-C, SIGTERM); those a killed run left in a folder are removed by this
     process's first write there. An OSError (a full disk) names `path`, not the temporary file."""
     path = Path(path)
+    if is_device(path):  # /dev/null, /dev/stdout: a stream, written into as it is, never replaced
+        yield path
+        return
     path.parent.mkdir(parents=True, exist_ok=True)
     _sweep_once(path.parent)
     try:
@@ -91,6 +95,27 @@ def atomic_path(path: Path, mode: int | None = None):
     finally:
         if os.path.lexists(tmp):
             os.unlink(tmp)
+
+
+DEVICE_FOLDERS = ("/dev/", "/proc/")  # where a name is a device or a process's stream, not a file
+
+
+def is_device(path: Path) -> bool:
+    """Does ``path`` name a device or a stream -- /dev/null, /dev/stdout, /proc/self/fd/1, a character
+    device -- rather than a file? Such a destination is written into, never replaced: the rename would
+    replace the device node itself (as root: /dev/null became a plain file). A symlink in an output
+    folder pointing at a regular file is not one: it is replaced, its target untouched."""
+    hop = os.path.abspath(path)
+    for _ in range(40):  # the name, then each link's target in turn (/dev/stdout -> /proc/self/fd/1 -> ...)
+        if hop.startswith(DEVICE_FOLDERS):
+            return True
+        if not os.path.islink(hop):
+            break
+        hop = os.path.join(os.path.dirname(hop), os.readlink(hop))
+        hop = os.path.abspath(hop)
+    with contextlib.suppress(OSError):
+        return stat.S_ISCHR(os.stat(path).st_mode)
+    return False
 
 
 def _flush(tmp: str) -> None:

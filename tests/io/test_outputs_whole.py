@@ -266,3 +266,15 @@ def test_a_grade_page_holds_a_hostile_name_as_visible_text(tmp_path):
     assert "esc\\x1b[31m bel\\x07 nul\\x00" in text
     bad = {c for c in page if (ord(c) < 0x20 and c not in "\n\t") or 0x7F <= ord(c) < 0xA0 or c == "\ufffe"}
     assert not bad, bad
+
+
+def test_a_device_named_as_the_output_is_written_into_never_replaced(tmp_path):
+    """`--json /dev/null` (as root) must not replace /dev/null with a file. Tried through a link to it in
+    the test's own folder (a wrong writer then replaces the link, not the system's /dev/null): a link
+    whose target is a device is written through, the device still one afterwards."""
+    link = tmp_path / "out.json"
+    link.symlink_to(os.devnull)
+    atomic.write_text(link, "{}\n")
+    assert link.is_symlink() and stat.S_ISCHR(os.stat(os.devnull).st_mode)
+    assert atomic.is_device(Path("/dev/stdout")) and atomic.is_device(Path("/proc/self/fd/1"))
+    assert not atomic.is_device(tmp_path / "a.json")
