@@ -126,6 +126,19 @@ def test_numpys_warnings_are_minirts_own_lines(tmp_path):
     assert all(ln.startswith(("minirt: ", "huge ", "  ", "wrote ")) for ln in p.stderr.splitlines()), p.stderr
 
 
+def test_mitsubas_log_is_minirts_warning_lines(tmp_path):
+    """Mitsuba printed its own line, with colour codes and a date, for the same ball: `WARN [Sphere]
+    'to_world' transform shouldn't contain non-uniform scaling!`."""
+    scene = tmp_path / "huge.toml"
+    scene.write_text(HUGE_BALL)
+    p = subprocess.run([*MINIRT, "render", str(scene), "-b", "mitsuba", "-o", str(tmp_path / "out")],
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    text = p.stdout + p.stderr
+    assert "\x1b" not in text and " WARN " not in text, text
+    assert "minirt: warning: RuntimeWarning: Mitsuba: [Sphere] 'to_world' transform shouldn't" in p.stderr, text
+
+
 def test_a_leftover_warning_is_one_minirt_line():
     """Any warning minirt does not say itself reaches the user as one ``minirt: warning:`` line: no path,
     no source line."""
