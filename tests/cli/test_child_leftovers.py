@@ -94,6 +94,28 @@ def test_what_a_killed_run_left_in_tmpdir_is_removed_by_the_next(tmp_path):
     assert sorted(x.name for x in tmpdir.iterdir()) == []
 
 
+def test_an_interrupted_run_on_workers_leaves_nothing_in_tmpdir(tmp_path):
+    """The embedded Dask cluster (--workers 2) made $TMPDIR/dask-scratch-space/worker-*, left by every
+    interrupted run: its $TMPDIR is now a folder of minirt's own, removed when the cluster stops."""
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    args = ["fuzz", "--workers", "2", "-n", "40", "--out", tmp_path / "fuzz"]
+    p = subprocess.Popen([*MINIRT, *map(str, args)], env=env_with(tmpdir), stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not any(tmpdir.rglob("worker-*")):
+            assert time.monotonic() < deadline and p.poll() is None, "the cluster's workers did not start"
+            time.sleep(0.1)
+        time.sleep(1.0)  # the workers are working
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+    finally:
+        p.kill()
+    assert p.returncode == 130, err
+    assert sorted(q.name for q in tmpdir.iterdir()) == []
+
+
 # ---------------------------------------------------------------------------------------------
 HUGE_BALL = """[scene]
 name = "huge"
