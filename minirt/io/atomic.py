@@ -6,7 +6,8 @@ temporary name in the destination's own folder, flushed to the disk (fsync), the
 So an interrupted or failing run (a full disk, Ctrl-C) never leaves a half-written output file: what
 was there before stays. The rename replaces the destination's directory entry itself: a symlink (or a
 FIFO, a socket) planted under the output's name is replaced by the file, never written through, so
-its target is untouched. An error names the output file, never the temporary one.
+its target is untouched. An error names the output file, never the temporary one. A device named as
+the output (``--json /dev/null``, ``/dev/stdout``: :func:`is_device`) is written into, never replaced.
 
 The temporary files of runs that were killed (SIGKILL, a crash: no handler ran) carry the dead writer's
 pid and are removed by the next write to their folder; :func:`stale` finds such leftovers, here and for
@@ -76,8 +77,8 @@ def atomic_path(path: Path, mode: int | None = None):
     _sweep_once(path.parent)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp{os.getpid()}-", suffix=path.suffix, dir=path.parent)
-    except OSError as e:
-        raise _named(e, "", path) from None
+    except OSError as e:  # the folder cannot take a new file (read-only, full): said of the output
+        raise _named(e, e.filename, path) from None
     try:
         try:
             os.fchmod(fd, mode if mode is not None else 0o666 & ~_umask())  # mkstemp's is 0600
@@ -101,21 +102,18 @@ DEVICE_FOLDERS = ("/dev/", "/proc/")  # where a name is a device or a process's 
 
 
 def is_device(path: Path) -> bool:
-    """Does ``path`` name a device or a stream -- /dev/null, /dev/stdout, /proc/self/fd/1, a character
-    device -- rather than a file? Such a destination is written into, never replaced: the rename would
-    replace the device node itself (as root: /dev/null became a plain file). A symlink in an output
-    folder pointing at a regular file is not one: it is replaced, its target untouched."""
-    hop = os.path.abspath(path)
-    for _ in range(40):  # the name, then each link's target in turn (/dev/stdout -> /proc/self/fd/1 -> ...)
-        if hop.startswith(DEVICE_FOLDERS):
-            return True
-        if not os.path.islink(hop):
-            break
-        hop = os.path.join(os.path.dirname(hop), os.readlink(hop))
-        hop = os.path.abspath(hop)
-    with contextlib.suppress(OSError):
-        return stat.S_ISCHR(os.stat(path).st_mode)
-    return False
+    """Does ``path`` name a device or a stream -- ``/dev/null``, ``/dev/stdout``, ``/proc/self/fd/1`` --
+    rather than a file? A name given in /dev or /proc that is there and not a regular file. Such a
+    destination is written into, never replaced: the rename would replace the device node itself (as
+    root: /dev/null became a plain file). Only a name the user gives counts: a symlink in an output
+    folder is replaced whatever it points to (a device included), never written through."""
+    name = os.path.abspath(path)
+    if not name.startswith(DEVICE_FOLDERS):
+        return False
+    try:
+        return not stat.S_ISREG(os.lstat(name).st_mode)
+    except OSError:
+        return False
 
 
 def _flush(tmp: str) -> None:

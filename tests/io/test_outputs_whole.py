@@ -269,12 +269,23 @@ def test_a_grade_page_holds_a_hostile_name_as_visible_text(tmp_path):
 
 
 def test_a_device_named_as_the_output_is_written_into_never_replaced(tmp_path):
-    """`--json /dev/null` (as root) must not replace /dev/null with a file. Tried through a link to it in
-    the test's own folder (a wrong writer then replaces the link, not the system's /dev/null): a link
-    whose target is a device is written through, the device still one afterwards."""
-    link = tmp_path / "out.json"
-    link.symlink_to(os.devnull)
+    """`--json /dev/null` (as root) must not replace /dev/null with a file. Tried on a stream of the test's
+    own: /proc/self/fd/N, a name in /proc for a file in the test's folder (a wrong writer fails to make
+    its temporary file in /proc, and replaces nothing)."""
+    target = tmp_path / "stream.txt"
+    fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        atomic.write_text(Path(f"/proc/self/fd/{fd}"), "{}\n")
+    finally:
+        os.close(fd)
+    assert target.read_text() == "{}\n"
+    assert atomic.is_device(Path("/dev/stdout")) and atomic.is_device(Path(os.devnull))
+    assert not atomic.is_device(tmp_path / "a.json") and not atomic.is_device(Path("/dev/shm/not-there.json"))
+
+
+def test_a_planted_link_to_a_device_is_replaced_not_written_into(tmp_path):
+    link = tmp_path / "report.json"
+    link.symlink_to(os.devnull)  # a link to /dev/sda would be the harmful one
     atomic.write_text(link, "{}\n")
-    assert link.is_symlink() and stat.S_ISCHR(os.stat(os.devnull).st_mode)
-    assert atomic.is_device(Path("/dev/stdout")) and atomic.is_device(Path("/proc/self/fd/1"))
-    assert not atomic.is_device(tmp_path / "a.json")
+    assert not link.is_symlink() and link.read_text() == "{}\n"
+    assert stat.S_ISCHR(os.stat(os.devnull).st_mode)
