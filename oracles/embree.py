@@ -231,7 +231,11 @@ def _hit_face_normals(mesh, hit_faces: np.ndarray):
     faces = np.unique(hit_faces)
     normals = np.zeros((len(faces), 3))
     if len(faces):
-        unit, valid = trimesh.triangles.normals(triangles=mesh.vertices[mesh.faces[faces]])
+        # A face's squared cross product overflows float64 only for edges past ~1e77, far past float32's
+        # range, which minirt.reference.hazards.scene_warnings reports for Embree (a float32 backend); the
+        # face is then degenerate here (normal zero), as trimesh says of it.
+        with np.errstate(over="ignore"):
+            unit, valid = trimesh.triangles.normals(triangles=mesh.vertices[mesh.faces[faces]])
         normals[valid] = unit
     return lambda wanted: normals[np.searchsorted(faces, wanted)]
 

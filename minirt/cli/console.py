@@ -76,18 +76,11 @@ def warn(scene_name: str, line: str) -> None:
 def own_warnings() -> None:
     """A warning from NumPy or another library that minirt does not say in its own words reaches the user
     as one line, ``minirt: warning: CATEGORY: message`` -- never the library's source path and line
-    (``hazards.py:428: RuntimeWarning: overflow encountered in cast`` and the code). Each text once."""
-    import warnings
+    (``hazards.py:428: RuntimeWarning: overflow encountered in cast`` and the code). Each text once
+    (minirt.jobs.logs.warnings_as_lines; the embedded cluster's workers say theirs the same way)."""
+    from minirt.jobs.logs import warnings_as_lines
 
-    said: set[str] = set()
-
-    def show(message, category, filename, lineno, file=None, line=None) -> None:  # warnings.showwarning's
-        text = f"{category.__name__}: {' '.join(str(message).split())}"
-        if text not in said:
-            said.add(text)
-            err.print(terminal_text(f"minirt: warning: {text}", MAX_MESSAGE))
-
-    warnings.showwarning = show
+    warnings_as_lines(lambda line: err.print(line, markup=False))
 
 
 def emit_json(dest: str, data: dict[str, Any]) -> None:

@@ -161,6 +161,20 @@ def test_mitsubas_log_is_minirts_warning_lines(tmp_path):
     assert "minirt: warning: RuntimeWarning: Mitsuba: [Sphere] 'to_world' transform shouldn't" in p.stderr, text
 
 
+def test_a_worker_says_its_warnings_as_minirt_lines(tmp_path):
+    """check --workers 2 of the ball of radius 1e100 with Embree: a worker printed trimesh's
+    `util.py:162: RuntimeWarning: overflow encountered in multiply` and the source line. Embree's normals
+    are now computed without the warning (the float32 line says it), and a worker's warnings are minirt
+    lines like the command's own."""
+    scene = tmp_path / "huge.toml"
+    scene.write_text(HUGE_BALL)
+    p = subprocess.run([*MINIRT, "check", str(scene), "-b", "embree", "--size", "16x16", "--workers", "2", "-q"],
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert p.returncode in (0, 1), p.stderr
+    assert "Warning:" not in p.stderr and ".py:" not in p.stderr, p.stderr
+    assert "minirt: warning: huge: shapes[0].radius = 1e+100 is inf in float32 (embree)" in p.stderr, p.stderr
+
+
 def test_a_leftover_warning_is_one_minirt_line():
     """Any warning minirt does not say itself reaches the user as one ``minirt: warning:`` line: no path,
     no source line."""
@@ -180,6 +194,12 @@ def test_a_leftover_warning_is_one_minirt_line():
         "minirt: warning: DeprecationWarning: a library says something",
         "minirt: warning: UserWarning: a library says something",
     ], p.stderr
+    # A worker's (minirt.jobs.worker): the same lines on its standard error, which is minirt's.
+    worker = code.replace("from minirt.cli import console\nconsole.own_warnings()", "from minirt.jobs import logs\n"
+                          "logs.warnings_as_lines()")  # fmt: skip
+    assert worker != code
+    p = subprocess.run([sys.executable, "-W", "always", "-c", worker], capture_output=True, text=True, timeout=60)
+    assert p.stderr.splitlines() == lines, p.stderr
 
 
 # ---------------------------------------------------------------------------------------------
