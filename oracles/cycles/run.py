@@ -163,9 +163,10 @@ BLEND_END = b"ENDB"  # the code of an uncompressed .blend's last block (its head
 
 
 def whole_blend(path: Path) -> bool:
-    """Does the .blend Blender saved end as one does? Blender loses the error of its last write (a
-    full disk cut a 660 KB file at 614,400 bytes, and Blender said it saved), so the end is looked at:
-    a compressed file ends with its seek table's magic number, an uncompressed one with its ENDB block."""
+    """Does the .blend Blender saved end as one does? Blender can lose the error of its last write (a
+    file-size limit, which fails writes as a full disk does, cut a 660 KB file at 614,400 bytes, and
+    Blender said it saved), so the end is looked at: a compressed file ends with its seek table's magic
+    number, an uncompressed one with its ENDB block."""
     with open(path, "rb") as f:
         head = f.read(len(ZSTD_FRAME))
         f.seek(0, os.SEEK_END)
