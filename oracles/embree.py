@@ -68,6 +68,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from minirt.io.atomic import write_all
 from minirt.model import camera
 from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult, geometry_from_flat
@@ -230,7 +231,11 @@ def _hit_face_normals(mesh, hit_faces: np.ndarray):
     faces = np.unique(hit_faces)
     normals = np.zeros((len(faces), 3))
     if len(faces):
-        unit, valid = trimesh.triangles.normals(triangles=mesh.vertices[mesh.faces[faces]])
+        # A face's squared cross product overflows float64 only for edges past ~1e77, far past float32's
+        # range, which minirt.reference.hazards.scene_warnings reports for Embree (a float32 backend); the
+        # face is then degenerate here (normal zero), as trimesh says of it.
+        with np.errstate(over="ignore"):
+            unit, valid = trimesh.triangles.normals(triangles=mesh.vertices[mesh.faces[faces]])
         normals[valid] = unit
     return lambda wanted: normals[np.searchsorted(faces, wanted)]
 
@@ -574,15 +579,13 @@ class EmbreeOracle(Oracle):
 
         opts = self._options(options, scene)
         out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
         tscene = trimesh.Scene()
         for k, m in enumerate(shape_meshes(scene, opts["subdivisions"], opts["far_factor"])):
             tscene.add_geometry(m, node_name=f"shape{k}", geom_name=f"shape{k}")
         glb = out / "embree_scene.glb"
-        glb.write_bytes(tscene.export(file_type="glb"))
         tess = tessellation(opts["subdivisions"])
         notes = out / "embree_scene.json"
-        notes.write_text(
+        text = (
             json.dumps(
                 {
                     "mesh": glb.name,
@@ -599,7 +602,7 @@ class EmbreeOracle(Oracle):
             )
             + "\n"
         )
-        return [glb, notes]
+        return write_all({glb: tscene.export(file_type="glb"), notes: text})  # both whole, or neither
 
     # ---- the sweep (minirt.sweep): what accuracy costs in time ---------------------------------
     sweep_knobs: ClassVar[dict[str, Any]] = {"subdivisions": tuple(range(MAX_SUBDIVISIONS + 1))}

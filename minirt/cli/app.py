@@ -21,7 +21,7 @@ from typing import Annotated
 import typer
 
 from minirt.cli import check, fuzz, grade, inventory, probe, render, sweep
-from minirt.cli.console import MAX_MESSAGE, PipeClosed, err, out
+from minirt.cli.console import MAX_MESSAGE, PipeClosed, err, out, own_warnings
 from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
 
@@ -181,6 +181,7 @@ def _exit(code: int) -> None:
 def main() -> None:
     _collect_less()
     _normal_pages()
+    own_warnings()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, _on_signal)
     try:

@@ -132,7 +132,7 @@ def check(
 
     Exit status: 0 all pass (or warn/skip), 1 a check failed, 2 bad input or a backend error.
     """
-    from minirt.io.atomic import atomic_path
+    from minirt.io import atomic
 
     if json_out != "-":
         output_file(Path(json_out) if json_out else None, "--json")
@@ -145,8 +145,7 @@ def check(
     if junit:
         from minirt.harness.junit import junit_xml
 
-        with atomic_path(junit) as tmp:
-            tmp.write_text(junit_xml(result))
+        atomic.write_text(junit, junit_xml(result))
     counts = {v: 0 for v in ("pass", "warn", "fail", "error", "skip")}
     for s in result.scenes:
         for b in s.backends.values():

@@ -1,4 +1,5 @@
 """What the command line says, and where: the two consoles, progress bars, warnings and --json output.
+A library's warning that minirt does not word itself is one ``minirt: warning:`` line (``own_warnings``).
 
 rich draws tables and progress bars on stderr (``err``); results go to stdout (``out``). Messages built
 from untrusted parts (a file name, a scene key) pass through minirt.io.untrusted.terminal_text first. A
@@ -70,6 +71,16 @@ def progress_bar(enabled: bool = True):
 def warn(scene_name: str, line: str) -> None:
     """A warning: one line on stderr, ``minirt: warning: SCENE: ...`` (as errors are ``minirt: error: ...``)."""
     err.print(terminal_text(f"minirt: warning: {scene_name}: {line}", MAX_MESSAGE))
+
+
+def own_warnings() -> None:
+    """A warning from NumPy or another library that minirt does not say in its own words reaches the user
+    as one line, ``minirt: warning: CATEGORY: message`` -- never the library's source path and line
+    (``hazards.py:428: RuntimeWarning: overflow encountered in cast`` and the code). Each text once
+    (minirt.jobs.logs.warnings_as_lines; the embedded cluster's workers say theirs the same way)."""
+    from minirt.jobs.logs import warnings_as_lines
+
+    warnings_as_lines(lambda line: err.print(line, markup=False))
 
 
 def emit_json(dest: str, data: dict[str, Any]) -> None:

@@ -94,14 +94,18 @@ def render(
         err.print(
             f"[bold]{terminal_text(scene.name)}[/] {w}x{h}, {scene.samples} sample(s)/pixel, profile {scene.profile}"
         )
-    results = []
-    # The files are written by a thread of their own while the warnings are worked out (minirt.io.images).
+    results, written = [], []
+    # The files are written by a thread of their own while the warnings are worked out (minirt.io.images);
+    # a backend is said "ok" only once they are written (leaving the block waits: a full disk is an error).
     with images.background_writes():
-        _render_all(names, scene, rules, precision, samples, timeout, dest, tag, timings, quiet, results)
+        _render_all(names, scene, rules, precision, samples, timeout, dest, tag, timings, quiet, results, written)
         ref = backends.reference_result(results)
         f32 = [n for n in names if backends.get(n).is_float32({"precision": precision.value})]
-        for line in hazards.scene_warnings(scene, rules, ref, precision.value, f32):
-            warn(scene.name, line)
+        said = list(hazards.scene_warnings(scene, rules, ref, precision.value, f32))
+    for res, paths in written if not quiet else ():
+        _report_render(res, paths)
+    for line in said:
+        warn(scene.name, line)
     if len(results) > 1:
         from minirt.pages.sheet import contact_sheet
 
@@ -115,8 +119,9 @@ def render(
         raise typer.Exit(2)
 
 
-def _render_all(names, scene, rules, precision, samples, timeout, dest, tag, timings, quiet, results) -> None:
-    """Each backend's render and files, its line printed (into ``results``, in order)."""
+def _render_all(names, scene, rules, precision, samples, timeout, dest, tag, timings, quiet, results, written) -> None:
+    """Each backend's render and files (into ``results``, in order); a failure's line printed, a success
+    kept in ``written`` with its files' paths, to be said once they are written."""
     from minirt.harness import backends
     from minirt.io import names as naming
 
@@ -138,8 +143,7 @@ def _render_all(names, scene, rules, precision, samples, timeout, dest, tag, tim
                 bar.update(task, completed=1, total=1)
             results.append(res)
             if res.ok:
-                if not quiet:
-                    _report_render(res, paths)
+                written.append((res, paths))
             else:
                 err.print(f"  {name:<9} [yellow]{res.status.upper()}[/]: {terminal_text(res.reason)}")
 

@@ -334,7 +334,9 @@ class Grade:
 GRADE_RESIZE = "grade with --size {w}x{h}"
 
 
-def load_target(path: str | Path, scene: Scene | None = None, resize: str = GRADE_RESIZE) -> dg.Target:
+def load_target(
+    path: str | Path, scene: Scene | None = None, resize: str = GRADE_RESIZE, notes: list[str] | None = None
+) -> dg.Target:
     """The image to grade. With ``scene``, its header's size is checked against the scene's (``size_notes``;
     ``resize`` is the advice for another size, given the image's {w} and {h}) and the memory a grade of
     it needs (``GRADE_RESIZE``; else only its pixels') against what is available, before a pixel is
@@ -358,7 +360,7 @@ def load_target(path: str | Path, scene: Scene | None = None, resize: str = GRAD
                 "use a machine with more memory, or a smaller render of the same scene",
             )
 
-    pixels, is_float = read_student_image(path, before_decoding)
+    pixels, is_float = read_student_image(path, before_decoding, notes)  # notes: how the image was read
     return dg.Target(pixels, is_float, str(path))
 
 
@@ -392,8 +394,9 @@ def grade_image(
 ) -> Grade:
     """Grade one image of one scene (raises MinirtError for bad input)."""
     scene = scene.with_overrides(samples=1)  # the exercise traces one ray per pixel
-    target = load_target(image, scene)  # the size and the memory checked before the image is decoded
-    notes = check_size(scene, target, str(image))
+    notes: list[str] = []  # how the image was read (16-bit holding 8-bit levels), then its size
+    target = load_target(image, scene, notes=notes)  # the size and the memory checked before the image is decoded
+    notes += check_size(scene, target, str(image))
     # one image on its own: its search traces the scene's one-step variants on its subset of pixels only
     # (VariantCache.share); a class passes the cache its images share
     d = dg.diagnose(scene, rules, target, cache or dg.VariantCache(share=False))

@@ -402,13 +402,10 @@ def shipped(name: str) -> dict[str, Any]:
 
 
 def write_schemas(folder: Path = SCHEMAS) -> list[Path]:
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name in DOCUMENTS:
-        p = folder / f"{name}.schema.json"
-        p.write_text(schema_text(name), encoding="utf-8")
-        paths.append(p)
-    return paths
+    """Every document's schema as ``folder/NAME.schema.json`` (``make schemas``), through minirt.io.atomic."""
+    from minirt.io.atomic import write_all
+
+    return write_all({folder / f"{name}.schema.json": schema_text(name) for name in DOCUMENTS})
 
 
 if __name__ == "__main__":

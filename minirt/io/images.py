@@ -39,9 +39,53 @@ def write_image(path: str | Path, pixels: np.ndarray, channels: list[str] | None
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
             raise MinirtError(f"{path}: cannot write image: {oiio.geterror()}")
-        ok = out.open(str(tmp), spec) and out.write_image(a) and out.close()
-        if not ok:
-            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+        why = finished(out, tmp, written(out.open(str(tmp), spec) and out.write_image(a), out))
+        if why:
+            raise MinirtError(f"{path}: cannot write image: {why}")
+
+
+def written(ok: bool, out: Any) -> str | None:
+    """None when an OpenImageIO write succeeded, else why not (one line). OpenImageIO's PNG writer
+    records a short write -- a full disk -- as an error but still returns True: its error flag decides.
+    (Not other formats': the TIFF writer flags its Exif directory as failed in a whole, readable file;
+    ``finished`` reads every image's end back.)"""
+    if ok and not (out.has_error and out.format_name() == "png"):
+        return None
+    lines = out.geterror().splitlines()
+    return " ".join(lines[0].split()) if lines else "unknown error"
+
+
+def finished(out: Any, tmp: Path, why: str | None = None) -> str | None:
+    """Close ``out``, an OpenImageIO output writing the file ``tmp`` (``why``: an earlier write's
+    failure); None when the whole image reached the file, else why not (one line)."""
+    why = written(out.close(), out) or why
+    return why or _whole(tmp)
+
+
+PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # a PNG's last chunk: IEND, empty, its CRC
+CUT_SHORT = "the file was cut short: fewer bytes reached the disk than the image has (a full disk?)"
+
+
+def _whole(tmp: Path) -> str | None:
+    """OpenImageIO loses the error of the writes it makes at close (the last buffer): a PNG or an EXR
+    cut short at a full disk's end still "succeeds" (measured with OpenImageIO 3.2 under RLIMIT_FSIZE:
+    an 8,192-byte prefix of a 10 KB PNG, no error). So a PNG must end with its IEND chunk (it is written
+    in order, never sought back into); an EXR's first and last rows must read back (each a chunk of its
+    own; the offsets table is read on opening). A few bytes or two chunks read: no decoding of the image."""
+    if tmp.suffix.lower() == ".png":
+        with open(tmp, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - len(PNG_END)))
+            return None if f.read() == PNG_END else CUT_SHORT
+    inp = oiio.ImageInput.open(str(tmp))
+    if inp is None:
+        return CUT_SHORT
+    try:
+        s = inp.spec()
+        ok = inp.read_scanline(s.y, 0) is not None and inp.read_scanline(s.y + s.height - 1, 0) is not None
+    finally:
+        inp.close()
+    return None if ok else CUT_SHORT
 
 
 def _spec(w: int, h: int, c: int, fmt: Any, path: Path, channels: list[str] | None = None) -> Any:
@@ -94,8 +138,9 @@ def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, 
         for y0, tile in tiles:
             c8 = np.ascontiguousarray(tile.color8())
             png = opened("png", c8.shape[-1], oiio.UINT8, None)
-            if not png.write_scanlines(y0, y0 + tile.height, 0, c8):
-                raise MinirtError(f"{paths['png']}: cannot write image: {png.geterror()}")
+            why = written(png.write_scanlines(y0, y0 + tile.height, 0, c8), png)
+            if why:
+                raise MinirtError(f"{paths['png']}: cannot write image: {why}")
             blocks, names = _exr_layout(tile)
             exr = opened("exr", len(names), oiio.FLOAT, names)
             if buf is None:
@@ -103,8 +148,9 @@ def write_tiles(tiles, width: int, height: int, out_dir: str | Path, stem: str, 
             _write_rows(exr, paths["exr"], blocks, y0, tile.height, buf)
             last = tile
         for key, (_, out) in outs.items():
-            if out is None or not out.close():
-                raise MinirtError(f"{paths[key]}: cannot write image: {'no rows' if out is None else out.geterror()}")
+            why = "no rows" if out is None else finished(out, outs[key][0])
+            if why:
+                raise MinirtError(f"{paths[key]}: cannot write image: {why}")
     assert last is not None
     meta = dict(last.meta)
     write_json(
@@ -234,8 +280,9 @@ def write_exr(path: str | Path, result: RenderResult, stop: threading.Event | No
         except BaseException:
             out.close()  # before the temporary file goes (OpenEXR says nothing of the missing rows; and no
             raise  # _quiet_stderr here: this may run on the background writer, and fd 2 is the process's)
-        if not out.close():
-            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+        why = finished(out, tmp)
+        if why:
+            raise MinirtError(f"{path}: cannot write image: {why}")
 
 
 def _write_rows(out: Any, path: Path, blocks, y0: int, height: int, buf: np.ndarray, stop=None) -> None:
@@ -245,8 +292,9 @@ def _write_rows(out: Any, path: Path, blocks, y0: int, height: int, buf: np.ndar
         if stop is not None and stop.is_set():
             raise _Abandoned(path)
         n = min(len(buf), height - y)
-        if not out.write_scanlines(y0 + y, y0 + y + n, 0, _fill(blocks, slice(y, y + n), buf[:n])):
-            raise MinirtError(f"{path}: cannot write image: {out.geterror()}")
+        why = written(out.write_scanlines(y0 + y, y0 + y + n, 0, _fill(blocks, slice(y, y + n), buf[:n])), out)
+        if why:
+            raise MinirtError(f"{path}: cannot write image: {why}")
 
 
 class _Abandoned(Exception):
@@ -400,15 +448,18 @@ class ImageHeader:
     channels: int
     is_float: bool  # float or 16-bit: decoded as float32; else 8-bit levels
     reader: str  # OpenImageIO's name for the format ("png", "openexr", ...)
+    sixteen_bit: bool = False  # 16-bit integers (is_float too; read_student_image: maybe 8-bit levels)
 
 
 def read_student_image(
-    path: str | Path, before_decoding: Callable[[ImageHeader], None] | None = None
+    path: str | Path, before_decoding: Callable[[ImageHeader], None] | None = None, notes: list[str] | None = None
 ) -> tuple[np.ndarray, bool]:
     """An image another tracer wrote, as (rows, columns, 3): uint8 levels for 8-bit files, float32
     for float and 16-bit files (the bool says which). Grey images are repeated into R, G and B; an
     alpha channel is ignored: colours are read as stored (OpenImageIO would otherwise multiply them by
-    alpha), and alpha itself is never decoded.
+    alpha), and alpha itself is never decoded. A 16-bit file whose every value is a multiple of 257 holds
+    an 8-bit image (level k stored as 257 k, k/255 exactly: the usual widening) and is read as those 8-bit
+    levels, a sentence saying so appended to ``notes`` (a grade's notes).
 
     The file is untrusted: it must be a regular file (a FIFO, a device or a socket is refused without
     being opened, so nothing blocks), it is opened once, without blocking, and decoded from that open
@@ -423,9 +474,25 @@ def read_student_image(
                 f"{path}: unsupported image type {path.suffix or '(none)'} (use {', '.join(STUDENT_EXTENSIONS)})"
             )
         with _opened_name(fd, path.suffix) as opened, _quiet_stderr():  # libpng and friends print their own
-            return _read_student_image(path, opened, before_decoding)  # complaint; ours is the one line
+            colour, is_float, held = _read_student_image(path, opened, before_decoding)  # complaint; ours the line
+            if held and notes is not None:
+                notes.append(
+                    "the image is 16-bit, every value a multiple of 257: the 8-bit image it holds (level k stored "
+                    "as 257 k) is graded as 8-bit levels"
+                )
+            return colour, is_float
     finally:
         os.close(fd)
+
+
+def _held_levels(colour: np.ndarray) -> np.ndarray | None:
+    """The 8-bit levels a 16-bit image (as OpenImageIO's floats v/65535) holds when every value v is a
+    multiple of 257, else None. v is recovered exactly: float32 v/65535 is within 2^-24 relative of it,
+    far less than the 0.5/65535 that rounding v*65535 to an integer allows."""
+    v = np.rint(colour * np.float32(65535)).astype(np.uint32)
+    if np.any(v % 257):
+        return None
+    return (v // 257).astype(np.uint8)
 
 
 _KINDS = {stat.S_IFIFO: "a FIFO", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device"}
@@ -504,7 +571,8 @@ def _remove_pinning_folder(pid: int) -> None:
 
 def _read_student_image(
     path: Path, opened: str | None, before_decoding: Callable[[ImageHeader], None] | None
-) -> tuple[np.ndarray, bool]:
+) -> tuple[np.ndarray, bool, bool]:
+    """(colour, is_float, whether a 16-bit file's 8-bit levels were read: ``_held_levels``)."""
     _error(oiio)  # a stale error of an earlier read must not be taken for this file's
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)  # colours as stored: not multiplied by alpha on read
@@ -523,7 +591,8 @@ def _read_student_image(
     colour = a if a.shape[-1] == 3 else np.repeat(a, 3, axis=-1)
     if header.is_float and not np.isfinite(colour).all():
         raise MinirtError(f"{path}: the image holds NaN or infinite values")
-    return colour, header.is_float
+    levels = _held_levels(colour) if header.sixteen_bit else None
+    return (colour, header.is_float, False) if levels is None else (levels, False, True)
 
 
 def _header(path: Path, inp: Any) -> ImageHeader:
@@ -543,7 +612,7 @@ def _header(path: Path, inp: Any) -> ImageHeader:
     if c > MAX_CHANNELS:
         raise MinirtError(f"{path}: the image says it has {c} channels, more than {MAX_CHANNELS}")
     is_float = spec.format.basetype in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE) or spec.format.size() > 1
-    return ImageHeader(path, w, h, c, is_float, inp.format_name())
+    return ImageHeader(path, w, h, c, is_float, inp.format_name(), spec.format.basetype == oiio.UINT16)
 
 
 def _decode(path: Path, inp: Any, header: ImageHeader, opened: str | None) -> np.ndarray:

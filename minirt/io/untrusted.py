@@ -10,6 +10,8 @@ functions, and nobody else, turn such text into text for a terminal, a page, a C
   ``\\x1b`` / ``\\u202e`` escapes, markup escaped, very long text cut (with the count of what was cut).
 - :func:`page_text` -- for an HTML page (every string a page template shows, before Jinja2's
   autoescape): the same escapes, newlines kept (a description's lines), nothing cut.
+- :func:`xml_text` -- for XML (JUnit): the same escapes (XML 1.0 forbids NUL, ESC, BEL and most other
+  controls), newlines kept, nothing cut; ElementTree escapes the markup.
 - :func:`csv_cell` -- for a CSV cell: the same escapes, and a cell a spreadsheet would evaluate as a
   formula neutralised by OWASP's rule (a leading ``'``).
 - :func:`file_stem` -- for a file name inside an output folder: portable characters only, never empty,
@@ -70,6 +72,14 @@ def page_text(text: str) -> str:
     page holds no raw ESC, BEL, NUL or tab, no bidi override that reorders what it shows, and no lone
     surrogate (which UTF-8 cannot encode); newlines are kept (a scene's description is shown as written),
     nothing is cut."""
+    return printable(text, None, keep="\n")
+
+
+def xml_text(text: object) -> str:
+    """Untrusted text for XML 1.0 (JUnit's attributes; ElementTree then escapes ``<``, ``&`` and quotes):
+    XML 1.0 forbids most control characters (NUL, ESC, BEL: a parser rejects the whole file), lone
+    surrogates and U+FFFE/U+FFFF, so they -- and the other characters a terminal would act on -- are
+    written visibly as ``\\x1b``-style escapes (:func:`printable`), newlines kept, nothing cut."""
     return printable(text, None, keep="\n")
 
 

@@ -39,14 +39,28 @@ STOP_SECONDS = 5.0
 def local_cluster(workers: int) -> Iterator[Callable[[], str]]:
     """An embedded cluster of ``workers`` processes for the block (module docstring), started at once; what
     it yields gives the scheduler's address, waiting for it (the caller imports Dask meanwhile)."""
-    from minirt.errors import MinirtError
-    from minirt.jobs.processes import python_env, spawn
+    import shutil
 
-    # The workers import the jobs' functions by name
-    p = spawn(
-        [sys.executable, "-m", "minirt.jobs.cluster", str(workers)],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=python_env(),
-    )  # fmt: skip
+    from minirt.jobs.processes import new_temporary_folder, python_env, spawn
+
+    # The workers import the jobs' functions by name. Their $TMPDIR is a folder of minirt's own (Dask's
+    # dask-scratch-space/worker-* and what the workers' renderers make there were left behind by every
+    # interrupted run), removed when the cluster has stopped, or by the next run if minirt was killed.
+    tmp = new_temporary_folder("minirt-dask-")
+    with contextlib.ExitStack() as gone:
+        gone.callback(shutil.rmtree, tmp, ignore_errors=True)
+        p = spawn(
+            [sys.executable, "-m", "minirt.jobs.cluster", str(workers)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env={**python_env(), "TMPDIR": str(tmp)},
+        )  # fmt: skip
+        with _stopped(p, workers) as address:
+            yield address
+
+
+@contextlib.contextmanager
+def _stopped(p: subprocess.Popen, workers: int) -> Iterator[Callable[[], str]]:
+    """The cluster process ``p`` for the block, stopped after it (at once on an error or an interrupt)."""
+    from minirt.errors import MinirtError
 
     def address() -> str:
         said = _first_line(p, START_SECONDS)

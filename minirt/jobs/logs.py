@@ -1,4 +1,6 @@
-"""Dask's log records, said minirt's way: one line each, or nothing when the command says it already.
+"""Dask's log records, said minirt's way: one line each, or nothing when the command says it already;
+and Python's warnings (NumPy's, a library's) likewise, in minirt's process and in each worker
+(``warnings_as_lines``).
 
 Dask logs through ``logging`` -- in this process (the client), in the embedded cluster's process (its
 scheduler and nannies, minirt.jobs.cluster) and in every worker -- multi-line records with tracebacks
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Callable
 
 
 class OneLine(logging.Handler):
@@ -68,3 +71,33 @@ def route_logs(silent: bool = False) -> None:
         lg.propagate = not top
         if top or lg.level < logging.ERROR:
             lg.setLevel(logging.ERROR)
+
+
+def warnings_as_lines(say: Callable[[str], None] | None = None) -> None:
+    """Every warning this process shows -- NumPy's "overflow encountered in cast", a library's -- as one
+    line, ``minirt: warning: CATEGORY: message`` (made inert: minirt.io.untrusted.printable), never
+    the source path and line Python prints; each text once. ``say``: how the line is written (the
+    command line's console); else standard error (a worker of the embedded cluster, whose standard
+    error is minirt's)."""
+    import warnings
+
+    from minirt.io.untrusted import printable
+
+    said: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:  # warnings.showwarning's
+        text = f"{category.__name__}: {' '.join(str(message).split())}"
+        if text in said:
+            return
+        said.add(text)
+        out = printable(f"minirt: warning: {text}", 2000)  # no markup: ``say`` prints it as text
+        try:
+            if say is not None:
+                say(out)
+            else:
+                sys.stderr.write(out + "\n")
+                sys.stderr.flush()
+        except (OSError, ValueError):  # standard error is gone: nobody to tell
+            pass
+
+    warnings.showwarning = show

@@ -9,7 +9,9 @@ A renderer run as a subprocess (POV-Ray) must stop when minirt stops, however it
   ``setpriv --pdeathsig KILL`` -- the kernel kills it when the thread that started it dies. Where
   setpriv is missing the child still has its own process group and a time-out.
 - The temporary folders such runs leave are named ``PREFIX<pid>-...``; the next :func:`temporary_folder`
-  of the same prefix removes those whose process is gone.
+  (or :func:`new_temporary_folder`) of the same prefix removes those whose process is gone. A child that
+  makes temporary folders of its own (Blender's ``blender_XXXXXX``, left behind whenever it is killed) is
+  given a $TMPDIR inside such a folder, so what it leaves goes with it.
 
 Each child runs in a new session (its own process group), so a terminal's Ctrl-C reaches minirt only,
 and minirt decides: kill the children, clean up, exit 130.
@@ -167,8 +169,18 @@ def kill_all() -> None:
 def temporary_folder(prefix: str) -> Iterator[Path]:
     """A temporary folder ``PREFIX<pid>-XXXX`` removed on every exit path Python sees; those of killed
     runs (SIGKILL, a crash) are removed by the next call."""
+    tmp = new_temporary_folder(prefix)
+    try:
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def new_temporary_folder(prefix: str) -> Path:
+    """A new folder ``$TMPDIR/PREFIX<pid>-XXXX`` that the caller removes (``temporary_folder`` does, on
+    leaving its block; a child's own $TMPDIR, once the child has ended: minirt.oracles.cycles.run); first
+    the folders of the same prefix whose run is gone (SIGKILL, a crash: nobody removed them) are removed."""
     base = Path(tempfile.gettempdir())
     for q in stale(base, re.compile(re.escape(prefix) + r"(\d+)-")):
         shutil.rmtree(q, ignore_errors=True)
-    with tempfile.TemporaryDirectory(prefix=f"{prefix}{os.getpid()}-") as tmp:
-        yield Path(tmp)
+    return Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-"))

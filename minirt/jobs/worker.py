@@ -10,7 +10,8 @@ worker takes any job. Never imported by minirt itself: importing it makes the pr
 - **Logs go through minirt.** The worker prints none of Dask's records itself (a job's "Compute Failed"
   with its traceback, a heartbeat lost while the cluster stops): those at ERROR and above are forwarded to
   minirt (``Client.forward_logging``), which says each in one line, or not at all when the job's ERROR
-  row says it (minirt.jobs.logs.route_logs).
+  row says it (minirt.jobs.logs.route_logs). A Python warning is one ``minirt: warning:`` line
+  (minirt.jobs.logs.warnings_as_lines), never a source path.
 """
 
 from __future__ import annotations
@@ -26,10 +27,11 @@ def ignore_interrupts() -> None:
 
 def dask_setup(worker) -> None:
     """Called by Dask in the worker process once the module is imported."""
-    from minirt.jobs.logs import route_logs
+    from minirt.jobs.logs import route_logs, warnings_as_lines
 
     ignore_interrupts()
     route_logs(silent=True)
+    warnings_as_lines()  # a job's NumPy warning: one minirt line, as in minirt's own process
 
 
 ignore_interrupts()  # at import: the earliest point of a worker process at which Dask runs minirt's code

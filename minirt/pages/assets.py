@@ -51,7 +51,7 @@ class Assets:
         key = hashlib.sha256(pixels.tobytes() + str(pixels.shape).encode()).hexdigest()
         if self.by_content:
             name = f"{key[:24]}.png"
-            if not (self.folder / name).is_file():  # same name, same pixels: written by another page
+            if not _mine(self.folder / name):  # same name, same pixels: written by another page
                 write_image(self.folder / name, pixels)
             return f"{self.href}/{name}"
         if key in self._links:
@@ -61,7 +61,7 @@ class Assets:
 
     def shared(self, name: str, pixels: np.ndarray) -> str:
         """A picture under a fixed name, the same pixels on every page: written when the folder lacks it."""
-        if not (self.folder / name).is_file():
+        if not _mine(self.folder / name):
             write_image(self.folder / name, pixels)
         self.written[name] = name
         return f"{self.href}/{name}"
@@ -87,6 +87,11 @@ class Assets:
         for p in self.folder.glob("*.png"):
             if p.name not in self.written:
                 p.unlink()
+
+
+def _mine(path: Path) -> bool:
+    """Is ``path`` a file of its own (not a symlink planted under its name, which is replaced)?"""
+    return path.is_file() and not path.is_symlink()
 
 
 def highlight(base8: np.ndarray, mask: np.ndarray, rgb: tuple[int, int, int] = YELLOW) -> np.ndarray:

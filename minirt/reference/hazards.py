@@ -409,6 +409,7 @@ def offset_at(scene: Scene, rules: Rules, p, n, sid: int, shadow=None, reflectio
     }
 
 
+@np.errstate(over="ignore")  # a value past float32's range is inf there: the line below says so
 def float32_warnings(scene: Scene, who: str = "float32") -> list[str]:
     """One line per scene key whose value float32 cannot hold to the scene's detail (module docstring)."""
     w, h = scene.camera.width, scene.camera.height

@@ -68,13 +68,14 @@ Conventions bridged (each one is a place where Cycles and the exercise differ):
 from __future__ import annotations
 
 import math
-import shutil
 import time
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
+from minirt.errors import MinirtError
+from minirt.io.atomic import atomic_path
 from minirt.io.names import scene_stem
 from minirt.jobs import processes
 from minirt.model import camera
@@ -466,19 +467,27 @@ class CyclesOracle(Oracle):
         scene file, the world the background colour -- rendering with Cycles as the oracle does (one
         sample per pixel unless the scene asks for more), the light scaled by pi d^2 for viewing (the
         package's docstring: Light and units)."""
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        path = out_dir / f"{scene_stem(scene)}.blend"
+        path = Path(out_dir) / f"{scene_stem(scene)}.blend"
         quads = cs.quads(scene, rules)
         d = cs.viewing_distance(scene, rules)
         world = scene.background if rules.background == "on-miss" else (0.0, 0.0, 0.0)
         job = cs.job(scene, rules, quads, spp=scene.samples, world=world,
                      intensity_scale=math.pi * d * d if d else 1.0)  # fmt: skip
         job["passes"] = ["position", "normal", "object_index", "diffuse_direct", "diffuse_color"]
-        with processes.temporary_folder("minirt-cycles-") as folder:
-            job["blend"] = str(folder / "scene.blend")
-            run.run_job(job, folder, default_timeout(scene, 1))
-            shutil.move(job["blend"], path)
+        # Blender saves straight into the destination's folder, under atomic_path's temporary name (never
+        # moved there from $TMPDIR: across file systems a move copies into a symlink's target).
+        with processes.temporary_folder("minirt-cycles-") as folder, atomic_path(path) as tmp:
+            tmp.unlink()  # Blender keeps a file it saves over as NAME.blend1 (its save versions): none here
+            job["blend"] = str(tmp)
+            try:
+                run.run_job(job, folder, default_timeout(scene, 1))
+                if not run.whole_blend(tmp):
+                    raise run.CyclesError("Blender saved it cut short (a full disk?)")
+            except run.CyclesError as e:  # one line naming the .blend (atomic_path: never the temporary name)
+                raise MinirtError(f"{tmp}: cannot write the Blender file: {e}") from None
+            finally:  # what Blender leaves of a failed save: its own temporary file NAME@, a version NAME1
+                for left in (f"{tmp}@", f"{tmp}1"):
+                    Path(left).unlink(missing_ok=True)
         return [path]
 
     # ---- the sweep (minirt.sweep): what accuracy costs in time ---------------------------------

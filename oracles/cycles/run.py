@@ -26,6 +26,7 @@ import functools
 import json
 import os
 import queue
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -45,6 +46,7 @@ INSTALL_HINT = (
     f"Blender's Python module is not installed: python3 -m venv .venv/blender && .venv/blender/bin/pip install "
     f"bpy=={BPY_VERSION} (about 1 GB), or set {ENV} to a Python that has bpy {BPY_VERSION}"
 )
+TMP_PREFIX = "minirt-blender-"  # Blender's own $TMPDIR (_Blender), $TMPDIR/minirt-blender-<minirt's pid>-XXXX
 MARK = "minirt-cycles "  # the child's line of JSON on standard output starts with this
 
 
@@ -133,7 +135,10 @@ def run_job(job: dict[str, Any], folder: Path, timeout: float) -> dict[str, Any]
     if exe is None:
         raise FileNotFoundError(INSTALL_HINT)
     path = folder / "job.json"
-    path.write_text(json.dumps(job), encoding="utf-8")
+    try:
+        path.write_text(json.dumps(job), encoding="utf-8")
+    except OSError as e:  # a full disk: the error names the file (a write's own error names none)
+        raise OSError(e.errno, e.strerror, str(path)) from None
     t0 = time.perf_counter()
     with _lock:
         blender = next((b for b in reversed(_idle) if b.exe == str(exe)), None)
@@ -152,15 +157,41 @@ def run_job(job: dict[str, Any], folder: Path, timeout: float) -> dict[str, Any]
     return {**said, "wall": time.perf_counter() - t0}
 
 
+ZSTD_FRAME = b"\x28\xb5\x2f\xfd"  # a zstd frame's magic number: Blender 5 compresses its files so
+ZSTD_SEEK_TABLE_END = b"\xb1\xea\x92\x8f"  # the seekable format's last 4 bytes (Blender's compressed files)
+BLEND_END = b"ENDB"  # the code of an uncompressed .blend's last block (its header: at most 32 bytes)
+
+
+def whole_blend(path: Path) -> bool:
+    """Does the .blend Blender saved end as one does? Blender can lose the error of its last write (a
+    file-size limit, which fails writes as a full disk does, cut a 660 KB file at 614,400 bytes, and
+    Blender said it saved), so the end is looked at: a compressed file ends with its seek table's magic
+    number, an uncompressed one with its ENDB block."""
+    with open(path, "rb") as f:
+        head = f.read(len(ZSTD_FRAME))
+        f.seek(0, os.SEEK_END)
+        f.seek(max(0, f.tell() - 32))
+        tail = f.read()
+    if head == ZSTD_FRAME:
+        return tail.endswith(ZSTD_SEEK_TABLE_END)
+    return head == b"BLEN" and BLEND_END in tail
+
+
 DONE = "minirt-cycles-done"  # the line after each job's answer: the process serves the next one
 _idle: list[_Blender] = []
 _lock = threading.Lock()
 
 
+_every: set[_Blender] = set()  # every Blender process not yet closed, idle or not
+
+
 @atexit.register
-def _close_idle() -> None:
-    """At minirt's exit, the idle Blender processes end (their input closed)."""
-    for b in list(_idle):
+def _close_all() -> None:
+    """At minirt's exit, the Blender processes end (their input closed), their $TMPDIR removed: the idle
+    ones, and one an interrupt caught in the middle of a job or of the version question."""
+    with _lock:
+        left = list(_every)
+    for b in left:
         b.close()
 
 
@@ -171,13 +202,20 @@ class _Blender:
         self.exe = exe
         # Blender's standard error, read back when a job fails; open as long as the process lives (close())
         self.err = tempfile.TemporaryFile()  # noqa: SIM115
+        # Blender's $TMPDIR: a folder of minirt's own (it makes blender_XXXXXX there when it starts and
+        # removes it only when it exits by itself: every time-out or interrupt, which kills it, left one),
+        # removed when this process is closed, or by the next run if minirt was killed (processes).
+        self.tmp = processes.new_temporary_folder(TMP_PREFIX)
         try:
             self.p = processes.spawn([exe, str(SCRIPT), "--serve"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=self.err)  # fmt: skip
+                                     stderr=self.err, env={**os.environ, "TMPDIR": str(self.tmp)})  # fmt: skip
         except OSError as e:
             self.err.close()
+            shutil.rmtree(self.tmp, ignore_errors=True)
             raise CyclesError(f"cannot run '{exe}': {e.strerror or e}") from None
         processes.track(self.p)
+        with _lock:
+            _every.add(self)
         self.told = 0  # the bytes of its standard error that earlier jobs' messages covered
         self.lines: queue.Queue = queue.Queue()
         threading.Thread(target=self._read, daemon=True, name="minirt-blender-out").start()
@@ -232,10 +270,12 @@ class _Blender:
         with _lock:
             if self in _idle:
                 _idle.remove(self)
+            _every.discard(self)
         if kill:
             processes.kill(self.p)
         processes.stop(self.p)
         self.err.close()
+        shutil.rmtree(self.tmp, ignore_errors=True)  # what Blender left in its $TMPDIR (killed: blender_XXXXXX)
 
 
 def read_exr(path: Path, width: int, height: int, canvas: tuple[int, int] | None = None) -> dict[str, np.ndarray]:

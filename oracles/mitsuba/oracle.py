@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from minirt.io.atomic import write_all
 from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
@@ -135,13 +136,10 @@ class MitsubaOracle(Oracle):
         return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary=summary, ties=ties)
 
     def export(self, scene: Scene, rules: Rules, out_dir: Path, options: dict[str, Any] | None = None) -> list[Path]:
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        path = out_dir / "scene.xml"
+        path = Path(out_dir) / "scene.xml"
         spp = int((options or {}).get("spp", 1))
         d = viewing_distance(scene, rules)  # the light scaled for viewing (package docstring: falloff)
-        path.write_text(scene_to_xml(scene, rules, spp=spp, light_distance=d), encoding="utf-8")
-        return [path]
+        return write_all({path: scene_to_xml(scene, rules, spp=spp, light_distance=d)})  # atomic
 
     # ---- render ------------------------------------------------------------------------------
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None, progress=None) -> RenderResult:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from minirt.io.atomic import write_all
 from minirt.model import camera
 from minirt.model.effects import Effects, effects
 from minirt.model.rules import Rules
@@ -254,16 +255,12 @@ def scene_to_pov(
 def export(scene: Scene, rules: Rules, out_dir: str | Path) -> list[Path]:
     """Write ``scene.pov`` (the colour pass(es)), ``render.sh`` with the exact command and a README."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     frames = color_frames(scene, rules)
     pov = out / "scene.pov"
-    pov.write_text(scene_to_pov(scene, rules, frames))
     mesh = uses_mesh_camera(scene, rules)
     cmd = shlex.join(command(scene, len(frames), 1, len(frames), "png8", mesh_camera=mesh))
     sh = out / "render.sh"
     header = "# Render scene.pov with POV-Ray 3.7 (linear 8-bit PNG, no antialiasing)"
-    sh.write_text(f'#!/bin/sh\n{header}\ncd "$(dirname "$0")"\n{cmd}\n')
-    sh.chmod(0o755)
     readme = out / "README.txt"
     note = ""
     if len(frames) == 3:
@@ -277,5 +274,11 @@ def export(scene: Scene, rules: Rules, out_dir: str | Path) -> list[Path]:
             f" start on the image plane; POV-Ray renders {scene.camera.height + 1} rows: drop the first."
         )
     output = "out.png" if len(frames) == 1 else "out1.png, out2.png, out3.png"
-    readme.write_text(f"Render with: {cmd}\nOutput: {output} (linear, File_Gamma 1.0).{note}\n")
-    return [pov, sh, readme]
+    # The three together, atomically (a symlink planted under one of the names is replaced, never
+    # written through); the script executable.
+    files = {
+        pov: scene_to_pov(scene, rules, frames),
+        sh: f'#!/bin/sh\n{header}\ncd "$(dirname "$0")"\n{cmd}\n',
+        readme: f"Render with: {cmd}\nOutput: {output} (linear, File_Gamma 1.0).{note}\n",
+    }
+    return write_all(files, modes={sh: 0o755})
