@@ -239,6 +239,10 @@ class ProgramOracle(Backend):
     def options(self, precision: str = "f64", samples: int | None = None, timeout: float | None = None) -> dict:
         return {"timeout": timeout} if timeout else {}
 
+    def graded_scene(self, scene: Scene) -> Scene:
+        """The scene as the program receives it (``edition_scene``): what its image is graded against."""
+        return edition_scene(scene, self.spec.edition if self.spec.kind == "cpp" else None)
+
     def require_sandbox(self) -> None:
         ok, why = self.available()
         if not ok:
@@ -267,7 +271,7 @@ class ProgramOracle(Backend):
         b = self.build()
         if b is not None and b.binary is None:
             return Run(None, False, "the program does not compile: " + _first_error(b.message), 0.0)
-        scene = edition_scene(scene, self.spec.edition if self.spec.kind == "cpp" else None)
+        scene = self.graded_scene(scene)
         limits = self.limits(scene, timeout)
         with processes.temporary_folder("minirt-program-") as tmp:
             folder = tmp / "run"

@@ -73,6 +73,7 @@ class Outcome:
     cpu_seconds: float
     stdout: str
     stderr: str
+    sandboxed: bool = False
 
     @property
     def ok(self) -> bool:
@@ -86,15 +87,26 @@ class Outcome:
             return ""
         if self.returncode < 0:
             sig = signal.Signals(-self.returncode).name
-            extra = {
-                "SIGXCPU": f" (its {limits.cpu:g} CPU seconds used up)",
-                "SIGXFSZ": f" (it wrote more than {limits.file_size >> 20} MB to a file or its output)",
-                "SIGKILL": " (killed)",
-                "SIGSEGV": " (a segmentation fault)",
-                "SIGABRT": " (aborted)",
-            }.get(sig, "")
-            return f"{what} was killed by {sig}{extra}{last_line(self.stderr)}"
+            return f"{what} was killed by {sig}{SIGNAL_WORDS.get(sig, '')}{last_line(self.stderr)}"
+        if self.sandboxed and 128 < self.returncode <= 128 + 64:
+            try:
+                sig = signal.Signals(self.returncode - 128).name
+            except ValueError:
+                sig = ""
+            if sig:  # bubblewrap passes a death by signal on as 128 + the signal
+                why = f" (the sandbox's code for a death by {sig}{SIGNAL_WORDS.get(sig, '')})"
+                return f"{what} failed with exit status {self.returncode}{why}{last_line(self.stderr)}"
         return f"{what} failed with exit status {self.returncode}{last_line(self.stderr)}"
+
+
+SIGNAL_WORDS = {
+    "SIGXCPU": ": its CPU seconds used up",
+    "SIGXFSZ": ": it wrote more than its file-size limit, to a file or its output",
+    "SIGKILL": ", killed",
+    "SIGSEGV": ", a segmentation fault",
+    "SIGABRT": ", aborted",
+    "SIGFPE": ", an arithmetic exception",
+}
 
 
 def last_line(text: str) -> str:
@@ -145,17 +157,21 @@ def environment(folder: Path) -> dict[str, str]:
 
 def _binds(folder: Path, visible: list[Path]) -> list[str]:
     """The sandbox's file system: the system's folders and ``visible`` read-only (the secrets in /etc
-    masked), a private /tmp, ``folder`` writable."""
+    masked), a private /tmp, ``folder`` writable. Later mounts go over earlier ones: /tmp first."""
     out: list[str] = []
-    for p in (*SYSTEM, *sorted({str(v) for v in visible})):
+    for p in SYSTEM:
         if os.path.lexists(p):
             out += ["--ro-bind", p, p] if not os.path.islink(p) else ["--symlink", os.readlink(p), p]
+    out += ["--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp"]
+    for p in sorted({str(v) for v in visible}):
+        if os.path.isdir(p):
+            out += ["--ro-bind", p, p]
     for p in MASKED:
         if os.path.isfile(p):
             out += ["--ro-bind", "/dev/null", p]
         elif os.path.isdir(p):
             out += ["--tmpfs", p]
-    return [*out, "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp", "--bind", str(folder), str(folder)]
+    return [*out, "--bind", str(folder), str(folder)]
 
 
 def command(cmd: list[str], folder: Path, limits: Limits, sandbox: bool, visible: list[Path] = ()) -> list[str]:
@@ -195,7 +211,7 @@ def run(cmd: list[str], folder: Path, limits: Limits, sandbox: bool = True, visi
         finally:
             processes.kill(p)  # the whole group, whatever it left behind
             processes.untrack(p)
-    return Outcome(status, timed_out, cpu, _tail(out_path), _tail(err_path))
+    return Outcome(status, timed_out, cpu, _tail(out_path), _tail(err_path), sandbox)
 
 
 def _wait(p: subprocess.Popen, wall: float) -> tuple[int, float, bool]:
