@@ -101,3 +101,19 @@ def test_the_2014_sample_has_its_primary_ray_bugs_named(tmp_path):
     assert g.diagnosis.rules == {"pixel_sample": "corner", "ray_origin": "image-plane"}
     assert g.diagnosis.mismatch_pixels == 0
     assert g.as_dict()["program"]["edition"] == "2014"
+
+
+SAMPLE_2013 = ROOT / "scenes" / "samples" / "raytracer2013.cpp"
+ADAPTER_2013 = ROOT / "scenes" / "samples" / "adapter2013.cpp"
+
+
+def test_a_2013_solution_through_the_adapter_matches_and_its_change_is_named(tmp_path):
+    spec = make_spec(str(SAMPLE_2013), adapter=ADAPTER_2013)
+    assert (spec.kind, spec.edition) == ("cpp", "2013")
+    g = gp.grade_program(spec, suite())
+    assert g.compile["ok"], g.compile["message"]
+    assert [s.verdict for s in g.scenes] == ["match"] * 3, [s.as_dict() for s in g.scenes]
+    changed = tmp_path / "raytracer.cpp"
+    changed.write_text(SAMPLE_2013.read_text().replace("r * shadow.dir, 8)", "r * shadow.dir, 16)"))
+    g = gp.grade_program(make_spec(str(changed), adapter=ADAPTER_2013), suite())
+    assert g.diagnosis.rules == {"specular_exponent": "16"} and g.diagnosis.mismatch_pixels == 0
