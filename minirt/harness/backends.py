@@ -56,7 +56,7 @@ def all_names() -> list[str]:
 
 def oracles_among(names: Sequence[str]) -> list[str]:
     """The oracles in ``names``, in their order: what a comparison compares the reference with."""
-    return [n for n in names if n in ORACLES or is_program(n)]
+    return [n for n in names if n in ORACLES]
 
 
 def display_name(name: str) -> str:
@@ -94,7 +94,15 @@ def parse_backends(spec: str) -> list[str]:
 
 
 def require_oracle(names: list[str], spelled: str = "--backend") -> None:
-    """A comparison needs something to compare with: the reference alone is bad input."""
+    """A comparison needs something to compare with: the reference alone is bad input; a program gives a
+    colour image only, and a comparison needs every geometry buffer."""
+    programs = [n for n in names if is_program(n)]
+    if programs:
+        spec = programs[0].partition(":")[2]
+        raise MinirtError(
+            f"{spelled} {programs[0]}: a program gives a colour image, and a comparison needs its geometry "
+            f"buffers too; grade it instead: minirt grade --program {spec!r}"
+        )
     if not oracles_among(names):
         raise MinirtError(
             f"{spelled} {','.join(names)}: no oracle to compare with (give one or more of "
