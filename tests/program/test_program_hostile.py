@@ -161,3 +161,11 @@ def test_bad_specs_are_one_line_errors(tmp_path):
         parse_name("program(colour=red):x {scene} {out}")
     spec = parse_name("program(timeout=3,sandbox=off):python3 t.py {scene} {out}")
     assert (spec.timeout, spec.sandbox, spec.kind) == (3.0, False, "command")
+
+
+def test_a_program_ends_the_backend_list_commas_and_all():
+    from minirt.harness import backends
+
+    name = "program:python3 a,b.py {scene} {out}"
+    assert backends.parse_backends(f"reference,{name}") == ["reference", name]
+    assert backends.get(name).spec.argv[1] == "a,b.py"
