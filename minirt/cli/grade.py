@@ -138,6 +138,9 @@ def grade(
     if program is not None:
         from minirt.cli.program import grade_program_command
 
+        if out_dir is not None:
+            raise MinirtError("--out: a program's grade has no HTML page yet; use --json FILE")
+
         grade_program_command(
             program, scene_path, image, edition=edition, adapter=adapter, timeout=timeout, sandbox=not no_sandbox,
             json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, class_dir=class_dir,
