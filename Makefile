@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-APT_PACKAGES := povray libllvm19 chromium
+APT_PACKAGES := povray libllvm19 chromium bubblewrap g++
 
 .PHONY: setup system demo sample test lint format bench fuzz goldens schemas clean
 
@@ -40,6 +40,9 @@ demo: setup
 	@echo "open grades/sample/index.html (the sample student's grade)"
 	$(BIN)/minirt grade scenes/three_balls.toml scenes/samples/three_balls.student.png --out grades/sample-real || test $$? -eq 1
 	@echo "open grades/sample-real/index.html (bugs seen in real solutions, and pixels no rule explains)"
+	mkdir -p grades
+	$(BIN)/minirt grade --program scenes/samples/raytracer2014.cpp --json grades/program.json || test $$? -eq 1
+	@echo "grades/program.json: a sample 2014 solution graded as a program, scene by scene (in a sandbox)"
 
 # Refresh the committed sample report (bundled scenes at 64x64, every backend).
 sample: setup

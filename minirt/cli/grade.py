@@ -79,12 +79,54 @@ def grade(
     profile: ProfileOpt = None,
     rule: RuleOpt = None,
     quiet: QuietOpt = False,
+    program: Annotated[
+        str | None,
+        typer.Option(
+            "--program",
+            metavar="SPEC",
+            help="Grade a program, not one image: a command line with {scene} (or {scene_json}) and {out}, "
+            "e.g. 'python3 tracer.py {scene} {out}' (it writes {out}.pfm, .exr, .png, .ppm ...), or a C++ "
+            "source, raytracer.cpp. It renders the grading suite (or SCENE alone) in a sandbox; each image is "
+            "diagnosed. Untrusted: see --no-sandbox.",
+        ),
+    ] = None,
+    edition: Annotated[
+        str | None,
+        typer.Option("--edition", help="With a C++ --program: the exercise's edition, 2014 (default) or 2013."),
+    ] = None,
+    adapter: Annotated[
+        Path | None,
+        typer.Option(
+            "--adapter",
+            metavar="FILE",
+            help="With a 2013 C++ --program: the course's C++ that builds a ball, a plane and the scene with "
+            "the student's classes and traces one pixel (README: A program under test).",
+        ),
+    ] = None,
+    timeout: Annotated[
+        float | None,
+        typer.Option(
+            "--timeout",
+            min=0.001,
+            help="With --program: seconds one scene may take (default: 200x the reference's time, at least 20).",
+        ),
+    ] = None,
+    no_sandbox: Annotated[
+        bool,
+        typer.Option(
+            "--no-sandbox",
+            help="With --program: run it without bubblewrap (limits kept, isolation not): only for code you trust.",
+        ),
+    ] = False,
 ) -> None:
     """Grade another tracer's image of a scene: is it the exercise's model, and if not, which rule
     settings explain it (searched over every rule; `minirt render SCENE --rule ...` with them reproduces
     the image). Pixels no rule setting explains are grouped by where they lie (the shape hit, t, lit or
     in shadow, what a reflection shows, ...), each group with a sentence and a `minirt probe ... --image`
     command for one of its pixels.
+
+    With --program SPEC: the student's program itself renders the grading suite's scenes (or SCENE),
+    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene.
 
     Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
     (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,
@@ -93,6 +135,20 @@ def grade(
     with its own render cache, pages written as images are graded) or on a Dask cluster (--scheduler);
     the files are the same bytes either way.
     """
+    if program is not None:
+        from minirt.cli.program import grade_program_command
+
+        if out_dir is not None:
+            raise MinirtError("--out: a program's grade has no HTML page yet; use --json FILE")
+
+        grade_program_command(
+            program, scene_path, image, edition=edition, adapter=adapter, timeout=timeout, sandbox=not no_sandbox,
+            json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, class_dir=class_dir,
+        )  # fmt: skip
+        return
+    for given, option in ((edition, "--edition"), (adapter, "--adapter"), (timeout, "--timeout")):
+        if given is not None:
+            raise MinirtError(f"{option} goes with --program")
     if class_dir is not None:
         if scene_path is not None or image is not None:
             raise MinirtError("--class grades DIR/<student>/<scene>.png: give no SCENE or IMAGE with it")

@@ -31,13 +31,19 @@ REGISTRY: dict[str, str] = {REFERENCE: "minirt.reference.backend:Reference", **O
 def get(name: str) -> Backend:
     """The backend called ``name`` (KeyError for an unknown one). Its module is imported on first use:
     a renderer that is not installed costs nothing until it is asked for."""
+    if is_program(name):  # a student's program, named by itself: program:SPEC (minirt.oracles.program)
+        return importlib.import_module("minirt.oracles.program").backend(name)
     module, cls = REGISTRY[name].split(":")
     return getattr(importlib.import_module(module), cls)()
 
 
+def is_program(name: str) -> bool:
+    return name.startswith(("program:", "program("))
+
+
 def find(name: str) -> Backend | None:
     """The backend called ``name``, or None for a name no backend has (a result a test made by hand)."""
-    return get(name) if name in REGISTRY else None
+    return get(name) if name in REGISTRY or is_program(name) else None
 
 
 def oracle_names() -> list[str]:
@@ -68,12 +74,18 @@ def shading_model(name: str, has_color: bool) -> str | None:
 
 
 def parse_backends(spec: str) -> list[str]:
-    """'all', 'reference', or a comma-separated list; unknown names are bad input."""
+    """'all', 'reference', or a comma-separated list; unknown names are bad input. A student's program,
+    ``program:SPEC``, ends the list: its SPEC is the rest, commas and all."""
     if spec.strip() == "all":
         return all_names()
-    names = [s.strip() for s in spec.split(",") if s.strip()]
+    at = next((k for k in range(len(spec)) if is_program(spec[k:]) and (k == 0 or spec[k - 1] == ",")), None)
+    program = [] if at is None else [spec[at:].strip()]
+    if program:
+        get(program[0]).spec  # noqa: B018 -- parsed now: a bad SPEC is bad input before any work
+        spec = spec[:at]
+    names = [s.strip() for s in spec.split(",") if s.strip()] + program
     known = all_names()
-    unknown = [n for n in names if n not in known]
+    unknown = [n for n in names if n not in known and not is_program(n)]
     if unknown or not names:
         raise MinirtError(
             f"--backend: unknown backend {', '.join(unknown) or repr(spec)} (known: all, {', '.join(known)})"
@@ -82,7 +94,15 @@ def parse_backends(spec: str) -> list[str]:
 
 
 def require_oracle(names: list[str], spelled: str = "--backend") -> None:
-    """A comparison needs something to compare with: the reference alone is bad input."""
+    """A comparison needs something to compare with: the reference alone is bad input; a program gives a
+    colour image only, and a comparison needs every geometry buffer."""
+    programs = [n for n in names if is_program(n)]
+    if programs:
+        spec = programs[0].partition(":")[2]
+        raise MinirtError(
+            f"{spelled} {programs[0]}: a program gives a colour image, and a comparison needs its geometry "
+            f"buffers too; grade it instead: minirt grade --program {spec!r}"
+        )
     if not oracles_among(names):
         raise MinirtError(
             f"{spelled} {','.join(names)}: no oracle to compare with (give one or more of "

@@ -427,7 +427,7 @@ def write_json(path: str | Path, data: Any) -> None:
 
 
 # Formats a graded image may come in (OpenImageIO reads each; the extension picks the reader).
-STUDENT_EXTENSIONS = (".png", ".bmp", ".ppm", ".pgm", ".pnm", ".tga", ".tif", ".tiff", ".exr")
+STUDENT_EXTENSIONS = (".png", ".bmp", ".ppm", ".pgm", ".pnm", ".pfm", ".tga", ".tif", ".tiff", ".exr")
 
 # The most channels a graded image may have: minirt's own EXR has 27, a student's image 1 to 4. Only the
 # first three are decoded, but a reader holds a whole scanline of every channel at once.

@@ -36,7 +36,9 @@ def variant_tag(plain: Scene, scene: Scene, rules: Rules) -> str:
 
 
 def render_stem(scene: Scene, backend: str, tag: str = "") -> str:
-    """``SCENE.BACKEND`` or ``SCENE.BACKEND+TAG``: the stem of a render's .png, .exr and .json."""
+    """``SCENE.BACKEND`` or ``SCENE.BACKEND+TAG``: the stem of a render's .png, .exr and .json (a program,
+    ``program:SPEC``, is ``program``)."""
+    backend = backend.partition(":")[0].partition("(")[0]
     return f"{scene_stem(scene)}.{backend}" + (f"+{tag}" if tag else "")
 
 

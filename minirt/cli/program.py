@@ -1,0 +1,75 @@
+"""``minirt grade --program SPEC``: a student's program graded over a suite of scenes (minirt.grading.program);
+this module checks the flags, loads the suite, keeps the progress bar and prints a line per scene."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from minirt.cli.console import MAX_MESSAGE, emit_json, err, out, progress_bar
+from minirt.cli.options import load, output_file, parse_size
+from minirt.errors import MinirtError
+from minirt.io.untrusted import terminal_text
+
+
+def grade_program_command(
+    program: str, scene_path, image, *, edition, adapter, timeout, sandbox, json_out, size, profile, rule, quiet,
+    class_dir,
+) -> None:  # fmt: skip
+    from minirt import diagnose as dg
+    from minirt.grading import program as grading
+    from minirt.model.bundled import find_scene
+    from minirt.oracles.program import make_spec
+
+    if image is not None or class_dir is not None:
+        raise MinirtError("--program renders its own images: give no IMAGE or --class with it")
+    spec = make_spec(program, edition, adapter, timeout, sandbox)
+    if json_out not in (None, "-"):
+        output_file(Path(json_out), "--json")
+    wh = parse_size(size) or grading.SUITE_SIZE
+    stems = [scene_path] if scene_path is not None else list(dg.GRADING_SET)
+    suite = []
+    for stem in stems:
+        path = find_scene(stem)
+        scene, rules = load(path, *wh, None, profile, rule)
+        suite.append((str(path), scene, grading.given_rules(rules, spec, profile is not None)))
+    with progress_bar(not quiet) as bar:
+        task = bar.add_task("grading the program", total=len(suite)) if bar else None
+
+        def done(g) -> None:
+            if bar:
+                bar.advance(task)
+
+        g = grading.grade_program(spec, suite, timeout, on_scene=done)
+    if json_out is not None:
+        emit_json(json_out, g.as_dict())
+    if json_out != "-":
+        _print(g)
+    raise typer.Exit(g.exit_code)
+
+
+def _print(g) -> None:
+    style = {"match": "green", "differs": "yellow", "error": "red"}[g.verdict]
+    err.print(f"[bold {style}]{g.verdict.upper()}[/]", end=" ")
+    err.print(terminal_text(f"{g.spec.text}: {g.summary()}", MAX_MESSAGE))
+    if g.compile is not None and not g.compile["ok"]:
+        for line in g.compile["message"].splitlines()[:20]:
+            err.print(f"  {terminal_text(line, MAX_MESSAGE)}")
+    for s in g.scenes:
+        d = s.as_dict()
+        what = d["error"] or (", ".join(f"{k}={v}" for k, v in d["rules"].items()) or "as the model") + (
+            f"; {d['mismatch_pixels']} pixels unexplained" if d["mismatch_pixels"] else ""
+        )
+        out.print(terminal_text(f"  {d['scene']:<14} {d['verdict']:<8} {what}", MAX_MESSAGE))
+    for e in g.diagnosis.explained:
+        err.print(
+            terminal_text(
+                f"  {e['scene']}: {e['rule']}={e['value']} ({e['pixels']} pixels): {e['sentence']}", MAX_MESSAGE
+            )
+        )
+    for rule, by_scene in g.diagnosis.conflicts.items():
+        vals = ", ".join(f"{k}: {v}" for k, v in by_scene.items())
+        err.print(terminal_text(f"  the scenes disagree on {rule} ({vals})", MAX_MESSAGE))
+    for i in g.diagnosis.indistinguishable:
+        err.print(terminal_text(f"  cannot tell {i['rule']}={i['value']} from {i['as']} in any scene of the suite"))

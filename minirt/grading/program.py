@@ -1,0 +1,223 @@
+"""Grading a program, not one picture: a student's program rendered over a suite of scenes, each image
+diagnosed, and one verdict for the program.
+
+``grade_program`` renders every scene of the suite through the program (minirt.oracles.program: a command
+line or a C++ source, in a sandbox), grades each image with the single-image machinery
+(minirt.diagnose.diagnose, as minirt.grading.grade does) and combines the scenes in ``diagnose_suite``,
+the one place that turns the scenes' images into the program's diagnosis. A scene the program fails
+(compile error, crash, time-out, no image, a wrong-sized one) is that scene's ``error``; the run goes on.
+
+Each scene's time limit is ``timeout_for``: ``TIMEOUT_FACTOR`` times the reference tracer's own time for
+the scene, at least ``TIMEOUT_FLOOR`` seconds -- so a program that hangs costs a few of these, not the
+suite's. The JSON carries no timings: the same program and suite write the same bytes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from minirt import diagnose as dg
+from minirt.grading.grade import DIFFERS, ERROR, EXIT, MATCH, sentence
+from minirt.model import rules as rules_mod
+from minirt.model.rules import PROFILES, Rules
+from minirt.model.scene import Scene
+from minirt.oracles.program import ProgramOracle, ProgramSpec
+
+# The suite's scenes are rendered at this size unless --size says otherwise: every rule of the grading set
+# shows on hundreds of pixels at 96^2 (the bundled scenes are built so), and a NumPy or C++ program renders
+# it in well under a second.
+SUITE_SIZE = (96, 96)
+# A scene's time limit: the reference's time (vectorised float64, ~10-50 ms at 96^2) times this, at least
+# the floor. A C++ or NumPy program is within 10x of the reference; a pure-Python one (one Python call per
+# ray and shape, ~1000x) still fits 96^2 in the floor; a program beyond both is reported as timed out.
+TIMEOUT_FACTOR = 200.0
+TIMEOUT_FLOOR = 20.0
+
+
+def timeout_for(reference_seconds: float) -> float:
+    return max(TIMEOUT_FLOOR, TIMEOUT_FACTOR * reference_seconds)
+
+
+def given_rules(rules: Rules, spec: ProgramSpec, profile_given: bool) -> Rules:
+    """The model a program is graded against: the scene's rules, or the 2014 edition's for a 2014 source
+    (unless --profile said otherwise)."""
+    if spec.kind == "cpp" and spec.edition == "2014" and not profile_given:
+        return PROFILES["eth2014"]
+    return rules
+
+
+@dataclass
+class SceneGrade:
+    """One scene of the suite through the program."""
+
+    scene: Scene
+    scene_file: str
+    rules: Rules
+    verdict: str
+    error: str = ""
+    diagnosis: dg.Diagnosis | None = None
+    target: dg.Target | None = None
+    seconds: float = 0.0  # the program's wall clock on it (not in the JSON)
+    timeout: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        d = self.diagnosis
+        out: dict[str, Any] = {
+            "scene": self.scene.name,
+            "scene_file": self.scene_file,
+            "size": [self.scene.camera.width, self.scene.camera.height],
+            "verdict": self.verdict,
+            "mismatch_pixels": d.mismatch_pixels if d else None,
+            "as_given_pixels": d.as_given_pixels if d else None,
+            "rules": d.changed if d else {},
+            "error": self.error,
+        }
+        if self.target is not None:
+            out["image_format"] = "float" if self.target.is_float else "8-bit"
+        return out
+
+
+@dataclass
+class SuiteDiagnosis:
+    """The program's diagnosis over the suite: the rule settings that explain its images (``rules``, values
+    as --rule takes them), those the scenes disagree on (``conflicts``: rule -> {scene: value}), the
+    pixels no setting explains (each group naming its scene) and the pairs no scene of the suite tells
+    apart."""
+
+    rules: dict[str, str]
+    conflicts: dict[str, dict[str, str]]
+    explained: list[dict[str, Any]]
+    unexplained: list[dict[str, Any]]
+    indistinguishable: list[dict[str, Any]]
+    mismatch_pixels: int
+
+
+def diagnose_suite(graded: list[SceneGrade]) -> SuiteDiagnosis:
+    """Combine the scenes' own diagnoses into the program's. A rule setting named by the scenes that name the
+    rule at all, all with the same value, is the program's; one named with different values is a conflict
+    (the program is not one rule set, or a scene was explained by accident). A pair of values is
+    indistinguishable only when no scene of the suite told it apart."""
+    named: dict[str, dict[str, str]] = {}
+    explained, unexplained, counts = [], [], {}
+    for g in graded:
+        if g.diagnosis is None:
+            continue
+        d, stem = g.diagnosis, g.scene.name
+        for rule, value in d.changed.items():
+            named.setdefault(rule, {})[stem] = value
+        for e in d.explained:
+            s = sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule))
+            explained.append({"scene": stem, "rule": e.rule, "value": e.value, "pixels": e.pixels, "sentence": s})
+        unexplained += [{"scene": stem, **u.as_dict()} for u in d.unexplained]
+        for i in d.indistinguishable:
+            key = (i["rule"], str(i["value"]), str(i["as"]))
+            counts.setdefault(key, [i, 0])[1] += 1
+    rules = {r: next(iter(v.values())) for r, v in sorted(named.items()) if len(set(v.values())) == 1}
+    conflicts = {r: v for r, v in sorted(named.items()) if len(set(v.values())) > 1}
+    diagnosed = sum(g.diagnosis is not None for g in graded)
+    # a pair is indistinguishable in the suite when it was so in every scene diagnosed
+    same = [dict(i, scene_that_tells=None) for i, n in counts.values() if n == diagnosed and diagnosed]
+    mismatch = sum(g.diagnosis.mismatch_pixels for g in graded if g.diagnosis is not None)
+    return SuiteDiagnosis(rules, conflicts, explained, unexplained, same, mismatch)
+
+
+@dataclass
+class ProgramGrade:
+    spec: ProgramSpec
+    scenes: list[SceneGrade]
+    diagnosis: SuiteDiagnosis
+    compile: dict[str, Any] | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def verdict(self) -> str:
+        if all(g.verdict == ERROR for g in self.scenes):
+            return ERROR
+        return MATCH if all(g.verdict == MATCH for g in self.scenes) else DIFFERS
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT[self.verdict]
+
+    def summary(self) -> str:
+        n = len(self.scenes)
+        counts = {v: sum(g.verdict == v for g in self.scenes) for v in (MATCH, DIFFERS, ERROR)}
+        head = f"{counts[MATCH]} of {n} scenes match, {counts[DIFFERS]} differ, {counts[ERROR]} failed"
+        if self.compile is not None and not self.compile["ok"]:
+            return "the program does not compile"
+        d = self.diagnosis
+        if d.rules:
+            head += "; explained by " + ", ".join(f"{k}={v}" for k, v in d.rules.items())
+        if d.mismatch_pixels:
+            head += f"; {d.mismatch_pixels} pixels unexplained"
+        return head
+
+    def as_dict(self) -> dict[str, Any]:
+        d = self.diagnosis
+        return {
+            "verdict": self.verdict,
+            "summary": self.summary(),
+            "program": {**self.spec.describe(), "compile": self.compile},
+            "scenes": [g.as_dict() for g in self.scenes],
+            "diagnosis": {
+                "rules": d.rules,
+                "conflicts": d.conflicts,
+                "mismatch_pixels": d.mismatch_pixels,
+                "explained": d.explained,
+                "unexplained": d.unexplained,
+            },
+            "indistinguishable": d.indistinguishable,
+            "notes": self.notes,
+        }
+
+
+def grade_scene(
+    oracle: ProgramOracle, scene: Scene, scene_file: str, rules: Rules, cache: dg.VariantCache, timeout: float | None
+) -> SceneGrade:
+    """One scene through the program, its image diagnosed (or its error)."""
+    from minirt.harness import backends
+
+    scene = oracle.graded_scene(scene.with_overrides(samples=1))
+    if timeout is None:
+        t0 = time.perf_counter()
+        backends.render(backends.REFERENCE, scene, rules)
+        timeout = timeout_for(time.perf_counter() - t0)
+    run = oracle.run_scene(scene, timeout)
+    if run.error:
+        return SceneGrade(scene, scene_file, rules, ERROR, error=run.error, seconds=run.seconds, timeout=timeout)
+    target = dg.Target(run.pixels, run.is_float, run.image_name)
+    d = dg.diagnose(scene, rules, target, cache)
+    verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
+    return SceneGrade(
+        scene, scene_file, rules, verdict, diagnosis=d, target=target, seconds=run.seconds, timeout=timeout
+    )
+
+
+def grade_program(
+    spec: ProgramSpec,
+    suite: list[tuple[str, Scene, Rules]],
+    timeout: float | None = None,
+    on_scene=None,
+) -> ProgramGrade:
+    """Render every (scene file, scene, rules) of ``suite`` through the program and grade it: one
+    ``SceneGrade`` per scene and the program's diagnosis (``diagnose_suite``). ``timeout``: seconds per
+    scene (None: ``timeout_for`` the reference's time). ``on_scene(SceneGrade)`` is called as each is done.
+    Raises MinirtError for bad input (no sandbox, no compiler)."""
+    oracle = ProgramOracle(spec)
+    oracle.require_sandbox()
+    build = oracle.build()
+    cache = dg.VariantCache(share=False)
+    graded = []
+    for scene_file, scene, rules in suite:
+        g = grade_scene(oracle, scene, scene_file, rules, cache, timeout or spec.timeout)
+        graded.append(g)
+        if on_scene is not None:
+            on_scene(g)
+    compiled = build.as_dict() if build is not None else None
+    return ProgramGrade(spec, graded, diagnose_suite(graded), compile=compiled)
+
+
+def format_rules(rules: Rules) -> dict[str, str]:
+    return {n: rules_mod.format_rule_value(n, v) for n, v in rules.as_dict().items()}

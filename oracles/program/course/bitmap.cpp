@@ -1,0 +1,2 @@
+// bitmap.cpp -- the course-side bitmap: everything is in bitmap.h.
+#include "bitmap.h"

@@ -1,0 +1,50 @@
+"""``minirt grade --program`` and ``render -b program:SPEC`` from the command line: the JSON document,
+the exit status, and bad input as one line with exit status 2."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
+MINIRT = [sys.executable, "-m", "minirt"]
+
+
+def minirt(*args: str, tmp_path: Path) -> subprocess.CompletedProcess:
+    env = {"MINIRT_PROGRAM_CACHE": str(tmp_path / "programs"), "PATH": "/usr/bin:/bin"}
+    return subprocess.run([*MINIRT, *args], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=600)
+
+
+def test_grade_program_writes_its_document_and_exits_1_when_it_differs(tmp_path):
+    spec = f"{sys.executable} {TRACER} --rule pixel_sample=center {{scene}} {{out}}"
+    p = minirt("grade", "--program", spec, "rules", "--size", "48x48", "--json", "-", "-q", tmp_path=tmp_path)
+    assert p.returncode == 1, p.stderr
+    doc = json.loads(p.stdout)
+    assert doc["verdict"] == "differs" and doc["diagnosis"]["rules"] == {"pixel_sample": "center"}
+    assert [s["scene"] for s in doc["scenes"]] == ["rules"] and doc["scenes"][0]["error"] == ""
+    assert doc["program"]["spec"] == spec and doc["indistinguishable"] == []
+
+
+def test_render_takes_a_program_as_a_backend(tmp_path):
+    spec = f"program:{sys.executable} {TRACER} {{scene}} {{out}}"
+    p = minirt("render", "rules", "--width", "16", "--height", "16", "-b", spec, "-o", "out", "-q", tmp_path=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert sorted(f.name for f in (tmp_path / "out").iterdir()) == [
+        "rules.program.exr",
+        "rules.program.json",
+        "rules.program.png",
+    ]
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path):
+    for args, words in (
+        (["grade", "--program", "python3 tracer.py {scene}"], "needs {scene}"),
+        (["grade", "--program", "missing.cpp"], "no such file"),
+        (["grade", "--edition", "2014", "rules", "x.png"], "--edition goes with --program"),
+        (["check", "rules", "-b", "program:python3 t.py {scene} {out}"], "a program gives a colour image"),
+    ):
+        p = minirt(*args, tmp_path=tmp_path)
+        assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr, (args, p.stderr)
