@@ -179,9 +179,12 @@ def _absolute(argv: list[str]) -> tuple[list[str], list[Path]]:
             full = full.absolute()
             if k > 0 or p.exists():
                 a = str(full)
-            visible.add(full.parent)
-            if full.parent.name == "bin":
-                visible.add(full.parent.parent)
+            # the named file and the file it resolves to (a virtual environment's python is a link to the
+            # interpreter installed elsewhere, whose standard library is beside its bin/)
+            for f in dict.fromkeys((full, full.resolve())):
+                visible.add(f.parent)
+                if f.parent.name == "bin":
+                    visible.add(f.parent.parent)
         out.append(a)
     return out, sorted(visible)
 
