@@ -69,11 +69,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from minirt.model import camera
-from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult, geometry_from_flat
 from minirt.model.roots import ball_roots
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
+from minirt.model.series import Series, Setting, Truth
+from minirt.model.tolerance import GeometryTolerance, Margins, tolerance_inputs
 from minirt.oracles.base import Oracle
 
 DEFAULT_SUBDIVISIONS = 4

@@ -34,9 +34,9 @@ from minirt.harness.results import ORDER, BackendCheck, Check, RuleDiagnosis, wo
 from minirt.harness.shading import check_shading, edge_classes, edge_pixels, shading_exercise
 from minirt.harness.stochastic import check_stochastic
 from minirt.jit import engine
-from minirt.model.backend import farthest_hit
 from minirt.model.rules import Rules, resolve
 from minirt.model.scene import Scene
+from minirt.model.tolerance import farthest_hit
 from minirt.reference import band
 
 

@@ -20,10 +20,10 @@ import numpy as np
 
 from minirt.harness import backends as bk
 from minirt.jobs.data import JSON, Schema
-from minirt.model.backend import Series, Setting
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
+from minirt.model.series import Series, Setting
 from minirt.sweep.document import answers, fit_slopes, mark_pareto, write_outputs
 from minirt.sweep.series import ERRORS, Catalogue, Knobs, catalogue
 from minirt.sweep.timing import REPEATS, SLOW_SECONDS, timed, wall_seconds

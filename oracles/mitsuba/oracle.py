@@ -13,10 +13,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
+from minirt.model.series import Series, Setting, Truth
+from minirt.model.tolerance import GeometryTolerance, Margins, tolerance_inputs
 from minirt.oracles.base import Oracle
 from minirt.oracles.mitsuba.accuracy import U32
 from minirt.oracles.mitsuba.exporter import scene_to_xml, viewing_distance
