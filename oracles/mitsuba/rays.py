@@ -23,7 +23,7 @@ from minirt.model.result import RenderResult, geometry_from_flat, to8
 from minirt.model.scene import Plane
 from minirt.oracles.mitsuba.accuracy import silhouette_t_bound
 from minirt.oracles.mitsuba.planes import PlaneRect, plane_frames, plane_hits
-from minirt.oracles.mitsuba.render import _Base
+from minirt.oracles.mitsuba.render import MitsubaRender
 from minirt.oracles.mitsuba.variants import BACKEND
 
 # Growths of the plane rectangles before giving up. Each growth can uncover more: a reflection that now
@@ -33,7 +33,7 @@ from minirt.oracles.mitsuba.variants import BACKEND
 _MAX_RESIZE = 8
 
 
-class _RayRender(_Base):
+class RayRender(MitsubaRender):
     """The harness's rays through Mitsuba's intersector and a loop of stock shading calls."""
 
     def run(self) -> RenderResult:

@@ -16,7 +16,7 @@ VARIANTS = ("llvm_ad_rgb", "scalar_rgb")  # preferred first
 _state: dict[str, Any] = {}
 
 
-def _load_mitsuba() -> tuple[Any, str]:
+def load_mitsuba() -> tuple[Any, str]:
     """Import mitsuba and set the first usable variant; raises ImportError/RuntimeError with a reason."""
     if "mi" in _state:
         mi = _state["mi"]
@@ -50,6 +50,8 @@ def _load_mitsuba() -> tuple[Any, str]:
     raise RuntimeError("no usable Mitsuba variant (" + "; ".join(problems) + ")")
 
 
-def _one_line(e: BaseException) -> str:
+def one_line(e: BaseException) -> str:
+    """An exception as one line of at most 300 characters, its type first: the reason a skipped or
+    failed Mitsuba render gives (the oracle's ``available`` and ``render``)."""
     text = f"{type(e).__name__}: {e}".strip()
     return " ".join(text.split())[:300]

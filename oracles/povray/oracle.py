@@ -49,11 +49,11 @@ from minirt.oracles.povray.runner import (
     MAX_ANTIALIAS,
     NAME,
     PovrayError,
-    _frame_files,
-    _run,
-    _version,
     command,
     default_timeout,
+    frame_files,
+    povray_version,
+    run_povray,
 )
 
 
@@ -102,7 +102,7 @@ class PovrayOracle(Oracle):
         if exe is None:
             raise FileNotFoundError(INSTALL_HINT)
         st = os.stat(exe)
-        v = _version(exe, st.st_mtime_ns, st.st_size)
+        v = povray_version(exe, st.st_mtime_ns, st.st_size)
         if isinstance(v, Exception):
             raise v
         return v
@@ -269,7 +269,7 @@ class PovrayOracle(Oracle):
                 command(scene, n, 1, len(cframes), "png8", threads=threads, mesh_camera=mesh) if png_pass else None
             )
             with ThreadPoolExecutor(max_workers=2) as pool:
-                jobs = [pool.submit(_run, c, cwd, timeout) for c in (cmd_exr, cmd_png) if c is not None]
+                jobs = [pool.submit(run_povray, c, cwd, timeout) for c in (cmd_exr, cmd_png) if c is not None]
                 done = [j.result() for j in jobs]  # the first failure raises, in pass order
             passes.append({"name": "exr", "frames": [f.label for f in frames], "command": shlex.join(cmd_exr),
                            "timings": done[0][1]})  # fmt: skip
@@ -277,8 +277,8 @@ class PovrayOracle(Oracle):
                 passes.append({"name": "png8", "frames": [f.label for f in cframes],
                                "command": shlex.join(cmd_png), "timings": done[1][1]})  # fmt: skip
             t0 = time.perf_counter()
-            exr = _frame_files(cwd, "out", "exr")
-            png = _frame_files(cwd, "out", "png") if png_pass else {}
+            exr = frame_files(cwd, "out", "exr")
+            png = frame_files(cwd, "out", "png") if png_pass else {}
             missing = [i for i in range(1, n + 1) if i not in exr] + [
                 i for i in range(1, len(cframes) + 1) if png_pass and i not in png
             ]
