@@ -4,6 +4,9 @@ Adding a renderer means one new module -- or a subpackage, one job a file, when 
 mitsuba/) -- and one line in REGISTRY. They are imported lazily, so a missing renderer costs nothing
 until it is asked for: minirt.harness.backends, the registry of every backend, imports each by the
 path given here.
+
+May import: minirt.jobs and below -- never the reference tracer (an oracle is an independent check of
+it), the diagnosis, the harness or anything above.
 """
 
 from __future__ import annotations

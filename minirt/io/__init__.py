@@ -3,5 +3,5 @@ not at all), JSON documents (jsonout: strict, versioned; documents: their pydant
 shipped schemas), output names (names) and untrusted text (untrusted: text from a scene file or a
 renderer made safe for a terminal or a file name).
 
-May import: minirt.model, minirt.errors.
+May import: minirt.model, minirt.errors, minirt.version -- not Dr.Jit's kernels.
 """

@@ -11,6 +11,6 @@ switchable, and the tools built on it.
   or precision, said as warnings; probe: one pixel, traced step by step by the tracer itself; backend:
   the tracer behind the Backend interface.
 
-May import: minirt.model, minirt.jit, minirt.io, minirt.jobs -- never the oracles, the harness, the
-pages or the CLI.
+May import: minirt.model, minirt.jit and below -- not files or jobs (the tracer stands on the model
+alone), never the oracles, the harness, the pages or the CLI.
 """
