@@ -49,9 +49,7 @@ PENDING_LONG = {
     ("minirt/jobs/data.py", "_check"),
     ("minirt/sweep/plots.py", "plot"),
     ("minirt/sweep/run.py", "run_sweep"),
-    ("oracles/embree.py", "_render"),
     ("oracles/mitsuba/rays.py", "_shade_batch"),
-    ("oracles/povray/oracle.py", "_render"),
 }
 
 MODULES = modules(ROOTS)
