@@ -44,7 +44,6 @@ PENDING_LONG = {
     # not split yet
     ("minirt/cli/grade.py", "grade"),
     ("minirt/harness/compare.py", "check_backend"),
-    ("minirt/harness/stochastic.py", "check_stochastic"),
     ("minirt/jobs/data.py", "_check"),
     ("minirt/sweep/plots.py", "plot"),
     ("minirt/sweep/run.py", "run_sweep"),
