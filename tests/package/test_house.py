@@ -43,8 +43,6 @@ PENDING_LONG = {
     ("oracles/mitsuba/exporter.py", "scene_to_xml"),
     # not split yet
     ("minirt/cli/grade.py", "grade"),
-    ("minirt/harness/compare.py", "check_backend"),
-    ("minirt/jobs/data.py", "_check"),
     ("minirt/sweep/plots.py", "plot"),
     ("minirt/sweep/run.py", "run_sweep"),
     ("oracles/mitsuba/rays.py", "_shade_batch"),
