@@ -43,8 +43,6 @@ PENDING_LONG = {
     ("oracles/mitsuba/exporter.py", "scene_to_xml"),
     # not split yet
     ("minirt/cli/grade.py", "grade"),
-    ("minirt/sweep/plots.py", "plot"),
-    ("minirt/sweep/run.py", "run_sweep"),
     ("oracles/mitsuba/rays.py", "_shade_batch"),
 }
 
