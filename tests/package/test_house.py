@@ -43,7 +43,6 @@ PENDING_LONG = {
     ("oracles/mitsuba/exporter.py", "scene_to_xml"),
     # not split yet
     ("minirt/cli/grade.py", "grade"),
-    ("oracles/mitsuba/rays.py", "_shade_batch"),
 }
 
 MODULES = modules(ROOTS)
