@@ -41,8 +41,6 @@ PENDING_LONG = {
     ("oracles/cycles/__init__.py", "_one_sample"),
     ("oracles/cycles/inside_blender.py", "build"),
     ("oracles/mitsuba/exporter.py", "scene_to_xml"),
-    # not split yet
-    ("minirt/cli/grade.py", "grade"),
 }
 
 MODULES = modules(ROOTS)
