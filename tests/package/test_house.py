@@ -11,9 +11,9 @@ from support.house import MAX_LINES, long_functions, modules, private_uses
 ROOT = Path(__file__).resolve().parents[2]
 ROOTS = [(ROOT / "minirt", "minirt", "minirt"), (ROOT / "oracles", "minirt.oracles", "oracles")]
 
-# Private names still used across minirt.diagnose's modules, which are being split by what each owns:
-# each entry goes when its seam becomes a public name with a docstring (or the two files one). The test
-# fails on an entry no longer found, so the list only shrinks.
+# Private names still used across minirt.diagnose's modules, to go as its parts are split by what each
+# owns: each entry goes when its seam becomes a public name with a docstring (or the two files one). The
+# test fails on an entry no longer found, so the list only shrinks.
 PENDING = {
     ("minirt/diagnose/explain.py", "_Search"),
     ("minirt/diagnose/explain.py", "_coded"),
@@ -27,14 +27,14 @@ PENDING = {
 }
 
 # Not ours to make public: trimesh's RayMeshIntersector builds its Embree scene lazily, on first use of
-# its private ``_scene``; reading it is the only way to time the BVH's build apart from the casting.
+# its private cached ``_scene``; reading it times the BVH's build apart from the casting (no public call
+# builds it without casting rays).
 # (The scan sees it because minirt.sweep.run has a method of that name.)
 THIRD_PARTY = {("oracles/embree.py", "_scene")}
 
-# Functions over MAX_LINES in files whose rewrite is under way (the rule diagnosis' page, the Cycles
-# oracle, the Mitsuba export) or whose split would collide with rules being added to it (shading's
-# ``shade``): each goes when it is split or says why it is one piece. The test fails on an entry no
-# longer found.
+# Functions over MAX_LINES not split yet (the grade page's view, shading's kernel of the local terms, the
+# Cycles oracle's sample and scene, the Mitsuba export): each entry goes when its function is split or
+# says why it is one piece. The test fails on an entry no longer found, so the list only shrinks.
 PENDING_LONG = {
     ("minirt/grading/page.py", "_grade_view"),
     ("minirt/reference/shading.py", "shade"),
