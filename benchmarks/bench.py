@@ -625,7 +625,7 @@ def bench_rivals(cfg: Config) -> dict[str, Any]:
     try:
         from oracles import mitsuba as mo
 
-        mi, variant = mo._load_mitsuba()
+        mi, variant = mo.load_mitsuba()
         msc = mi.load_string(mo.scene_to_xml(sc, rules))
 
         def mitsuba_render() -> float:
@@ -659,7 +659,7 @@ def bench_rivals(cfg: Config) -> dict[str, Any]:
             pt, wall = [], []
             for _ in range(max(1, cfg.reps // 2)):
                 ref_times.append(trace_seconds(tr))
-                _, tm = po._run(cmd, Path(tmp), timeout=600)
+                _, tm = po.run_povray(cmd, Path(tmp), timeout=600)
                 pt.append(tm.get("trace", float("nan")))
                 wall.append(tm["wall"])
         povray = {"status": "ok", "trace_median_s": statistics.median(pt), "trace_runs_s": pt,

@@ -23,7 +23,6 @@ if TYPE_CHECKING:
     from minirt.grading.grade import Grade
     from minirt.harness.results import CheckResult
     from minirt.model.result import RenderResult
-    from minirt.model.rules import Rules
     from minirt.model.scene import Scene
 
 from minirt.version import __version__
@@ -71,24 +70,6 @@ def load_scene(scene: str | PathLike[str]) -> Scene:
     return _load_file(find_scene(scene))
 
 
-def _scene_and_rules(
-    scene: Scene | str | PathLike[str],
-    width: int | None = None,
-    height: int | None = None,
-    samples: int | None = None,
-    profile: str | None = None,
-    rules: Mapping[str, Any] | None = None,
-) -> tuple[Scene, Rules]:
-    """The scene with the CLI's overrides applied, and the rules it renders under (as `minirt render`'s
-    --width, --height, --samples, --profile and --rule)."""
-    from minirt.model import rules as rules_mod
-    from minirt.model.scene import Scene
-
-    s = scene if isinstance(scene, Scene) else load_scene(scene)
-    s = s.with_overrides(width=width, height=height, samples=samples, profile=profile)
-    return s, rules_mod.resolve(s, profile, dict(rules or {}))
-
-
 def render(
     scene: Scene | str | PathLike[str],
     backend: str = "reference",
@@ -119,12 +100,13 @@ def render(
     """
     from minirt.errors import MinirtError
     from minirt.harness import backends
+    from minirt.model.bundled import scene_and_rules
 
     names = backends.parse_backends(backend)
     if len(names) != 1:
         raise MinirtError(f"render: one backend at a time, got {backend!r}")
     name = names[0]
-    s, r = _scene_and_rules(scene, width, height, samples, profile, rules)
+    s, r = scene_and_rules(scene, width, height, samples, profile, rules)
     opts: dict[str, Any] = backends.get(name).options(precision, samples)
     opts.update(options)
     result = backends.render(name, s, r, opts)
@@ -203,7 +185,7 @@ def grade(
     Raises MinirtError for bad input (an unreadable image, a size that does not fit the scene).
     """
     from minirt.grading import grade as grading
-    from minirt.model.bundled import find_scene
+    from minirt.model.bundled import find_scene, scene_and_rules
     from minirt.model.scene import Scene
 
     if isinstance(scene, Scene):
@@ -212,5 +194,5 @@ def grade(
         scene_file = str(find_scene(scene))
         given = scene_file
     w, h = size if size else (None, None)
-    s, r = _scene_and_rules(given, w, h, None, profile, rules)
+    s, r = scene_and_rules(given, w, h, None, profile, rules)
     return grading.grade_image(s, scene_file, Path(image), r, size_override=tuple(size) if size else None)

@@ -2,14 +2,14 @@
 
 Adding a renderer means one new module -- or a subpackage, one job a file, when it grows (povray/,
 mitsuba/) -- and one line in REGISTRY. They are imported lazily, so a missing renderer costs nothing
-until it is asked for.
+until it is asked for: minirt.harness.backends, the registry of every backend, imports each by the
+path given here.
+
+May import: minirt.jobs and below -- never the reference tracer (an oracle is an independent check of
+it), the diagnosis, the harness or anything above.
 """
 
 from __future__ import annotations
-
-import importlib
-
-from minirt.oracles.base import Oracle
 
 REGISTRY: dict[str, str] = {
     "mitsuba": "minirt.oracles.mitsuba:MitsubaOracle",
@@ -18,13 +18,3 @@ REGISTRY: dict[str, str] = {
     "cycles": "minirt.oracles.cycles:CyclesOracle",
     "exact": "minirt.oracles.exact:ExactOracle",
 }
-
-
-def names() -> list[str]:
-    return list(REGISTRY)
-
-
-def get(name: str) -> Oracle:
-    """The oracle called `name` (KeyError for an unknown one)."""
-    module, cls = REGISTRY[name].split(":")
-    return getattr(importlib.import_module(module), cls)()

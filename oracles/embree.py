@@ -70,11 +70,12 @@ import numpy as np
 
 from minirt.io.atomic import write_all
 from minirt.model import camera
-from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult, geometry_from_flat
 from minirt.model.roots import ball_roots
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Plane, Scene
+from minirt.model.series import Series, Setting, Truth
+from minirt.model.tolerance import GeometryTolerance, Margins, tolerance_inputs
 from minirt.oracles.base import Oracle
 
 DEFAULT_SUBDIVISIONS = 4
@@ -450,87 +451,15 @@ class EmbreeOracle(Oracle):
 
         tess = tessellation(level)
         mesh = scene_to_mesh(scene, level, far_factor)
-        face_shape = mesh.face_attributes["shape_id"]
         o, d = camera.primary_rays(scene, rules)
         timings["tessellation"] = time.perf_counter() - t_start
 
-        n_rays = len(o)
-        tri = np.full(n_rays, -1, dtype=np.int64)
-        passes = []
-        extent = 0.0
-        if len(mesh.faces):
-            t0 = time.perf_counter()
-            intersector = ray_pyembree.RayMeshIntersector(mesh)
-            _ = intersector._scene  # build Embree's BVH now, so the timings separate build and casting
-            timings["bvh_build"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            # One Embree query per ray, t in (0, inf): the first hit (no offsets, no multiple-hit loop).
-            index_tri, index_ray = intersector.intersects_id(o, d, multiple_hits=False, return_locations=False)
-            tri[index_ray] = index_tri
-            timings["cast"] = time.perf_counter() - t0
-            passes.append({"name": "primary", "rays": int(n_rays), "hits": len(index_ray), "query": "INTERSECT"})
-            # Coordinates Embree sees: translated to the bounding-box corner (trimesh), then float32.
-            corner = mesh.vertices.min(axis=0)
-            extent = float(max(np.abs(mesh.vertices - corner).max(), np.abs(o - corner).max()))
-        else:
-            timings["bvh_build"] = timings["cast"] = 0.0
-
+        tri, passes, extent = _cast(ray_pyembree, mesh, o, d, timings)
         t0 = time.perf_counter()
-        hit = tri >= 0
-        if len(face_shape):
-            sid = np.where(hit, face_shape[np.maximum(tri, 0)], -1).astype(np.int32)
-        else:  # a scene without shapes: every ray misses
-            sid = np.full(n_rays, -1, dtype=np.int32)
-        t = np.full(n_rays, np.inf)
-        normal = np.zeros((n_rays, 3))
-        t_bound = np.full(n_rays, np.inf)
-        face_n = _hit_face_normals(mesh, tri[hit])
-        for k, shape in enumerate(scene.shapes):
-            m = sid == k
-            if not m.any():
-                continue
-            om, dm = o[m], d[m]
-            if isinstance(shape, Ball):
-                fn = face_n(tri[m])
-                v0 = mesh.vertices[mesh.faces[tri[m], 0]]
-                # float64 intersection with the face's plane (the triangle Embree chose)
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    tk = np.einsum("ij,ij->i", fn, v0 - om) / np.einsum("ij,ij->i", fn, dm)
-                normal[m] = fn
-            else:
-                n = np.asarray(shape.normal)
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    tk = ((np.asarray(shape.point) - om) @ n) / (dm @ n)
-                normal[m] = n
-            t[m] = tk
-        # float32 can report a hit whose float64 plane intersection is not in front of the origin
-        # (a triangle grazed at t ~ 0, or parallel to the ray): count them, and call them misses.
-        bad = hit & ~(np.isfinite(t) & (t > 0))
-        sid[bad] = -1
+        sid, t, normal, bad = _hits(scene, mesh, tri, o, d)
         hit = sid >= 0
         position = o + np.where(hit, t, 0.0)[:, None] * d
-
-        # Per-pixel bounds for the shape the oracle hit.
-        gap = tess.radial_gap_rel
-        normal_bound = np.full(n_rays, np.inf)
-        # Embree's float32 hit may land on any triangle within eps32 of the true point: far from the origin
-        # (a ball 7.9e5 away with radius 0.374, fuzz far_11_15: eps32 0.37) that tilts the chosen face's
-        # normal as much as the shell does, so the normal bound takes both.
-        eps32_abs = EMBREE_ULPS * U32 * extent
-        for k, shape in enumerate(scene.shapes):
-            m = sid == k
-            if not m.any():
-                continue
-            if isinstance(shape, Ball):
-                tb = ball_t_bound(shape, gap, o[m], d[m])
-                t_bound[m] = tb
-                ratio = (tb + eps32_abs) / (shape.radius * (1.0 - gap))
-                with np.errstate(invalid="ignore"):
-                    extra = np.where(ratio < 1.0, np.degrees(np.arcsin(np.minimum(ratio, 1.0))), 180.0)
-                normal_bound[m] = np.minimum(tess.normal_deg + extra, 180.0)
-            else:
-                t_bound[m] = plane_t_bound(shape, o[m], d[m], t[m])
-                normal_bound[m] = 1e-9
+        t_bound, normal_bound = _bounds(scene, tess, sid, o, d, t, extent)
         timings["readback"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_start
 
@@ -558,7 +487,7 @@ class EmbreeOracle(Oracle):
                 "subdivisions": level,
                 "faces": len(mesh.faces),
                 "faces_per_ball": tess.n_faces,
-                "radial_gap_rel": gap,
+                "radial_gap_rel": tess.radial_gap_rel,
                 "face_normal_deg": tess.normal_deg,
             },
             "precision": precision,
@@ -668,3 +597,94 @@ def precision_summary(scene: Scene, tess: Tessellation, far_factor: float, exten
             "normal are recomputed in float64 from the triangle Embree chose; depth ties within t_bound + eps32_abs."
         ),
     }
+
+
+def _cast(ray_pyembree, mesh, o: np.ndarray, d: np.ndarray, timings: dict[str, float]):
+    """(the triangle each ray hits, -1 on a miss; the passes' record; the extent of the coordinates Embree
+    sees): one Embree query per ray, its BVH's build and the casting timed apart (``timings``)."""
+    n_rays = len(o)
+    tri = np.full(n_rays, -1, dtype=np.int64)
+    passes = []
+    extent = 0.0
+    if len(mesh.faces):
+        t0 = time.perf_counter()
+        intersector = ray_pyembree.RayMeshIntersector(mesh)
+        _ = intersector._scene  # build Embree's BVH now, so the timings separate build and casting
+        timings["bvh_build"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        # One Embree query per ray, t in (0, inf): the first hit (no offsets, no multiple-hit loop).
+        index_tri, index_ray = intersector.intersects_id(o, d, multiple_hits=False, return_locations=False)
+        tri[index_ray] = index_tri
+        timings["cast"] = time.perf_counter() - t0
+        passes.append({"name": "primary", "rays": int(n_rays), "hits": len(index_ray), "query": "INTERSECT"})
+        # Coordinates Embree sees: translated to the bounding-box corner (trimesh), then float32.
+        corner = mesh.vertices.min(axis=0)
+        extent = float(max(np.abs(mesh.vertices - corner).max(), np.abs(o - corner).max()))
+    else:
+        timings["bvh_build"] = timings["cast"] = 0.0
+    return tri, passes, extent
+
+
+def _hits(scene: Scene, mesh, tri: np.ndarray, o: np.ndarray, d: np.ndarray):
+    """(shape id, -1 on a miss; t; normal; the hits dropped) of each ray from the triangle Embree chose:
+    t in float64 at the face's plane (a ball's) or the shape's own plane, the face's or the plane's normal."""
+    n_rays = len(o)
+    face_shape = mesh.face_attributes["shape_id"]
+    hit = tri >= 0
+    if len(face_shape):
+        sid = np.where(hit, face_shape[np.maximum(tri, 0)], -1).astype(np.int32)
+    else:  # a scene without shapes: every ray misses
+        sid = np.full(n_rays, -1, dtype=np.int32)
+    t = np.full(n_rays, np.inf)
+    normal = np.zeros((n_rays, 3))
+    face_n = _hit_face_normals(mesh, tri[hit])
+    for k, shape in enumerate(scene.shapes):
+        m = sid == k
+        if not m.any():
+            continue
+        om, dm = o[m], d[m]
+        if isinstance(shape, Ball):
+            fn = face_n(tri[m])
+            v0 = mesh.vertices[mesh.faces[tri[m], 0]]
+            # float64 intersection with the face's plane (the triangle Embree chose)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tk = np.einsum("ij,ij->i", fn, v0 - om) / np.einsum("ij,ij->i", fn, dm)
+            normal[m] = fn
+        else:
+            n = np.asarray(shape.normal)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tk = ((np.asarray(shape.point) - om) @ n) / (dm @ n)
+            normal[m] = n
+        t[m] = tk
+    # float32 can report a hit whose float64 plane intersection is not in front of the origin
+    # (a triangle grazed at t ~ 0, or parallel to the ray): count them, and call them misses.
+    bad = hit & ~(np.isfinite(t) & (t > 0))
+    sid[bad] = -1
+    return sid, t, normal, bad
+
+
+def _bounds(scene: Scene, tess, sid: np.ndarray, o: np.ndarray, d: np.ndarray, t: np.ndarray, extent: float):
+    """Per-ray bounds for the shape the oracle hit: (t's, the normal's in degrees); inf on a miss."""
+    n_rays = len(o)
+    t_bound = np.full(n_rays, np.inf)
+    gap = tess.radial_gap_rel
+    normal_bound = np.full(n_rays, np.inf)
+    # Embree's float32 hit may land on any triangle within eps32 of the true point: far from the origin
+    # (a ball 7.9e5 away with radius 0.374, fuzz far_11_15: eps32 0.37) that tilts the chosen face's
+    # normal as much as the shell does, so the normal bound takes both.
+    eps32_abs = EMBREE_ULPS * U32 * extent
+    for k, shape in enumerate(scene.shapes):
+        m = sid == k
+        if not m.any():
+            continue
+        if isinstance(shape, Ball):
+            tb = ball_t_bound(shape, gap, o[m], d[m])
+            t_bound[m] = tb
+            ratio = (tb + eps32_abs) / (shape.radius * (1.0 - gap))
+            with np.errstate(invalid="ignore"):
+                extra = np.where(ratio < 1.0, np.degrees(np.arcsin(np.minimum(ratio, 1.0))), 180.0)
+            normal_bound[m] = np.minimum(tess.normal_deg + extra, 180.0)
+        else:
+            t_bound[m] = plane_t_bound(shape, o[m], d[m], t[m])
+            normal_bound[m] = 1e-9
+    return t_bound, normal_bound

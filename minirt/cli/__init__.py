@@ -5,6 +5,6 @@
 - one module per family of commands: render (render, export), probe, inventory (scenes, doctor), check
   (check, report), sweep, grade, fuzz. Each parses its flags, calls its capability's API, prints.
 
-May import: every capability (minirt.grading, campaign, sweep, pages, harness, reference, ...); nothing
-imports the CLI but minirt.__main__ and the console script.
+May import: minirt.grading, minirt.campaign, minirt.sweep and below (every capability); nothing imports
+the CLI but the package's __main__ and the console script.
 """

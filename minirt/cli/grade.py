@@ -8,7 +8,7 @@ keeps the progress bar and prints the verdict, its diagnosis and the class's cou
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -31,6 +31,8 @@ from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
 
 
+# one piece: Typer's declarations of grade's options (one parameter each) and the dispatch to its three
+# modes (one image, a class, a program), each of which is a function of its own
 def grade(
     scene_path: Annotated[
         str | None,
@@ -157,12 +159,18 @@ def grade(
             profile=profile, rule=rule, quiet=quiet, workers=workers, scheduler=scheduler, cache=cache,
         )  # fmt: skip
         return
+    class_only = {"--scenes": scenes_dir, "--workers": workers, "--scheduler": scheduler, "--cache": cache}
+    _grade_one(scene_path, image, json_out, out_dir, size, profile, rule, quiet, class_only)
+
+
+def _grade_one(scene_path, image, json_out, out_dir, size, profile, rule, quiet, class_only: dict[str, Any]) -> None:
+    """`minirt grade SCENE IMAGE`: one image graded, its verdict printed (and its JSON and page written);
+    exits with the grade's status. ``class_only``: the options that go with --class alone, as given."""
     if scene_path is None or image is None:
         raise MinirtError(
             "grade needs SCENE and IMAGE (or --class DIR), e.g. minirt grade scenes/rules.toml student.png"
         )
-    class_only = ((scenes_dir, "--scenes"), (workers, "--workers"), (scheduler, "--scheduler"), (cache, "--cache"))
-    for given, option in class_only:
+    for option, given in class_only.items():
         if given is not None:
             raise MinirtError(f"{option} goes with --class")
     from minirt.grading import grade as grading

@@ -149,13 +149,11 @@ def load(path: Path, width=None, height=None, samples=None, profile=None, rules=
 def load_plain(path: Path, width=None, height=None, samples=None, profile=None, rules=None):
     """(the scene as loaded, the scene with the flags' overrides, its rules): the file parsed once (a scene
     of 100,000 balls is 14 MB of TOML, ~4 s to parse)."""
-    from minirt.model import rules as rules_mod
-    from minirt.model.bundled import find_scene
+    from minirt.model.bundled import find_scene, scene_and_rules
     from minirt.model.scene import load_scene
 
     plain = load_scene(find_scene(path))
-    scene = plain.with_overrides(width=width, height=height, samples=samples, profile=profile)
-    return plain, scene, rules_mod.resolve(scene, profile, parse_rules(rules))
+    return plain, *scene_and_rules(plain, width, height, samples, profile, parse_rules(rules))
 
 
 def parse_size(size: str | None) -> tuple[int, int] | None:

@@ -160,8 +160,8 @@ class Weigher:
     def evidence(self, best: Rules, back: Rules, unit: tuple[str, ...]) -> Evidence:
         """``best`` weighed against ``back`` (``best`` with ``unit`` put back): see the module's docstring."""
         cb, ck = self.cls(best), self.cls(back)
-        n = self.search.target._model_shape[0] * self.search.target._model_shape[1]
-        h, w = self.search.target._model_shape
+        n = self.search.target.model_shape[0] * self.search.target.model_shape[1]
+        h, w = self.search.target.model_shape
         if cb is None or ck is None:  # a layout that does not fit: the one that fits is all the evidence
             mask = np.ones(n, bool) if ck is None else np.zeros(n, bool)
             return Evidence(unit, n if ck is None else 0, n if cb is None else 0, 0, mask.reshape(h, w))
@@ -241,7 +241,7 @@ def equal(search: Search, a: Rules, b: Rules) -> bool:
     g = search.compare(a, b)
     if g is None:
         return False
-    n = search.target._model_shape[0] * search.target._model_shape[1]
+    n = search.target.model_shape[0] * search.target.model_shape[1]
     return g[0] == 0 and abs(g[1]) <= EQUAL_LEVELS * n + 1
 
 

@@ -125,7 +125,7 @@ def diagnose(
             mg, _, ill_g = search.final_mask(given, pair)
             mb, off_b, ill_b = search.final_mask(best, pair)
         one_of = evidence.one_of(search, given, best)
-    shape = search.target._model_shape
+    shape = search.target.model_shape
     explained = []
     if alternatives:
         for e in found:
@@ -180,7 +180,7 @@ def indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Ta
     scene that does tell them apart (None when none does). A change that differs on a stride of pixels
     is told apart without a full render. It depends on the scene and the answer only, not on the image:
     a class's images with the same answer share one list (kept in the cache)."""
-    key = (*VariantCache._key(scene, best), best, target.is_float)
+    key = (*VariantCache.key(scene, best), best, target.is_float)
     if key not in cache.alternatives:
         asked, cache.requested = cache.requested, set()
         found = _indistinguishable(scene, best, cache, target)

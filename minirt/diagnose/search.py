@@ -176,7 +176,7 @@ class Search:
         # with that one at 0.0 for the offset, inf for t_max: ``interval``)
         self.compared: list[Rules] = []
         self.intervals: dict[tuple[str, Rules], tuple[float, float]] = {}
-        target._model_shape = (scene.camera.height, scene.camera.width)
+        target.model_shape = (scene.camera.height, scene.camera.width)
 
     def full(self, rules: Rules) -> tuple[np.ndarray | None, Variant]:
         v = self.cache.get(self.scene, rules)
@@ -259,7 +259,7 @@ class Search:
         ill-conditioned (nor float32 flips)."""
         d, v = self.either(rules)
         if d is None:
-            return self.target._model_shape[0] * self.target._model_shape[1]
+            return self.target.model_shape[0] * self.target.model_shape[1]
         where = np.flatnonzero(self.target.beyond(d).reshape(-1))
         return int((~(self.ill_at(rules, v, where) | self.flips(rules)[where])).sum())
 
@@ -307,7 +307,7 @@ class Search:
         """Could b fit the image as well as a? On a stride of the pixels (b traced there only), b leaves at
         most two more pixels beyond tolerance than a (room for a pixel ill-conditioned in b): a rule set
         clearly worse there is not looked at on every pixel."""
-        h, w = self.target._model_shape
+        h, w = self.target.model_shape
         at = np.arange(0, h * w, max(1, (h * w) // (4 * SAMPLE)))
         da, _ = self.either(a)
         if da is None:
@@ -444,7 +444,7 @@ class Search:
         if hit.size == 0:
             return None
         # what a cut pixel shows: the colour of a miss (the background under "on-miss", else black)
-        h, w = self.target._model_shape
+        h, w = self.target.model_shape
         miss = np.zeros((h, w, 3))
         if rules.background == "on-miss":
             miss[:] = self.scene.background
@@ -506,7 +506,7 @@ class Search:
         # image whose match differs between the bracket's ends and its best offset.
         lo, hi = max(grid[a - 1], grid[1] / 2), grid[min(b + 1, len(grid) - 1)]
         mid = grid[(a + b) // 2]
-        everywhere = np.arange(self.target._model_shape[0] * self.target._model_shape[1])
+        everywhere = np.arange(self.target.model_shape[0] * self.target.model_shape[1])
         ends = [beyond(x, everywhere) for x in (lo, mid, hi)]
         at = np.flatnonzero((ends[0] != ends[1]) | (ends[1] != ends[2]))
         if at.size:
@@ -606,7 +606,7 @@ class Search:
                         for ch in rules_mod.values("channels"):
                             cand = replace(rules, encoding=enc, gamma=gam, transpose=tr, rows=rows, channels=ch)
                             img = self.target.in_layout(cand)
-                            if img.shape[:2] != self.target._model_shape:
+                            if img.shape[:2] != self.target.model_shape:
                                 continue
                             d = bitmap.channel_max(np.abs(coded - img.reshape(-1, 3)[at]))
                             key = (*self.target.score(d, ~sill), len(rules.differs(cand)))
@@ -624,7 +624,7 @@ class Search:
         key = replace(rules, specular_exponent=1).traced()
         if key in self._exponents:
             return self._exponents[key]
-        n = self.target._model_shape[0] * self.target._model_shape[1]
+        n = self.target.model_shape[0] * self.target.model_shape[1]
         at = np.arange(0, n, max(1, n // (4 * SAMPLE)))
         memo: dict[int, float] = {}
 
@@ -654,7 +654,7 @@ class Search:
     def final_mask(self, rules: Rules, f32_of: list[Rules]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(beyond-tolerance mask, off-by-any mask, ill mask) of ``rules`` on every pixel, leaving out
         pixels ill-conditioned in it (band, shadows, float32 flips) or in the renders ``f32_of``."""
-        shape = self.target._model_shape
+        shape = self.target.model_shape
         d, v = self.either(rules)
         if d is None:
             full = np.ones(shape, dtype=bool)

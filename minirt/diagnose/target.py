@@ -67,7 +67,7 @@ class Target:
         if idx is None and img.shape[:2] != (h, w):
             return None
         if idx is not None:
-            if img.shape[:2] != self._model_shape:
+            if img.shape[:2] != self.model_shape:
                 return None
             img = img.reshape(-1, 3)[idx]
         if self.is_float:
@@ -75,7 +75,7 @@ class Target:
         enc = bitmap.encode(color, rules.encoding, rules.gamma)
         return bitmap.channel_max(np.abs(enc.astype(np.int16) - img))
 
-    _model_shape: tuple[int, int] = (0, 0)
+    model_shape: tuple[int, int] = (0, 0)
 
     def score(self, d: np.ndarray, keep: np.ndarray | None = None) -> tuple[int, int]:
         """(pixels beyond tolerance, pixels exactly one level off), among ``keep``. The second breaks

@@ -102,16 +102,17 @@ class VariantCache:
         self.hits = 0
 
     @staticmethod
-    def _key(scene: Scene, rules: Rules) -> tuple:
+    def key(scene: Scene, rules: Rules) -> tuple:
+        """What a render depends on: the scene (its digest and source), its size and the traced rules."""
         return (scene.digest, scene.source, scene.camera.width, scene.camera.height, rules.traced())
 
     def has(self, scene: Scene, rules: Rules) -> bool:
         """Whether the full render of ``rules`` is kept."""
-        return self._key(scene, rules) in self._items
+        return self.key(scene, rules) in self._items
 
     def get(self, scene: Scene, rules: Rules, f32: bool = False, pin: bool = False) -> Variant:
         """The full render of ``rules`` (with its float32 twin if ``f32``); ``pin`` keeps it for good."""
-        key = self._key(scene, rules)
+        key = self.key(scene, rules)
         self.requested.add((key, "f64"))
         if pin:
             self._pinned.add(key)
@@ -142,7 +143,7 @@ class VariantCache:
         one-dimensional search tries (the specular exponent, the offset), of which it keeps one: traced on
         ``idx`` alone unless cached or shared (a class's images ask for the same) -- a full 256² render cost
         ~4 ms against ~1.5 ms for a quarter of its pixels, and a check's search tried ~300 such values."""
-        key = self._key(scene, rules)
+        key = self.key(scene, rules)
         self.requested.add((key, "f64"))
         n = scene.camera.width * scene.camera.height
         if keep:
@@ -221,7 +222,7 @@ class VariantCache:
         from minirt.reference.tracer import Tracer
 
         plain = replace(rules.traced(), t_max=math.inf)
-        key = (*self._key(scene, plain), "deep")
+        key = (*self.key(scene, plain), "deep")
         if key not in self._hits:
             n = scene.camera.width * scene.camera.height
             tr = Tracer(scene, plain, runtime=True)
@@ -254,7 +255,7 @@ class VariantCache:
         """The candidate traced in float32 on the pixels ``idx`` (None beyond float32's range)."""
         from minirt.errors import MinirtError
 
-        self.requested.add((self._key(scene, rules), "f32"))
+        self.requested.add((self.key(scene, rules), "f32"))
         try:
             return self._trace(scene, rules.traced(), idx, "f32")
         except MinirtError:
@@ -276,7 +277,7 @@ class VariantCache:
         # allocation cache for the next variant: a cache of views would hold every buffer, and each
         # render would write into fresh memory, page-faulting inside its kernels (in a check's process,
         # 0.25 -> 4.7 ms for the interleave of a 256^2 variant).
-        c = tr._to_numpy3(color, also=() if m is None else (m,)).copy()
+        c = tr.to_numpy3(color, also=() if m is None else (m,)).copy()
         sill = np.zeros(c.shape[0], dtype=bool) if m is None else np.asarray(m) < EPS_REL * _scale(scene)
         if idx is None:
             h, w = scene.camera.height, scene.camera.width

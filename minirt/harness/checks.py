@@ -92,7 +92,7 @@ def hazard_warnings(
     out: list[tuple[str, str]] = []
     for i, sc in enumerate(result.scenes):
         given = None if scenes is None else scenes[i]
-        scene, rules = harness._scene_and_rules(sc.path or sc.file, size, given)
+        scene, rules = harness.file_scene_and_rules(sc.path or sc.file, size, given)
         f32 = [n for n in sc.backends if n in names and backends.get(n).is_float32({})]
         out += [(scene.name, line) for line in hazards.scene_warnings(scene, rules, sc.reference, "f64", f32)]
     return out

@@ -34,9 +34,9 @@ from minirt.harness.results import ORDER, BackendCheck, Check, RuleDiagnosis, wo
 from minirt.harness.shading import check_shading, edge_classes, edge_pixels, shading_exercise
 from minirt.harness.stochastic import check_stochastic
 from minirt.jit import engine
-from minirt.model.backend import farthest_hit
 from minirt.model.rules import Rules, resolve
 from minirt.model.scene import Scene
+from minirt.model.tolerance import farthest_hit
 from minirt.reference import band
 
 
@@ -107,24 +107,28 @@ def check_backend(
         bc.seconds = time.perf_counter() - t0
         return bc
     bc.rules, bc.rule_masks = attribute_rules(refs, rules, followed)
+    bc.rule_diagnosis = _rule_diagnosis(scene, rules, followed, name, res, pre, variants, busy)
+    bc.seconds = time.perf_counter() - t0
+    return bc
+
+
+def _rule_diagnosis(scene: Scene, rules: Rules, followed: Rules, name: str, res, pre, variants, busy) -> RuleDiagnosis:
+    """The rule diagnosis of the backend's colour (which rule settings explain it), or why it has none."""
     model = backends.shading_model(name, res.color is not None)
     if model != "exercise" or res.color is None:
         why = "does not shade" if model is None or res.color is None else f"shades a {model} model, not the exercise's"
-        bc.rule_diagnosis = RuleDiagnosis(reason=f"{name} {why}: no rule setting can explain its colour")
-    elif pre.verdict == "fail":
-        bc.rule_diagnosis = RuleDiagnosis(reason=f"{name}'s image failed pre-flight")
-    else:
-        # The diagnosis traces hundreds of candidates, each a kernel of a few milliseconds on a few-ball scene.
-        # While other renders fill the cores (``busy``), Dr.Jit's second thread mostly waits for a core at each
-        # kernel's end: without it the bundled scenes' check used 0.93x the CPU in the same wall time (0.99x,
-        # 5 pairs; the same documents), a core's share the other processes then have. Longer kernels pay for
-        # both threads even then: a 1,024-ball scene's diagnosis (3.4 s, Blender rendering beside it) on one
-        # thread made its check 1.9 s longer.
-        one_thread = busy is not None and small_kernels(scene) and busy()
-        with engine.threads(1) if one_thread else contextlib.nullcontext():
-            bc.rule_diagnosis = diagnose_oracle(scene, rules, followed, res, variants)
-    bc.seconds = time.perf_counter() - t0
-    return bc
+        return RuleDiagnosis(reason=f"{name} {why}: no rule setting can explain its colour")
+    if pre.verdict == "fail":
+        return RuleDiagnosis(reason=f"{name}'s image failed pre-flight")
+    # The diagnosis traces hundreds of candidates, each a kernel of a few milliseconds on a few-ball scene.
+    # While other renders fill the cores (``busy``), Dr.Jit's second thread mostly waits for a core at each
+    # kernel's end: without it the bundled scenes' check used 0.93x the CPU in the same wall time (0.99x,
+    # 5 pairs; the same documents), a core's share the other processes then have. Longer kernels pay for
+    # both threads even then: a 1,024-ball scene's diagnosis (3.4 s, Blender rendering beside it) on one
+    # thread made its check 1.9 s longer.
+    one_thread = busy is not None and small_kernels(scene) and busy()
+    with engine.threads(1) if one_thread else contextlib.nullcontext():
+        return diagnose_oracle(scene, rules, followed, res, variants)
 
 
 def small_kernels(scene: Scene) -> bool:

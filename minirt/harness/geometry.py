@@ -11,6 +11,7 @@ could not have failed on most of what it judges says so (``inconclusive``): WARN
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -76,6 +77,66 @@ def check_geometry(
         bound=band.BOUND,
         widen=lambda eps: rays.margins(bound=eps),
     )
+    c = _compare(ref, res, tol, margins)
+    figures = _figures(ref, tol, c)
+    if tol.traced is not None:
+        figures["traced_pixels"] = int(tol.traced.sum())
+    figures["inconclusive"] = inconclusive(ref, res, tol.band, c.judged, tol.t_abs, tol.normal_deg, tol.traced)
+    bad = _failures(c)
+    images = {
+        "mask_inside_band": c.inside,
+        "mask_outside_band": c.outside,
+        "id_mismatch": c.id_out,
+        "ties": c.ties,  # id mismatches at depth ties: not judged
+        "depth_rel_err": c.rel,
+        "normal_deg": c.ang,
+        "band": tol.band,
+        "not_judged": c.same & tol.band,  # t and normals compared but not judged: the silhouette band
+        "t_tolerance": tol.t_abs,  # per pixel, what a t may differ by (the campaign's "changes judged")
+        "normal_tolerance": tol.normal_deg,
+    }
+    thresholds = {
+        "mask_outside_band": f"0: {THRESHOLDS['mask_outside_band'].why}",
+        "band": tol.why["band"],
+        "t": tol.why["t"],
+        "normal": tol.why["normal"],
+    }
+    limit = THRESHOLDS["inconclusive_fraction"]
+    thresholds["inconclusive"] = f"{limit.value}: {limit.why}"
+    if bad:
+        return Check("fail", figures, reason="; ".join(bad), thresholds=thresholds, images=images)
+    why = figures["inconclusive"]["reasons"]
+    if why:  # nothing failed, but the check could not have failed on most of what it judges
+        reason = f"{INCONCLUSIVE}this oracle cannot judge this scene ({'; '.join(why)})"
+        return Check("warn", figures, reason=reason, thresholds=thresholds, images=images)
+    return Check("pass", figures, thresholds=thresholds, images=images)
+
+
+@dataclass
+class _Compared:
+    """The per-pixel comparisons ``check_geometry`` reports, (H, W) each: ``said`` counts the non-finite
+    values per buffer."""
+
+    mism: np.ndarray
+    inside: np.ndarray
+    outside: np.ndarray
+    nonfinite: np.ndarray
+    said: dict[str, int]
+    nf_out: np.ndarray
+    ties: np.ndarray
+    id_out: np.ndarray
+    same: np.ndarray
+    rel: np.ndarray
+    ang: np.ndarray
+    judged: np.ndarray
+    t_viol: np.ndarray
+    n_viol: np.ndarray
+    n_len: np.ndarray
+    len_viol: np.ndarray
+
+
+def _compare(ref: RenderResult, res: RenderResult, tol: Any, margins: dict[str, np.ndarray]) -> _Compared:
+    """The oracle's geometry against the reference's, pixel by pixel, under the tolerance ``tol``."""
     mism = ref.hit != res.hit
     if tol.traced is not None:  # a pixel the oracle did not trace holds no answer: not a mismatch
         mism &= tol.traced
@@ -112,71 +173,67 @@ def check_geometry(
     # cancelling discriminant makes dp / r large, and its band holds those pixels (fuzz far_7_2: |n| 0.9).
     n_len = np.abs(row_norm(res.normal) - 1.0)
     len_viol = judged & (n_len > np.maximum(1e-3, np.radians(tol.normal_deg)))
-    figures = {
+    return _Compared(
+        mism=mism,
+        inside=inside,
+        outside=outside,
+        nonfinite=nonfinite,
+        said=said,
+        nf_out=nf_out,
+        ties=ties,
+        id_out=id_out,
+        same=same,
+        rel=rel,
+        ang=ang,
+        judged=judged,
+        t_viol=t_viol,
+        n_viol=n_viol,
+        n_len=n_len,
+        len_viol=len_viol,
+    )
+
+
+def _figures(ref: RenderResult, tol: Any, c: _Compared) -> dict[str, Any]:
+    """The check's figures: counts of each kind of mismatch, the largest errors, the tolerance's own."""
+    return {
         "pixels": int(ref.hit.size),
         "band_pixels": int(tol.band.sum()),
-        "mask_mismatch": int(mism.sum()),
-        "mask_mismatch_outside_band": int(outside.sum()),
-        "id_mismatch": int(id_out.sum()),
-        "ties": int(ties.sum()),
-        "nonfinite": {k: v for k, v in said.items() if v},
-        "nonfinite_outside_band": int(nf_out.sum()),
-        "depth_rel_err_max": float(rel[same].max()) if same.any() else 0.0,
-        "depth_rel_err_p99": float(np.percentile(rel[same], 99)) if same.any() else 0.0,
-        "depth_violations": int(t_viol.sum()),
-        "normal_deg_max": float(ang[same].max()) if same.any() else 0.0,
-        "normal_violations": int(n_viol.sum()),
-        "normal_length_err_max": float(n_len[judged].max()) if judged.any() else 0.0,
-        "normal_length_violations": int(len_viol.sum()),
+        "mask_mismatch": int(c.mism.sum()),
+        "mask_mismatch_outside_band": int(c.outside.sum()),
+        "id_mismatch": int(c.id_out.sum()),
+        "ties": int(c.ties.sum()),
+        "nonfinite": {k: v for k, v in c.said.items() if v},
+        "nonfinite_outside_band": int(c.nf_out.sum()),
+        "depth_rel_err_max": float(c.rel[c.same].max()) if c.same.any() else 0.0,
+        "depth_rel_err_p99": float(np.percentile(c.rel[c.same], 99)) if c.same.any() else 0.0,
+        "depth_violations": int(c.t_viol.sum()),
+        "normal_deg_max": float(c.ang[c.same].max()) if c.same.any() else 0.0,
+        "normal_violations": int(c.n_viol.sum()),
+        "normal_length_err_max": float(c.n_len[c.judged].max()) if c.judged.any() else 0.0,
+        "normal_length_violations": int(c.len_viol.sum()),
         "tolerance": tol.summary,
     }
-    if tol.traced is not None:
-        figures["traced_pixels"] = int(tol.traced.sum())
-    figures["inconclusive"] = inconclusive(ref, res, tol.band, judged, tol.t_abs, tol.normal_deg, tol.traced)
+
+
+def _failures(c: _Compared) -> list[str]:
+    """One line per kind of defect found outside the band (none: the geometry passes)."""
     bad = []
-    if nf_out.any():
-        where = ", ".join(f"{k}: {v}" for k, v in said.items() if v)
-        bad.append(
-            f"NaN or infinity where the reference is finite at {int(nf_out.sum())} pixel(s) outside the band ({where})"
-        )
-    if outside.any():
-        bad.append(f"{int(outside.sum())} hit-mask mismatch(es) outside the silhouette band")
-    if id_out.any():
-        bad.append(f"{int(id_out.sum())} shape id mismatch(es)")
-    if t_viol.any():
-        bad.append(f"{int(t_viol.sum())} t error(s) above tolerance")
-    if n_viol.any():
-        bad.append(f"{int(n_viol.sum())} normal error(s) above tolerance")
-    if len_viol.any():
-        bad.append(f"{int(len_viol.sum())} normal(s) not unit length beyond tolerance (|n| - 1 up to "
-                   f"{float(n_len[len_viol].max()):.3g})")  # fmt: skip
-    images = {
-        "mask_inside_band": inside,
-        "mask_outside_band": outside,
-        "id_mismatch": id_out,
-        "ties": ties,  # id mismatches at depth ties: not judged
-        "depth_rel_err": rel,
-        "normal_deg": ang,
-        "band": tol.band,
-        "not_judged": same & tol.band,  # t and normals compared but not judged: the silhouette band
-        "t_tolerance": tol.t_abs,  # per pixel, what a t may differ by (the campaign's "changes judged")
-        "normal_tolerance": tol.normal_deg,
-    }
-    thresholds = {
-        "mask_outside_band": f"0: {THRESHOLDS['mask_outside_band'].why}",
-        "band": tol.why["band"],
-        "t": tol.why["t"],
-        "normal": tol.why["normal"],
-    }
-    limit = THRESHOLDS["inconclusive_fraction"]
-    thresholds["inconclusive"] = f"{limit.value}: {limit.why}"
-    if bad:
-        return Check("fail", figures, reason="; ".join(bad), thresholds=thresholds, images=images)
-    why = figures["inconclusive"]["reasons"]
-    if why:  # nothing failed, but the check could not have failed on most of what it judges
-        reason = f"{INCONCLUSIVE}this oracle cannot judge this scene ({'; '.join(why)})"
-        return Check("warn", figures, reason=reason, thresholds=thresholds, images=images)
-    return Check("pass", figures, thresholds=thresholds, images=images)
+    if c.nf_out.any():
+        where = ", ".join(f"{k}: {v}" for k, v in c.said.items() if v)
+        n = int(c.nf_out.sum())
+        bad.append(f"NaN or infinity where the reference is finite at {n} pixel(s) outside the band ({where})")
+    if c.outside.any():
+        bad.append(f"{int(c.outside.sum())} hit-mask mismatch(es) outside the silhouette band")
+    if c.id_out.any():
+        bad.append(f"{int(c.id_out.sum())} shape id mismatch(es)")
+    if c.t_viol.any():
+        bad.append(f"{int(c.t_viol.sum())} t error(s) above tolerance")
+    if c.n_viol.any():
+        bad.append(f"{int(c.n_viol.sum())} normal error(s) above tolerance")
+    if c.len_viol.any():
+        bad.append(f"{int(c.len_viol.sum())} normal(s) not unit length beyond tolerance (|n| - 1 up to "
+                   f"{float(c.n_len[c.len_viol].max()):.3g})")  # fmt: skip
+    return bad
 
 
 def inconclusive(

@@ -16,8 +16,9 @@ from minirt.harness.attribution import check_variants
 from minirt.harness.compare import check_backend, check_text, small_kernels, start_ahead, start_chosen, start_samples
 from minirt.harness.references import ReferenceCache
 from minirt.harness.results import BackendCheck, CheckResult, SceneCheck, worst
+from minirt.model.bundled import scene_and_rules
 from minirt.model.result import RenderResult
-from minirt.model.rules import Rules, resolve
+from minirt.model.rules import Rules
 from minirt.model.scene import Scene, load_scene
 
 if TYPE_CHECKING:
@@ -46,12 +47,13 @@ def scene_label(path: str | Path) -> str:
     return p.stem if p.is_absolute() and p.suffix == ".toml" and p.parent == BUNDLED else str(path)
 
 
-def _scene_and_rules(path: str | Path, size: tuple[int, int] | None, scene: Scene | None = None) -> tuple[Scene, Rules]:
-    """The file's scene (``scene``: already parsed from it) at ``size`` and its rules."""
-    scene = load_scene(path) if scene is None else scene
-    if size:
-        scene = scene.with_overrides(width=size[0], height=size[1])
-    return scene, resolve(scene)
+def file_scene_and_rules(
+    path: str | Path, size: tuple[int, int] | None, scene: Scene | None = None
+) -> tuple[Scene, Rules]:
+    """The file's scene (``scene``: already parsed from it) at ``size`` and its rules
+    (minirt.model.bundled.scene_and_rules)."""
+    w, h = size if size else (None, None)
+    return scene_and_rules(load_scene(path) if scene is None else scene, w, h)
 
 
 def check_scene(
@@ -67,7 +69,7 @@ def check_scene(
     ``variants``: the run's minirt.diagnose.VariantCache (default: the process's, ``shared_variants``);
     ``rendered``: backend name -> its render started earlier, ``loaded``: the file's scene and rules
     already parsed (both from ``run``)."""
-    scene, rules = loaded or _scene_and_rules(path, size)
+    scene, rules = loaded or file_scene_and_rules(path, size)
     if rendered is None:
         # POV-Ray's render, a child process that mostly waits, starts now on a thread of its own and
         # overlaps the reference's and the other oracles' work here (as ``run`` does): the same results
@@ -145,7 +147,7 @@ def run(
     size, the oracle and the versions; a job it holds is not run again (jobs run one by one here then, without
     POV-Ray's renders started ahead)."""
     # each file parsed once, for every use below
-    loaded = [_scene_and_rules(p, size, None if scenes is None else scenes[i]) for i, p in enumerate(paths)]
+    loaded = [file_scene_and_rules(p, size, None if scenes is None else scenes[i]) for i, p in enumerate(paths)]
     _fits_in_memory([s for s, _ in loaded], names, 0 if scheduler else workers if workers > 1 else 0)
     if workers > 1 or scheduler is not None or cache is not None:
         return _run_jobs(paths, loaded, names, size, progress, workers, scheduler, cache)

@@ -139,35 +139,11 @@ def check_stochastic(scene, ref, res, classes, edges, centre: RenderResult) -> C
     # Where a plane's rectangle errs by more than the oracle's spawn offset (meta ray_epsilon (1 + max|p|)),
     # its stock shadow ray may re-hit the rectangle itself: those shadow decisions are not the oracle's to
     # make (a fuzzed floor reaching the horizon, contact_26_0: abs_error 0.04 against an offset of 4e-4).
-    self_shadow = np.zeros(ref.hit.shape, bool)
-    eps = res.meta.get("ray_epsilon")
-    if eps:
-        offset = eps * (1 + np.abs(centre.position).max(axis=-1))
-        for key, plane in (res.meta.get("planes") or {}).items():
-            on = centre.shape_id == int(key.removeprefix("shape"))
-            self_shadow |= on & (plane.get("abs_error", 0.0) >= offset)
+    self_shadow = _self_shadow(res, centre, ref.hit.shape)
     interior &= ~self_shadow
     mask = np.repeat(interior[..., None], 3, axis=-1)
     p, alpha, frac = z_test(a, var_a, n_ref, b, var_b, n_res, mask)
-    shapes = {}
-    bad_shapes = []
-    for k in range(len(scene.shapes)):
-        m = interior & (ref.shape_id == k)
-        if m.sum() < 4:
-            continue
-        ma, mb = a[m].mean(0), b[m].mean(0)
-        se = np.sqrt(var_a[m].sum(0) / n_ref + var_b[m].sum(0) / n_res) / m.sum()
-        known = bias[m].mean(0) + 1e-6 * np.abs(ma)  # the pi r^2 approximation, and float32 rounding
-        dev = np.maximum(np.abs(ma - mb) - known, 0) / np.maximum(se, 1e-12)
-        shapes[str(k)] = {
-            "pixels": int(m.sum()),
-            "reference": ma.tolist(),
-            "oracle": mb.tolist(),
-            "known_bias": known.tolist(),
-            "sigma": dev.max().item(),
-        }
-        if dev.max() > THRESHOLDS["shape_mean_sigma"].value:
-            bad_shapes.append(k)
+    shapes, bad_shapes = _shape_means(scene, ref, interior, a, var_a, n_ref, b, var_b, n_res, bias)
     figures = {
         "samples": n_ref,
         "spp": n_res,
@@ -196,3 +172,41 @@ def check_stochastic(scene, ref, res, classes, edges, centre: RenderResult) -> C
                   f"within its own rectangles' float32 error, more than {limit:.0%})")  # fmt: skip
         return Check("warn", figures, reason, thresholds, images)
     return Check("fail" if bad else "pass", figures, "; ".join(bad), thresholds, images)
+
+
+def _self_shadow(res: RenderResult, centre: RenderResult, shape: tuple[int, ...]) -> np.ndarray:
+    """The pixels whose stock shadow ray may re-hit the oracle's own plane rectangle (its error there is
+    above its spawn offset): bool, of ``shape``."""
+    self_shadow = np.zeros(shape, bool)
+    eps = res.meta.get("ray_epsilon")
+    if eps:
+        offset = eps * (1 + np.abs(centre.position).max(axis=-1))
+        for key, plane in (res.meta.get("planes") or {}).items():
+            on = centre.shape_id == int(key.removeprefix("shape"))
+            self_shadow |= on & (plane.get("abs_error", 0.0) >= offset)
+    return self_shadow
+
+
+def _shape_means(scene, ref: RenderResult, interior, a, var_a, n_ref: int, b, var_b, n_res: int, bias):
+    """Per shape of at least 4 interior pixels: the two sides' mean diffuse and how many standard errors
+    apart they are beyond the known bias; and the shapes too far apart (``shape_mean_sigma``)."""
+    shapes = {}
+    bad_shapes = []
+    for k in range(len(scene.shapes)):
+        m = interior & (ref.shape_id == k)
+        if m.sum() < 4:
+            continue
+        ma, mb = a[m].mean(0), b[m].mean(0)
+        se = np.sqrt(var_a[m].sum(0) / n_ref + var_b[m].sum(0) / n_res) / m.sum()
+        known = bias[m].mean(0) + 1e-6 * np.abs(ma)  # the pi r^2 approximation, and float32 rounding
+        dev = np.maximum(np.abs(ma - mb) - known, 0) / np.maximum(se, 1e-12)
+        shapes[str(k)] = {
+            "pixels": int(m.sum()),
+            "reference": ma.tolist(),
+            "oracle": mb.tolist(),
+            "known_bias": known.tolist(),
+            "sigma": dev.max().item(),
+        }
+        if dev.max() > THRESHOLDS["shape_mean_sigma"].value:
+            bad_shapes.append(k)
+    return shapes, bad_shapes

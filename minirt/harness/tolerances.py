@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from minirt.harness import backends
-from minirt.model.backend import GeometryTolerance, Margins, generic_tolerance
 from minirt.model.result import RenderResult
+from minirt.model.tolerance import GeometryTolerance, Margins, generic_tolerance
 
 
 @dataclass(frozen=True)

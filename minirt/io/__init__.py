@@ -4,5 +4,5 @@ symlink is replaced, never written through), JSON documents (jsonout: strict, ve
 their pydantic models and the shipped schemas), output names (names) and untrusted text (untrusted:
 text from a scene file or a renderer made safe for a terminal, a page, XML, a CSV cell or a file name).
 
-May import: minirt.model, minirt.errors.
+May import: minirt.model, minirt.errors, minirt.version -- not Dr.Jit's kernels.
 """

@@ -2,5 +2,5 @@
 libLLVM is usable (with a message that says how to fix it); arrays hands NumPy arrays to kernels at
 the alignment that keeps a kernel compiled once.
 
-May import: minirt.errors.
+May import: minirt.errors, minirt.version.
 """

@@ -4,5 +4,5 @@ line), cache (results by content hash) and data (the cache's format: data, never
 results are checked against), processes (child processes and temporary folders that do not outlive
 minirt), memory (long work that cannot fit is refused before it starts).
 
-May import: minirt.io, minirt.model, minirt.errors.
+May import: minirt.io, minirt.model, minirt.errors, minirt.version -- not Dr.Jit's kernels.
 """

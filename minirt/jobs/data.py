@@ -119,23 +119,7 @@ def _check(v: Any, hint: Any, where: str, schema: Schema, seen: set[int]) -> Non
             raise ValueError(f"{where}: expected one of {list(args)}, got {_short(v)}")
         return
     if origin in (list, tuple, dict, set, frozenset) or hint in (list, tuple, dict, set, frozenset, bytes, str):
-        kind = origin or hint
-        if not isinstance(v, kind):
-            raise ValueError(f"{where}: expected {kind.__name__}, got {type(v).__name__}")
-        if not args:
-            return
-        if kind is dict:
-            for k, x in v.items():
-                _check(k, args[0], f"{where} key {_short(k)}", schema, seen)
-                _check(x, args[1], f"{where}[{_short(k)}]", schema, seen)
-        elif kind is tuple and not (len(args) == 2 and args[1] is Ellipsis):
-            if len(v) != len(args):
-                raise ValueError(f"{where}: expected {len(args)} items, got {len(v)}")
-            for k, (x, h) in enumerate(zip(v, args, strict=True)):
-                _check(x, h, f"{where}[{k}]", schema, seen)
-        else:
-            for k, x in enumerate(v):
-                _check(x, args[0], f"{where}[{k}]", schema, seen)
+        _check_container(v, origin or hint, args, where, schema, seen)
         return
     if hint is bool:
         if not isinstance(v, bool | np.bool_):
@@ -154,34 +138,64 @@ def _check(v: Any, hint: Any, where: str, schema: Schema, seen: set[int]) -> Non
             raise ValueError(f"{where}: expected an array of numbers, got {type(v).__name__}")
         return
     if typing.is_typeddict(hint):
-        if not isinstance(v, dict):
-            raise ValueError(f"{where}: expected a dict, got {type(v).__name__}")
-        hints = _hints(hint)
-        missing = sorted(hint.__required_keys__ - v.keys())
-        extra = sorted(str(k) for k in v.keys() - hints.keys())
-        if missing or extra:
-            said = f"missing {', '.join(missing)}" if missing else f"unknown {', '.join(extra)}"
-            raise ValueError(f"{where}: {said}")
-        for k, x in v.items():
-            _check(x, hints[k], f"{where}[{k!r}]", schema, seen)
+        _check_typed_dict(v, hint, where, schema, seen)
         return
     if isinstance(hint, type) and dataclasses.is_dataclass(hint):
-        if type(v) is not hint:
-            raise ValueError(f"{where}: expected {hint.__name__}, got {type(v).__name__}")
-        if id(v) in seen:  # an object held in two places: checked once
-            return
-        seen.add(id(v))
-        if schema.by_name.get(hint.__name__) is not hint:
-            raise ValueError(f"{where}: {hint.__name__} is not one of the schema's classes")
-        hints = _hints(hint)
-        for f in dataclasses.fields(hint):
-            _check(getattr(v, f.name), hints[f.name], f"{where}.{f.name}", schema, seen)
+        _check_dataclass(v, hint, where, schema, seen)
         return
     if isinstance(hint, type):
         if not isinstance(v, hint):
             raise ValueError(f"{where}: expected {hint.__name__}, got {type(v).__name__}")
         return
     raise TypeError(f"Schema: cannot check {hint!r}")
+
+
+def _check_container(v: Any, kind: type, args: tuple, where: str, schema: Schema, seen: set[int]) -> None:
+    """``_check`` of a list, tuple, dict, set, frozenset, bytes or str, and of its items (``args``)."""
+    if not isinstance(v, kind):
+        raise ValueError(f"{where}: expected {kind.__name__}, got {type(v).__name__}")
+    if not args:
+        return
+    if kind is dict:
+        for k, x in v.items():
+            _check(k, args[0], f"{where} key {_short(k)}", schema, seen)
+            _check(x, args[1], f"{where}[{_short(k)}]", schema, seen)
+    elif kind is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+        if len(v) != len(args):
+            raise ValueError(f"{where}: expected {len(args)} items, got {len(v)}")
+        for k, (x, h) in enumerate(zip(v, args, strict=True)):
+            _check(x, h, f"{where}[{k}]", schema, seen)
+    else:
+        for k, x in enumerate(v):
+            _check(x, args[0], f"{where}[{k}]", schema, seen)
+
+
+def _check_typed_dict(v: Any, hint: Any, where: str, schema: Schema, seen: set[int]) -> None:
+    """``_check`` of a TypedDict: its keys, none missing nor unknown, and each value."""
+    if not isinstance(v, dict):
+        raise ValueError(f"{where}: expected a dict, got {type(v).__name__}")
+    hints = _hints(hint)
+    missing = sorted(hint.__required_keys__ - v.keys())
+    extra = sorted(str(k) for k in v.keys() - hints.keys())
+    if missing or extra:
+        said = f"missing {', '.join(missing)}" if missing else f"unknown {', '.join(extra)}"
+        raise ValueError(f"{where}: {said}")
+    for k, x in v.items():
+        _check(x, hints[k], f"{where}[{k!r}]", schema, seen)
+
+
+def _check_dataclass(v: Any, hint: Any, where: str, schema: Schema, seen: set[int]) -> None:
+    """``_check`` of one of the schema's dataclasses: its exact type, then each field (once per object)."""
+    if type(v) is not hint:
+        raise ValueError(f"{where}: expected {hint.__name__}, got {type(v).__name__}")
+    if id(v) in seen:  # an object held in two places: checked once
+        return
+    seen.add(id(v))
+    if schema.by_name.get(hint.__name__) is not hint:
+        raise ValueError(f"{where}: {hint.__name__} is not one of the schema's classes")
+    hints = _hints(hint)
+    for f in dataclasses.fields(hint):
+        _check(getattr(v, f.name), hints[f.name], f"{where}.{f.name}", schema, seen)
 
 
 def check(value: Any, hint: Any, where: str = "the result") -> None:

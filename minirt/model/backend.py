@@ -20,178 +20,29 @@ attribution step reports.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, replace
+from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, ClassVar
-
-import numpy as np
 
 from minirt.model import rules as rules_mod
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
 
-U32 = 2.0**-24  # float32 unit round-off
-U64 = 2.0**-53
-
-
-@dataclass
-class GeometryTolerance:
-    """Per-pixel tolerances for one backend's geometry buffers against the float64 reference."""
-
-    band: np.ndarray  # bool (H, W): decisions within the backend's precision of flipping
-    t_abs: np.ndarray  # float (H, W): allowed |t_backend - t_ref|
-    normal_deg: np.ndarray  # float (H, W): allowed angle between normals
-    why: dict[str, str] = field(default_factory=dict)
-    summary: dict[str, float | str] = field(default_factory=dict)  # figures; "<key>_reason" beside a non-finite one
-    # bool (H, W) or None: where two shapes' nearest hits are a depth tie at the backend's per-shape precision
-    # (an id mismatch there is not a defect); None: the harness's scene-wide rule, id_tie < 4 band_eps
-    ties: np.ndarray | None = None
-    # bool (H, W) or None: the pixels the backend rendered (None: every pixel). The others are in ``band`` (not
-    # judged) and out of the fractions that make a check inconclusive: a sampled render is judged where it is.
-    traced: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Margins:
-    """What the harness measured of the checked rays, for a backend to turn into its tolerance.
-
-    ``margins``: minirt.reference.band.margins of the reference's primary rays, flat per ray (margin,
-    origin, silhouette, grazing, tie, near, id_tie, hit_nd, hit_cos, origin_norm); ``margin``, ``origin`` and
-    ``silhouette`` exact below ``bound`` and inf elsewhere (the rest exact): compare them with a threshold
-    through ``below``, which widens the bound when the threshold is larger (``widen(eps)``: the margins
-    exact below eps). ``start(t_min=, plane_err=, ball_err=)``: minirt.reference.band.start_band on the same
-    rays, the rays whose "does this candidate count" decision lies within the backend's position error of
-    its minimum distance (None: no such band). ``scaled(scale=, origin_scale=, inside_scale=, tie_scale=)``:
-    the margins with per-shape scales, exact below 1 (what ``per_shape_band`` compares), for a backend that
-    records them (None: the scene-wide threshold)."""
-
-    margins: dict[str, np.ndarray]
-    start: Callable[..., np.ndarray] | None = None
-    scaled: Callable[..., dict[str, np.ndarray]] | None = None
-    bound: float = math.inf
-    widen: Callable[[float], dict[str, np.ndarray]] | None = None
-
-    def below(self, key: str, eps: float, h: int, w: int) -> np.ndarray:
-        """(H, W) bool: ``margins[key] < eps``, exact whatever eps (``margin``, ``origin``, ``silhouette``
-        are known exactly only below ``bound``: a larger eps asks ``widen`` for them)."""
-        m = self.margins if eps <= self.bound or self.widen is None else self.widen(eps)
-        return m[key].reshape(h, w) < eps
-
-    def image(self, h: int, w: int) -> dict[str, np.ndarray]:
-        return {k: v.reshape(h, w) for k, v in self.margins.items()}
-
-    def start_band(self, h: int, w: int, **kw) -> np.ndarray:
-        return np.zeros((h, w), dtype=bool) if self.start is None else self.start(**kw).reshape(h, w)
-
-    def per_shape_band(self, p: dict, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-        """(band, ties), both bool (H, W), from the per-shape scales a backend records (``band_scale`` and
-        the optional ``band_origin_scale``, ``band_inside_scale``, ``band_tie_scale``): a ray is in the band
-        where a margin divided by its shape's scale is below 1; an id mismatch is a depth tie where the
-        id-tie margin divided by the pair's scale is below 4 -- the scene-wide rule id_tie < 4 band_eps with
-        each pair's own scale for band_eps (one scene-wide value excused every id mismatch beside a far
-        ball: defect campaign f32_2027_22, ids-swapped passed POV-Ray on judged pixels)."""
-        m = self.scaled(
-            scale=p["band_scale"],
-            origin_scale=p.get("band_origin_scale"),
-            inside_scale=p.get("band_inside_scale"),
-            tie_scale=p.get("band_tie_scale"),
-        )
-        return m["margin"].reshape(h, w) < 1.0, m["id_tie"].reshape(h, w) < 4.0
-
-
-def farthest_hit(p: dict) -> float:
-    """The farthest t along the harness's rays at which a backend that records ``max_distance`` (POV-Ray's
-    MAX_DISTANCE from its own ray's origin, ``max_distance_lift`` before the harness's) still reports a
-    hit, less 1e-6 of it for the rounding of t; inf for a backend without one."""
-    return p.get("max_distance", math.inf) * (1 - 1e-6) - p.get("max_distance_lift", 0.0)
-
-
-def tolerance_inputs(
-    result: RenderResult, ref: RenderResult, measured: Margins
-) -> tuple[int, int, dict[str, Any], dict[str, np.ndarray], np.ndarray]:
-    """What every ``geometry_tolerance`` starts from: the image's height and width, the precision the backend
-    recorded (``result.meta["precision"]``, {} if none), the measured margins as (H, W) images, and the
-    reference's t (0 where it misses)."""
-    h, w = ref.height, ref.width
-    return h, w, result.meta.get("precision") or {}, measured.image(h, w), np.where(ref.hit, ref.t, 0.0)
-
-
-def generic_tolerance(result: RenderResult, ref: RenderResult, measured: Margins) -> GeometryTolerance:
-    """The tolerance of a backend that records only generic keys in ``meta["precision"]`` (``band_eps``,
-    ``t_rel``, ``t_abs``, ``normal_deg``), or a result no registered backend made (a test's)."""
-    h, w, p, _, t_ref = tolerance_inputs(result, ref, measured)
-    eps = p.get("band_eps", 1e-6)
-    band = measured.below("margin", eps, h, w)
-    t_abs = p.get("t_rel", 1e-6) * t_ref + p.get("t_abs", 0.0)
-    nd = np.full((h, w), p.get("normal_deg", 1e-3))
-    why = {"band": f"margin < {eps:.3g}", "t": "t_rel*t + t_abs from the backend", "normal": "normal_deg"}
-    return GeometryTolerance(band=band, t_abs=t_abs, normal_deg=nd, why=why, summary={"band_eps": eps})
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One turn of a backend's accuracy knob in the sweep (minirt.sweep): one row of its table."""
-
-    value: Any  # the knob's setting, as the sweep's rows record it
-    cost: float  # on the series' cost axis (bits, samples per pixel, triangles per ball, ...)
-    options: dict[str, Any]  # the backend's render options for it
-    label: str  # as a reader names it, in the sweep's answer: "the reference at 16 spp"
-    progress: str  # what the progress line says while it renders: "reference 16 spp"
-    samples: int | None = None  # the scene's samples per pixel for it (None: the sweep's scene, one sample)
-
-
-@dataclass(frozen=True)
-class Truth:
-    """What a series' error is measured against: a converged render, made once per sweep -- by the first
-    row that needs it -- and shared by every series of the same backend that names the same ``key``."""
-
-    key: str  # its name in the sweep's document ("reference/1024spp")
-    backend: str  # rendered by this backend (its name) ...
-    options: dict[str, Any]  # ... with these options
-    samples: int | None = None  # the scene's samples per pixel for it (None: the sweep's scene, one sample)
-    rules: Rules | None = None  # under these rules (None: the series' own)
-    describe: dict[str, Any] = field(default_factory=dict)  # recorded in the sweep's document beside them
-
-
-# A per-run time of one render: (the time of the render itself, its per-run start-up, the timer's resolution;
-# 0: fine-grained). See Series.seconds.
-Seconds = Callable[[RenderResult], tuple[float, float, float]]
-
-
-@dataclass(frozen=True)
-class Series:
-    """One knob of a backend, swept: its settings, the rules it renders under and what its error is.
-
-    ``error``: "color" (RMSE and friends against the truth's colour), "color_exposure" (the same after
-    matching exposure: a physically based renderer's units), "geometry+color" (the reference's own
-    precision: geometry and colour against the truth) or "geometry+check" (a geometry-only backend: its
-    buffers against the truth's and the harness's own verdict). ``metric``, ``cost`` and ``theory`` are
-    what the sweep's document says of the series (its error measure, its cost axis, what theory expects);
-    ``knobs`` the values it was built from, under the names the document's ``knobs`` gives them."""
-
-    backend: str  # rendered by this backend (its name)
-    knob: str
-    settings: tuple[Setting, ...]
-    rules: Rules
-    truth: Truth
-    error: str
-    metric: str  # the error the series is read by ("rmse", "t_rel_mean"): its plot, fit and Pareto front
-    cost: str  # what the cost axis counts
-    theory: str  # how theory expects the error to fall with the cost
-    knobs: dict[str, Any] = field(default_factory=dict)
-    candidate: bool = True  # may answer "what does an error below the criterion cost" (the sweep's answer)
-    fit: bool = True  # fit a slope to it (not to two points, one of them the truth itself)
-    level_factor: float | None = None  # the cost's factor per knob step: the fit gives its factor per level
-    # (time of the render, per-run start-up, timer resolution) of one result; None: the render's wall clock
-    # (minirt.harness.backends.render), no start-up, fine-grained
-    seconds: Seconds | None = None
-
-    @property
-    def key(self) -> str:
-        return f"{self.backend}/{self.knob}"
+# The value types the interface names live beside it (minirt.model.tolerance: the harness's geometry
+# check; minirt.model.series: the sweep's knobs); imported here too, so ``from minirt.model.backend import``
+# of them keeps working.
+from minirt.model.series import Seconds, Series, Setting, Truth  # noqa: F401
+from minirt.model.tolerance import (  # noqa: F401
+    U32,
+    U64,
+    GeometryTolerance,
+    Margins,
+    farthest_hit,
+    generic_tolerance,
+    tolerance_inputs,
+)
 
 
 class Backend:

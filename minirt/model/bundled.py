@@ -8,10 +8,14 @@ the editable install of a checkout alike. scenes/samples/ holds the sample stude
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from importlib.resources import files
+from os import PathLike
 from pathlib import Path
+from typing import Any
 
 from minirt.errors import SceneError
+from minirt.model.rules import Rules, resolve
 from minirt.model.scene import Scene, load_scene
 
 # A folder on disk in both installs (minirt is never imported from a zip: Dr.Jit and Mitsuba are not).
@@ -40,3 +44,21 @@ def find_scene(arg: str | Path) -> Path:
 
 def bundled_scene(name: str) -> Scene:
     return load_scene(find_scene(name))
+
+
+def scene_and_rules(
+    scene: Scene | str | PathLike[str],
+    width: int | None = None,
+    height: int | None = None,
+    samples: int | None = None,
+    profile: str | None = None,
+    rules: Mapping[str, Any] | None = None,
+) -> tuple[Scene, Rules]:
+    """The one way a scene is made ready to render: read (a file, or a bundled scene's name, unless
+    already a ``Scene``), the overrides applied (as `minirt render`'s --width, --height, --samples and
+    --profile, within the scene file's limits) and the rules it renders under resolved (the profile, the
+    scene's [model], then ``rules``, as --rule NAME=VALUE gives them). Raises SceneError or MinirtError,
+    one line per problem."""
+    s = scene if isinstance(scene, Scene) else load_scene(find_scene(scene))
+    s = s.with_overrides(width=width, height=height, samples=samples, profile=profile)
+    return s, resolve(s, profile, dict(rules or {}))

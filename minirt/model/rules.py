@@ -76,13 +76,22 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from minirt.errors import MinirtError
 
-if TYPE_CHECKING:
-    from minirt.model.scene import Scene
+
+class Modelled(Protocol):
+    """What ``resolve`` reads of a scene (minirt.model.scene.Scene): its profile's name and its [model]
+    table of rules. A protocol, so that the rules need not import the scene, which imports them."""
+
+    @property
+    def profile(self) -> str: ...
+
+    @property
+    def model(self) -> Mapping[str, Any]: ...
 
 
 @dataclass(frozen=True)
@@ -379,7 +388,7 @@ def _normalise(name: str, value: Any) -> Any:
     return value
 
 
-def resolve(scene: Scene, profile: str | None = None, overrides: dict[str, Any] | None = None) -> Rules:
+def resolve(scene: Modelled, profile: str | None = None, overrides: dict[str, Any] | None = None) -> Rules:
     """The rules for a render: the profile (scene's, unless given), then the scene's [model], then overrides."""
     name = profile or scene.profile
     if name not in PROFILES:

@@ -13,10 +13,11 @@ from collections.abc import Iterator
 from typing import Any, ClassVar
 
 from minirt.model import bitmap
-from minirt.model.backend import Backend, Series, Setting, Truth
+from minirt.model.backend import Backend
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
+from minirt.model.series import Series, Setting, Truth
 
 
 class Reference(Backend):

@@ -9,22 +9,20 @@ compacted (``dr.compress``) into the next level. Either way colours are combined
 ``c = local + kr * c_child``, which is exactly the recursive form's arithmetic, and the two give the
 same bits. Each level is shaded by minirt.reference.shading (``shade_level``); the first level's
 outputs are written into the film's buffers (minirt.reference.film) by the kernel that computes them.
-``tr`` is the tracer whose kernel is being built (minirt.reference.tracer.Tracer).
+``tr`` holds the settings of the tracer whose kernel is being built (minirt.reference.settings.TraceSettings).
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import drjit as dr
 
 from minirt.model.result import TERMS
 from minirt.reference import film, shading
+from minirt.reference.settings import TraceSettings
 from minirt.reference.shading import Level
-
-if TYPE_CHECKING:
-    from minirt.reference.tracer import Tracer
 
 # Below this many rays a trace runs its first level as the loop's first iteration (``_levels_looped``): the
 # kernel holds the intersection and shading code once, not twice (three_balls: ~910 Dr.Jit operations
@@ -44,7 +42,7 @@ WAVEFRONT_MIN_BALLS = 384
 
 
 def trace(
-    tr: Tracer,
+    tr: TraceSettings,
     o,
     d,
     record: bool = False,
@@ -87,7 +85,7 @@ def trace(
 
 
 def _wavefront(
-    tr: Tracer, o, d, record: bool, tree: bool, out: dict[str, Any] | None, terms: Collection[str] | None
+    tr: TraceSettings, o, d, record: bool, tree: bool, out: dict[str, Any] | None, terms: Collection[str] | None
 ) -> tuple[Any, list[Level]]:
     """``trace`` as a wavefront: each level a kernel of its own, the rays that go on compacted between them."""
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
@@ -162,7 +160,7 @@ def _wavefront(
         return child, levels
 
 
-def choose_path(tr: Tracer, record: bool, tree: bool = False) -> str:
+def choose_path(tr: TraceSettings, record: bool, tree: bool = False) -> str:
     """The path ``trace(path="auto")`` takes. With ``tree`` (each pixel's decisions and shadow margins, what a
     check's reference and the rule diagnosis trace) the fused path, whatever the balls: the wavefront then
     stores and compacts those per level too, and ran 3x slower (warm, tree, fused / wavefront: 1,024 balls
@@ -172,7 +170,7 @@ def choose_path(tr: Tracer, record: bool, tree: bool = False) -> str:
 
 
 def trace_fused(
-    tr: Tracer, o, d, out: dict[str, Any] | None, terms: Collection[str] | None, tree: bool = False
+    tr: TraceSettings, o, d, out: dict[str, Any] | None, terms: Collection[str] | None, tree: bool = False
 ) -> tuple[Any, list[Level]]:
     """``trace`` in one kernel: the first level in straight-line code, the deeper ones in a Dr.Jit loop
     (one iteration per reflection), then the colours combined back to front. Below
@@ -225,7 +223,7 @@ def trace_fused(
         return c, [lvl]
 
 
-def _trace_looped(tr: Tracer, o, d, rays: int, depth: int, out, terms, tree: bool) -> tuple[Any, list[Level]]:
+def _trace_looped(tr: TraceSettings, o, d, rays: int, depth: int, out, terms, tree: bool) -> tuple[Any, list[Level]]:
     """``trace_fused`` with the first level as the loop's first iteration (``_levels_looped``)."""
     if out is None:
         lvl, c = _levels_looped(tr, o, d, rays, depth, tree)
@@ -238,12 +236,12 @@ def _trace_looped(tr: Tracer, o, d, rays: int, depth: int, out, terms, tree: boo
     return _write_first(tr, out, bufs, lvl, c, rays)
 
 
-def term_names(tr: Tracer, terms: Collection[str] | None) -> list[str]:
+def term_names(tr: TraceSettings, terms: Collection[str] | None) -> list[str]:
     """The terms a first level has (those the effects compute), among ``terms`` (None: all), in TERMS' order."""
     return [k for k in TERMS if getattr(tr.effects, k) and (terms is None or k in terms)]
 
 
-def _first_colour(tr: Tracer, lvl: Level, refl) -> Any:
+def _first_colour(tr: TraceSettings, lvl: Level, refl) -> Any:
     """The first level's colour: its local colour, plus kr times the reflected colour ``refl`` (None: no
     reflection effect) and the background, each also kept as a term."""
     c = lvl.local
@@ -257,7 +255,7 @@ def _first_colour(tr: Tracer, lvl: Level, refl) -> Any:
 
 
 def _write_first(
-    tr: Tracer, out: dict[str, Any], bufs: dict[str, Any], lvl: Level, c, rays: int
+    tr: TraceSettings, out: dict[str, Any], bufs: dict[str, Any], lvl: Level, c, rays: int
 ) -> tuple[Any, list[Level]]:
     """The end of a fused trace with ``out``: the colour's writes queued after the first level's, the
     buffers into ``out`` with t, and the one kernel run (with the diagnostics, when recorded)."""
@@ -271,7 +269,7 @@ def _write_first(
 
 
 def _levels_looped(
-    tr: Tracer, o, d, rays: int, depth: int, tree: bool = False, bufs: dict[str, Any] | None = None, wanted=()
+    tr: TraceSettings, o, d, rays: int, depth: int, tree: bool = False, bufs: dict[str, Any] | None = None, wanted=()
 ) -> tuple[Level, Any]:
     """Levels 0 .. depth in one Dr.Jit loop, the first level its first iteration: the shading code is
     in the kernel once (a third less to compile), and what later steps read of the first level (t,
@@ -341,7 +339,7 @@ def _levels_looped(
     return lvl, _first_colour(tr, lvl, refl)
 
 
-def _reflected(tr: Tracer, active, ro, rd, depth: int, tree: bool = False) -> tuple[Any, Any]:
+def _reflected(tr: TraceSettings, active, ro, rd, depth: int, tree: bool = False) -> tuple[Any, Any]:
     """The colour ``trace`` gives the reflected rays (ro, rd) where ``active``, 0 elsewhere: levels 1 ..
     depth in a Dr.Jit loop (see ``trace_fused``); and, with ``tree``, the hash of their ray trees (0
     where not active; without ``tree`` a constant 0)."""
@@ -366,7 +364,7 @@ def _reflected(tr: Tracer, active, ro, rd, depth: int, tree: bool = False) -> tu
     return _combine(tr, state[4 : 4 + depth], state[4 + depth : 4 + 2 * depth], state[4 + 2 * depth :])
 
 
-def _combine(tr: Tracer, local, ids, codes) -> tuple[Any, Any]:
+def _combine(tr: TraceSettings, local, ids, codes) -> tuple[Any, Any]:
     """The colour of the first of these levels (each level's local colour and hit id, as a loop
     carried them; id -2: not reached), combined back to front as the wavefront's combining pass
     does, and the hash of their ray trees (``codes``: each level's decisions; none: a constant 0)."""

@@ -3,25 +3,24 @@ where the secondary rays (shadow, reflection) leave from.
 
 The exercise's ``normal`` of Ball and Plane, and the offset it hints at ("add a small fraction of
 normal"), with the rules that vary them: offset (a number, or "error-bound": pbrt-v4's bound on the hit
-point's rounding and its OffsetRayOrigin), offset_along and near_root_only. ``tr`` is the tracer whose
-kernel is being built (minirt.reference.tracer.Tracer): its types, rules and the scene's values
-(``tr.values``, either representation: the same operations on the same values, so the same bits).
+point's rounding and its OffsetRayOrigin), offset_along and near_root_only. ``tr`` holds the settings
+of the tracer whose kernel is being built (minirt.reference.settings.TraceSettings): its types, rules
+and the scene's values (``tr.values``, either representation: the same operations on the same values,
+so the same bits).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import drjit as dr
 import numpy as np
 
 from minirt.model.scene import Ball
-
-if TYPE_CHECKING:
-    from minirt.reference.tracer import Tracer
+from minirt.reference.settings import TraceSettings
 
 
-def hit_point_and_normal(tr: Tracer, shape_id, o, d, t) -> tuple[Any, Any]:
+def hit_point_and_normal(tr: TraceSettings, shape_id, o, d, t) -> tuple[Any, Any]:
     """p = o + t d and the hit shape's own normal: (p - C) / r for a ball, n for a plane.
 
     The hit shape's constants are selected first and the formula applied once, not once per
@@ -47,7 +46,7 @@ def hit_point_and_normal(tr: Tracer, shape_id, o, d, t) -> tuple[Any, Any]:
     return p, n
 
 
-def ball_normal(tr: Tracer, p, d, c, r, inv_r, is_ball, n) -> tuple[Any, Any]:
+def ball_normal(tr: TraceSettings, p, d, c, r, inv_r, is_ball, n) -> tuple[Any, Any]:
     """Where is_ball: the normal (p - C) / r of the ball (C, r) hit at p, and under error-bound p put
     back on it; elsewhere p and n as given."""
     reproject = tr.rules.offset == "error-bound"
@@ -66,7 +65,7 @@ def ball_normal(tr: Tracer, p, d, c, r, inv_r, is_ball, n) -> tuple[Any, Any]:
     return p, n
 
 
-def error_bound(tr: Tracer, shape_id, p, o) -> Any:
+def error_bound(tr: TraceSettings, shape_id, p, o) -> Any:
     """Absolute error bound of a hit point p of the ray from o, per shape (measured to give 0 self-hits;
     tests/reference/test_hard_cases.py).
 
@@ -81,7 +80,7 @@ def error_bound(tr: Tracer, shape_id, p, o) -> Any:
     return tr.values.error_bound(shape_id, lp, lo)
 
 
-def offset_origin(tr: Tracer, p, n, err, direction, outward=None) -> Any:
+def offset_origin(tr: TraceSettings, p, n, err, direction, outward=None) -> Any:
     """Start of a secondary ray leaving p in `direction` (n: the shading normal). ``outward`` (error-bound
     only): where true, offset to n's side whatever the direction (see ``outward``)."""
     T, rules = tr.T, tr.rules
@@ -104,7 +103,7 @@ def offset_origin(tr: Tracer, p, n, err, direction, outward=None) -> Any:
     return T.Array3(*(_ulp_away(T, q[i], delta[i]) for i in range(3)))
 
 
-def outward(tr: Tracer, shape_id) -> Any:
+def outward(tr: TraceSettings, shape_id) -> Any:
     """Where secondary rays must start outside the hit ball, whichever way they leave: under
     near_root_only with the error-bound offset. A shadow ray from a point facing away from the light
     runs into its own ball; started on the inside (the side the ray leaves to), near_root_only would

@@ -42,7 +42,7 @@ def probe(scene: Scene, rules: Rules, x: int, y: int, precision: str = "f64") ->
     o_all, d_all = camera.primary_rays(scene, rules)
     i = y * w + x
     tr = Tracer(scene, rules, precision=precision)
-    o, d = tr._load(o_all[i : i + 1]), tr._load(d_all[i : i + 1])
+    o, d = tr.load(o_all[i : i + 1]), tr.load(d_all[i : i + 1])
     color, levels = tr.trace(o, d, record=True)
     out_levels = []
     for depth, lvl in enumerate(levels):

@@ -3,14 +3,14 @@
 ``primary_rays`` and ``sample_rays`` compute minirt.model.camera's rays with the same IEEE operations in
 the same order, so the same bits (tested), without a round trip through NumPy. A supersampled render
 (``render_samples``) averages stratified, jittered rays per pixel (camera.sample_offsets), a batch of
-samples summed in one kernel, and keeps the per-pixel variances the harness compares with. ``tr`` is the
-tracer whose kernels are being built (minirt.reference.tracer.Tracer).
+samples summed in one kernel, and keeps the per-pixel variances the harness compares with. ``tr``
+holds the settings of the tracer whose kernels are being built (minirt.reference.settings.TraceSettings).
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -20,9 +20,7 @@ from minirt.jit.arrays import aligned
 from minirt.model import camera
 from minirt.model.result import TERMS
 from minirt.reference import film, integrator
-
-if TYPE_CHECKING:
-    from minirt.reference.tracer import Tracer
+from minirt.reference.settings import TraceSettings
 
 # Sub-pixel offsets per kernel of a supersampled render (``_sample_batch``), 16 bytes a ray: 1 Mi rays, 4
 # samples of 512^2 a kernel (512^2 at 16 samples, three_balls: 142 ms a sample a kernel; 117, 112, 127 ms
@@ -30,7 +28,7 @@ if TYPE_CHECKING:
 SAMPLE_BATCH_BYTES = 1 << 24
 
 
-def primary_rays(tr: Tracer, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
+def primary_rays(tr: TraceSettings, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
     """camera.primary_rays computed in Dr.Jit: the same IEEE operations in the same order, so
     the same bits (tested), without a round trip through NumPy. ``pixels``: row-major indices of
     the pixels wanted (default every pixel)."""
@@ -41,7 +39,7 @@ def primary_rays(tr: Tracer, pixels: np.ndarray | None = None) -> tuple[Any, Any
         return rays(tr, tr.T.Float, tr.T.Array3, uv, uv, pixels)
 
 
-def rays(tr: Tracer, F, A3, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
+def rays(tr: TraceSettings, F, A3, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
     """camera.rays_through in Dr.Jit arithmetic of type F (A3 its 3-vector): the same operations in
     the same order. u, v: sub-pixel offsets, numbers or arrays of F.
 
@@ -99,7 +97,7 @@ def rays(tr: Tracer, F, A3, u, v, pixels: np.ndarray | None = None) -> tuple[Any
 
 
 def render_samples(
-    tr: Tracer,
+    tr: TraceSettings,
     progress=None,
     y0: int = 0,
     y1: int | None = None,
@@ -160,10 +158,10 @@ def render_samples(
     return mean.reshape(h, w, 3), terms, aux
 
 
-def _sample_terms(tr: Tracer, o, d, terms: Collection[str], falloff: bool) -> dict[str, Any]:
+def _sample_terms(tr: TraceSettings, o, d, terms: Collection[str], falloff: bool) -> dict[str, Any]:
     """What one sample adds to ``render_samples``' sums (Dr.Jit float64 3-vectors, lazy)."""
     A64 = dr.llvm.Array3f64
-    c, levels = tr.trace(o, d)
+    c, levels = integrator.trace(tr, o, d)
     add = {"color": A64(c)} | {"term." + k: A64(v) for k, v in levels[0].terms.items() if k in terms}
     add["color2"] = add["color"] * add["color"]
     if "term.diffuse" in add:
@@ -177,7 +175,7 @@ def _sample_terms(tr: Tracer, o, d, terms: Collection[str], falloff: bool) -> di
     return add
 
 
-def _sample_names(tr: Tracer, terms: Collection[str], falloff: bool) -> list[str]:
+def _sample_names(tr: TraceSettings, terms: Collection[str], falloff: bool) -> list[str]:
     """The names of the sums ``_sample_terms`` adds to, known before any sample is traced."""
     names = ["color"] + ["term." + k for k in integrator.term_names(tr, terms)] + ["color2"]
     if "term.diffuse" in names:
@@ -185,7 +183,9 @@ def _sample_names(tr: Tracer, terms: Collection[str], falloff: bool) -> list[str
     return names
 
 
-def _sample_batch(tr: Tracer, uv: np.ndarray, pixels, terms: Collection[str], falloff: bool, sums: dict[str, Any]):
+def _sample_batch(
+    tr: TraceSettings, uv: np.ndarray, pixels, terms: Collection[str], falloff: bool, sums: dict[str, Any]
+):
     """``sums`` plus the samples whose sub-pixel offsets are ``uv`` ((samples, rays, 2) float64, from
     ``camera.sample_offsets_into``), summed in a Dr.Jit loop in one kernel: the sums stay in registers
     from one sample to the next instead of a kernel per sample reading and writing them (240 bytes a
@@ -221,7 +221,7 @@ def _sample_batch(tr: Tracer, uv: np.ndarray, pixels, terms: Collection[str], fa
     return dict(zip(names, state[1:], strict=True))
 
 
-def sample_rays(tr: Tracer, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
+def sample_rays(tr: TraceSettings, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
     """camera.rays_through(scene, rules, u, v) in Dr.Jit: float64 like NumPy (so the same bits), then
     rounded to the tracer's precision as ``load`` would. u, v: NumPy or Dr.Jit float64 arrays."""
     F64 = dr.llvm.Float64
@@ -231,6 +231,6 @@ def sample_rays(tr: Tracer, u, v, pixels: np.ndarray | None = None) -> tuple[Any
         return tr.T.Array3(o), tr.T.Array3(d)
 
 
-def load(tr: Tracer, a: np.ndarray) -> Any:
+def load(tr: TraceSettings, a: np.ndarray) -> Any:
     """Rays' origins or directions, (N, 3) NumPy float64, as a Dr.Jit 3-vector of the tracer's precision."""
     return tr.T.Array3(*(tr.T.Float(aligned(a[:, i], tr.T.np_dtype)) for i in range(3)))

@@ -3,25 +3,23 @@ shadow-tested diffuse and specular terms -- in the pseudo-code's order, plus wha
 diagnostics need (the reflected ray, the reflection colour, the background, the decision code).
 
 ``shade_level`` shades a batch of rays (``Level``); the integrator (minirt.reference.integrator) chains
-levels into the recursion and adds the reflections and the background back to front. ``tr`` is the
-tracer whose kernel is being built (minirt.reference.tracer.Tracer): its types, rules, effects and the
-scene's values (``tr.values``).
+levels into the recursion and adds the reflections and the background back to front. ``tr`` holds the
+settings of the tracer whose kernel is being built (minirt.reference.settings.TraceSettings): its types,
+rules, effects and the scene's values (``tr.values``).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import drjit as dr
 
 from minirt.model.rules import SPECULAR_EXPONENT_MAX
 from minirt.model.scene import Ball
 from minirt.reference import interaction, shapes
-
-if TYPE_CHECKING:
-    from minirt.reference.tracer import Tracer
+from minirt.reference.settings import TraceSettings
 
 
 @dataclass
@@ -71,7 +69,7 @@ def _power_runtime(x, e, bits: int) -> Any:
     return result
 
 
-def shadow_blocked(tr: Tracer, o, s, light_dist, record: bool = False) -> tuple[Any, list[Any]]:
+def shadow_blocked(tr: TraceSettings, o, s, light_dist, record: bool = False) -> tuple[Any, list[Any]]:
     """Is the shadow ray blocked? Rule shadow_range: 'any' (anything with t > 0) or 'to-light'.
 
     Under 'any' only the existence of a root with t > 0 matters; for a ball the signs of the
@@ -83,7 +81,7 @@ def shadow_blocked(tr: Tracer, o, s, light_dist, record: bool = False) -> tuple[
     return tr.values.blocked(o, s, light_dist, record)
 
 
-def shadow_margin(tr: Tracer, o, s, light_dist, hit) -> Any:
+def shadow_margin(tr: TraceSettings, o, s, light_dist, hit) -> Any:
     """Per shadow ray, the absolute distance from the nearest ball silhouette in front of it (before
     the light under shadow_range "to-light"): how far its origin may move before the decision can
     flip. Large (1e30) when no ball is in front; planes' decisions are the light's side, not this."""
@@ -102,7 +100,7 @@ def shadow_margin(tr: Tracer, o, s, light_dist, hit) -> Any:
 
 
 def shade_level(
-    tr: Tracer, o, d, parent, depth_left: int, record: bool, margins: Any = False, gate: bool = False
+    tr: TraceSettings, o, d, parent, depth_left: int, record: bool, margins: Any = False, gate: bool = False
 ) -> tuple[Level, Any]:
     """Intersect one level's rays and shade them locally; return the level and the next rays' mask.
 
@@ -149,7 +147,9 @@ def shade_level(
     return lvl, spawn
 
 
-def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: bool, margins: Any) -> tuple[Level, Any]:
+def shade(
+    tr: TraceSettings, o, d, parent, shape_id, hit, t, depth_left: int, record: bool, margins: Any
+) -> tuple[Level, Any]:
     """shade_level after the closest hit (shape_id, hit, t: inf on a miss). ``margins``: True, False, or
     a mask of the rays whose shadow margins are wanted (the others get 1e30, shadow_margin's none)."""
     fx, T, rules, values = tr.effects, tr.T, tr.rules, tr.values
@@ -283,7 +283,7 @@ def shade(tr: Tracer, o, d, parent, shape_id, hit, t, depth_left: int, record: b
     return lvl, spawn
 
 
-def _per_kind(tr: Tracer, shape_id, use: str) -> Any:
+def _per_kind(tr: TraceSettings, shape_id, use: str) -> Any:
     """Where the hit shape's normal is used unnormalised for ``use`` ("shading" or "reflection"): rules
     raw_normals_ball and raw_normals_plane, per shape kind. A Python bool where the answer is the same for
     every ray (compiled in), else a Dr.Jit mask (is the hit shape a ball, and the rules read at run time)."""
@@ -304,13 +304,13 @@ def _per_kind(tr: Tracer, shape_id, use: str) -> Any:
     return dr.select(values.is_ball(shape_id), mask(ball), mask(plane))
 
 
-def has_margins(tr: Tracer) -> bool:
+def has_margins(tr: TraceSettings) -> bool:
     """Whether shading records shadow margins when asked: only where shadow rays are cast (``shade``)."""
     fx = tr.effects
     return fx.shadows and tr.rules.shadow_rays and (fx.diffuse or fx.specular)
 
 
-def background(tr: Tracer, hit) -> Any:
+def background(tr: TraceSettings, hit) -> Any:
     """The background term of a ray that hit (``hit``) or missed: rule background."""
     zero = tr.T.zero3()
     if not tr.effects.background or tr.rules.background == "none":

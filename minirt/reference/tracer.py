@@ -32,14 +32,16 @@ from minirt.model.effects import Effects, effects
 from minirt.model.result import TERMS, RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
-from minirt.reference import film, integrator, interaction, sampling, shading
+from minirt.reference import film, integrator, sampling
 from minirt.reference.accel import ShapeTable
+from minirt.reference.settings import TraceSettings
 from minirt.reference.shading import Level
 from minirt.reference.values import Tabled, Types, Unrolled, Values
 
 
-class Tracer:
-    """Traces batches of rays through one scene under one set of rules.
+class Tracer(TraceSettings):
+    """Traces batches of rays through one scene under one set of rules: the settings the parts read
+    (``TraceSettings``, filled in here) and the methods that trace and render with them.
 
     ``prune=False`` switches off every optimisation that skips work (effects and per-ray pruning):
     it exists so a test can show that pruning leaves every output bit-identical.
@@ -114,32 +116,6 @@ class Tracer:
         """intersect_ball(ball, o, d) < inf, from signs (``shapes.ball_occludes``)."""
         return self.values.occludes(ball, o, d)
 
-    def hit_point_and_normal(self, shape_id, o, d, t) -> tuple[Any, Any]:
-        """p = o + t d and the hit shape's own normal (``interaction.hit_point_and_normal``)."""
-        return interaction.hit_point_and_normal(self, shape_id, o, d, t)
-
-    def error_bound(self, shape_id, p, o) -> Any:
-        """Absolute error bound of a hit point p of the ray from o (``interaction.error_bound``)."""
-        return interaction.error_bound(self, shape_id, p, o)
-
-    def offset_origin(self, p, n, err, direction, outward=None) -> Any:
-        """Start of a secondary ray leaving p in ``direction`` (``interaction.offset_origin``)."""
-        return interaction.offset_origin(self, p, n, err, direction, outward)
-
-    def shadow_blocked(self, o, s, light_dist, record: bool = False) -> tuple[Any, list[Any]]:
-        """Is the shadow ray blocked? (``shading.shadow_blocked``: rule shadow_range)."""
-        return shading.shadow_blocked(self, o, s, light_dist, record)
-
-    def shadow_margin(self, o, s, light_dist, hit) -> Any:
-        """Per shadow ray, the distance from the nearest ball silhouette in front of it (``shading.shadow_margin``)."""
-        return shading.shadow_margin(self, o, s, light_dist, hit)
-
-    def shade_level(
-        self, o, d, parent, depth_left: int, record: bool, margins: Any = False, gate: bool = False
-    ) -> tuple[Level, Any]:
-        """One level's closest hits, shaded locally, and the next rays' mask (``shading.shade_level``)."""
-        return shading.shade_level(self, o, d, parent, depth_left, record, margins, gate)
-
     def trace(
         self,
         o,
@@ -160,17 +136,22 @@ class Tracer:
         row-major indices of the pixels wanted (default every pixel)."""
         return sampling.primary_rays(self, pixels)
 
-    def _sample_rays(self, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
-        """camera.rays_through(scene, rules, u, v) in Dr.Jit (``sampling.sample_rays``)."""
+    def sample_rays(self, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
+        """camera.rays_through(scene, rules, u, v) in Dr.Jit (``sampling.sample_rays``): the rays through
+        the sub-pixel offsets (u, v) of the pixels (default every pixel)."""
         return sampling.sample_rays(self, u, v, pixels)
 
-    def _load(self, a: np.ndarray) -> Any:
-        """(N, 3) NumPy rows as a Dr.Jit 3-vector of the tracer's precision (``sampling.load``)."""
+    def load(self, a: np.ndarray) -> Any:
+        """(N, 3) NumPy rows as a Dr.Jit 3-vector of the tracer's precision (``sampling.load``): rays of
+        one's own to ``trace`` or ``closest`` (minirt.reference.probe, the rule diagnosis)."""
         return sampling.load(self, a)
 
-    def _to_numpy3(self, a, also=()) -> np.ndarray:
-        """(N, 3) float64 from a Dr.Jit 3-vector of N rays, zeros canonical (``film.to_numpy3``)."""
+    def to_numpy3(self, a, also=()) -> np.ndarray:
+        """(N, 3) float64 from a Dr.Jit 3-vector of N rays, zeros canonical (``film.to_numpy3``): a level's
+        points, normals or colours read back (the rule diagnosis)."""
         return film.to_numpy3(self.T, a, also)
+
+    # The name minirt.diagnose.variants still calls (tests/package/test_house.py, PENDING).
 
     # ---- whole images -----------------------------------------------------------------------
     def render(

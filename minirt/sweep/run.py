@@ -20,10 +20,10 @@ import numpy as np
 
 from minirt.harness import backends as bk
 from minirt.jobs.data import JSON, Schema
-from minirt.model.backend import Series, Setting
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
+from minirt.model.series import Series, Setting
 from minirt.sweep.document import answers, fit_slopes, mark_pareto, write_outputs
 from minirt.sweep.series import ERRORS, Catalogue, Knobs, catalogue
 from minirt.sweep.timing import REPEATS, SLOW_SECONDS, timed, wall_seconds
@@ -305,10 +305,27 @@ def run_sweep(
         progress(total, total, "writing results")
     hits = store.hits if store else 0
     ran = {"workers": 1 if here_ else workers, "scheduler": scheduler, "where": where, "cached": hits}
+    result = _document(scene, rules, size, repeats, cat, slow_seconds, ran, rows, converged)
+    write_outputs(result, out_dir)
+    return result
+
+
+def _document(
+    scene: Scene,
+    rules: Rules,
+    size: int,
+    repeats: int,
+    cat,
+    slow_seconds: float,
+    ran: dict[str, Any],
+    rows: list[dict[str, Any]],
+    converged: dict[str, Any],
+) -> dict[str, Any]:
+    """sweep.json's dict: the sweep's settings, its rows, and what they say (slopes, Pareto fronts, answers)."""
     slopes = fit_slopes(rows, cat)
     pareto = mark_pareto(rows, cat)
     answer = answers(rows, cat)
-    result = {
+    return {
         "scene": scene.name,
         "source": scene.source,
         "size": [size, size],
@@ -324,8 +341,6 @@ def run_sweep(
         "answer": _clean(answer),
         "answer_lines": [f"{scene.name} {size}x{size}: {a['line']}" for a in answer],
     }
-    write_outputs(result, out_dir)
-    return result
 
 
 def _clean(o: Any) -> Any:

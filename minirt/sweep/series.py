@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 
 from minirt.harness import backends as bk
-from minirt.model.backend import Series, Setting
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
+from minirt.model.series import Series, Setting
 
 # The settings swept: per backend, by knob name ({"mitsuba": {"spp": (1, 4)}}); a backend or a knob not
 # named sweeps that backend's defaults (its ``sweep_knobs``).

@@ -109,7 +109,7 @@ from minirt.oracles.mitsuba.exporter import VIEWING_GRID, scene_to_xml, sensor_p
 from minirt.oracles.mitsuba.oracle import MitsubaOracle
 from minirt.oracles.mitsuba.planes import PlaneRect, plane_frames, plane_hits, sensor_frames
 from minirt.oracles.mitsuba.variants import BACKEND, PACKAGE_VERSION, VARIANTS
-from minirt.oracles.mitsuba.variants import _load_mitsuba as _load_mitsuba  # benchmarks/bench.py renders with it
+from minirt.oracles.mitsuba.variants import load_mitsuba as load_mitsuba  # benchmarks/bench.py renders with it
 
 __all__ = [
     "BACKEND",

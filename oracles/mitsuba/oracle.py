@@ -14,16 +14,17 @@ from typing import Any, ClassVar
 import numpy as np
 
 from minirt.io.atomic import write_all
-from minirt.model.backend import GeometryTolerance, Margins, Series, Setting, Truth, tolerance_inputs
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
+from minirt.model.series import Series, Setting, Truth
+from minirt.model.tolerance import GeometryTolerance, Margins, tolerance_inputs
 from minirt.oracles.base import Oracle
 from minirt.oracles.mitsuba.accuracy import U32
 from minirt.oracles.mitsuba.exporter import scene_to_xml, viewing_distance
-from minirt.oracles.mitsuba.rays import _RayRender
-from minirt.oracles.mitsuba.sensor import _SensorRender
-from minirt.oracles.mitsuba.variants import BACKEND, _load_mitsuba, _one_line
+from minirt.oracles.mitsuba.rays import RayRender
+from minirt.oracles.mitsuba.sensor import SensorRender
+from minirt.oracles.mitsuba.variants import BACKEND, load_mitsuba, one_line
 
 
 class MitsubaOracle(Oracle):
@@ -65,16 +66,16 @@ class MitsubaOracle(Oracle):
 
     def available(self) -> tuple[bool, str]:
         try:
-            _load_mitsuba()
+            load_mitsuba()
         except Exception as e:
-            return False, _one_line(e)
+            return False, one_line(e)
         return True, self.version()
 
     def version(self) -> str:
         try:
-            mi, variant = _load_mitsuba()
+            mi, variant = load_mitsuba()
         except Exception as e:
-            return f"mitsuba unavailable ({_one_line(e)})"
+            return f"mitsuba unavailable ({one_line(e)})"
         return f"mitsuba {mi.__version__} ({variant})"
 
     # ---- export ------------------------------------------------------------------------------
@@ -148,10 +149,10 @@ class MitsubaOracle(Oracle):
         mode = opts.get("mode", "rays")
         try:
             t0 = time.perf_counter()
-            mi, variant = _load_mitsuba()
+            mi, variant = load_mitsuba()
             t_import = time.perf_counter() - t0
         except Exception as e:
-            return RenderResult.failed(BACKEND, w, h, "skip", f"mitsuba unavailable: {_one_line(e)}", options=opts)
+            return RenderResult.failed(BACKEND, w, h, "skip", f"mitsuba unavailable: {one_line(e)}", options=opts)
         if mode not in ("rays", "sensor"):
             return RenderResult.failed(BACKEND, w, h, "error", f"unknown mode {mode!r} (rays or sensor)")
         if mode == "sensor" and w != h:
@@ -162,11 +163,11 @@ class MitsubaOracle(Oracle):
             )  # fmt: skip
         try:
             if mode == "sensor":
-                res = _SensorRender(mi, variant, scene, rules, opts).run()
+                res = SensorRender(mi, variant, scene, rules, opts).run()
             else:
-                res = _RayRender(mi, variant, scene, rules, opts).run()
+                res = RayRender(mi, variant, scene, rules, opts).run()
         except Exception as e:  # any Mitsuba exception becomes a result, never an exception
-            return RenderResult.failed(BACKEND, w, h, "error", f"mitsuba failed: {_one_line(e)}", options=opts)
+            return RenderResult.failed(BACKEND, w, h, "error", f"mitsuba failed: {one_line(e)}", options=opts)
         res.meta["timings"]["import"] = t_import
         return res
 

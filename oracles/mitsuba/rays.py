@@ -23,7 +23,7 @@ from minirt.model.result import RenderResult, geometry_from_flat, to8
 from minirt.model.scene import Plane
 from minirt.oracles.mitsuba.accuracy import silhouette_t_bound
 from minirt.oracles.mitsuba.planes import PlaneRect, plane_frames, plane_hits
-from minirt.oracles.mitsuba.render import _Base
+from minirt.oracles.mitsuba.render import MitsubaRender
 from minirt.oracles.mitsuba.variants import BACKEND
 
 # Growths of the plane rectangles before giving up. Each growth can uncover more: a reflection that now
@@ -33,7 +33,7 @@ from minirt.oracles.mitsuba.variants import BACKEND
 _MAX_RESIZE = 8
 
 
-class _RayRender(_Base):
+class RayRender(MitsubaRender):
     """The harness's rays through Mitsuba's intersector and a loop of stock shading calls."""
 
     def run(self) -> RenderResult:
@@ -209,68 +209,81 @@ class _RayRender(_Base):
         if scalar and not hit[0]:
             return out  # scalar variants: si.bsdf() of a miss is a null pointer (eval would crash)
         if lit:
-            if f"emitter+visibility(level {level})" not in self.passes:
-                self.passes += [f"emitter+visibility(level {level})", f"bsdf.eval(level {level})"]
-            ctx = mi.BSDFContext()
-            planes = [k for k, sh in enumerate(self.scene.shapes) if isinstance(sh, Plane)]
-            # With planes, the visibility test is Mitsuba's own ray_intersect on the shadow segment
-            # (spawn_ray_to: Mitsuba's offsets, stops short of the light), except that a plane's hit on
-            # itself does not count: an infinite plane never shadows its own points, but the
-            # rectangle standing in for it can, through its float32 corners (abs_error in meta planes;
-            # a fuzzed scene's 77,000-unit rectangle shadowed 458 of its own pixels).
-            ds, em_w = ms.sample_emitter_direction(si, mi.Point2f(0.5, 0.5), not planes, valid)
-            bsdf = si.bsdf(ray)
-            f = bsdf.eval(ctx, si, si.to_local(ds.d), valid)
-            fe = f * em_w
-            self._eval(fe, ds.dist, ds.p)
-            local = self._np3(fe)
-            if planes:
-                # Only whether and what the segment hits: Mitsuba's preliminary intersection, the same hit and
-                # shape as ray_intersect without its surface interaction -- a virtual call over every shape,
-                # recorded again each time (10,000 balls: about a second a call).
-                s2 = ms.ray_intersect_preliminary(si.spawn_ray_to(ds.p))
-                hit2, sid2 = self._hits(ms, s2, n, hit)
-                own = np.isin(sid, planes) & (sid2 == sid)
-
-                blocked = hit2 & ~own
-                if own.any():  # past the rectangle's hit on itself, the rest of the segment still counts
-                    blocked |= own & self._past_own_plane(ms, si, ds, sid, own, n, hit)
-
-                local = np.where(blocked[:, None], 0.0, local)
-            dist = self._np(ds.dist)
-            local = np.where(hit[:, None], local, 0.0)
-            out["local"] = local
-            out["dist"] = np.where(hit, dist, 0.0)
-            # intensity I = lc, so local * pi r^2 = dc lc max(0, n.s): the exercise's diffuse term
-            out["local_x"] = np.where(hit[:, None], local * (math.pi * dist * dist)[:, None], 0.0)
-            out["shadow"] = out["p"][hit]  # shadow segments start (about) here; coverage check only
+            self._light(ms, si, ray, valid, sid, hit, n, level, out)
         if reflective:
-            self.passes.append(f"conductor.sample(level {level})")
-            spawn = np.zeros(n, dtype=bool)
-            next_o, next_d = np.zeros((n, 3)), np.zeros((n, 3))
-            ctx = mi.BSDFContext()
-            # One conductor per reflection colour, sampled for every ray that hit a shape of that colour:
-            # shapes with the same colour have the same BSDF, and a lane's sample depends on its own ray
-            # alone, so the same numbers as a call per shape -- whose masked batch calls (kernels, read-backs)
-            # made a 1,024-ball check at 128x128 take 9 minutes in this loop.
-            by_colour: dict[tuple[float, ...], list[int]] = {}
-            for k in reflective:
-                by_colour.setdefault(tuple(self.scene.shapes[k].material.reflection), []).append(k)
-            for kr, shapes in by_colour.items():
-                mask_np = np.isin(sid, shapes)
-                if not mask_np.any():
-                    continue
-                cond = self.conductor(kr)
-                mask = mi.Bool(bool(mask_np[0])) if scalar else mi.Bool(mask_np)
-                bs, weight = cond.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5), mask)
-                nray = si.spawn_ray(si.to_world(bs.wo))
-                self._eval(weight, nray.o, nray.d, bs.pdf)
-                ok = mask_np & self._np(mask & (bs.pdf > 0)).astype(bool)
-                out["kr"][ok] = self._np3(weight)[ok]
-                next_o[ok], next_d[ok] = self._np3(nray.o)[ok], self._np3(nray.d)[ok]
-                spawn |= ok & np.any(out["kr"] != 0, axis=1)
-            out.update(spawn=spawn, next_o=next_o, next_d=next_d)
+            self._reflect(si, sid, reflective, n, level, out)
         return out
+
+    def _light(self, ms, si, ray, valid, sid, hit, n: int, level: int, out: dict[str, Any]) -> None:
+        """The lit rays' local colour (Mitsuba's emitter sample and BSDF, shadowed by its own visibility
+        test) into ``out``: local, dist, local_x, shadow."""
+        mi = self.mi
+        if f"emitter+visibility(level {level})" not in self.passes:
+            self.passes += [f"emitter+visibility(level {level})", f"bsdf.eval(level {level})"]
+        ctx = mi.BSDFContext()
+        planes = [k for k, sh in enumerate(self.scene.shapes) if isinstance(sh, Plane)]
+        # With planes, the visibility test is Mitsuba's own ray_intersect on the shadow segment
+        # (spawn_ray_to: Mitsuba's offsets, stops short of the light), except that a plane's hit on
+        # itself does not count: an infinite plane never shadows its own points, but the
+        # rectangle standing in for it can, through its float32 corners (abs_error in meta planes;
+        # a fuzzed scene's 77,000-unit rectangle shadowed 458 of its own pixels).
+        ds, em_w = ms.sample_emitter_direction(si, mi.Point2f(0.5, 0.5), not planes, valid)
+        bsdf = si.bsdf(ray)
+        f = bsdf.eval(ctx, si, si.to_local(ds.d), valid)
+        fe = f * em_w
+        self._eval(fe, ds.dist, ds.p)
+        local = self._np3(fe)
+        if planes:
+            # Only whether and what the segment hits: Mitsuba's preliminary intersection, the same hit and
+            # shape as ray_intersect without its surface interaction -- a virtual call over every shape,
+            # recorded again each time (10,000 balls: about a second a call).
+            s2 = ms.ray_intersect_preliminary(si.spawn_ray_to(ds.p))
+            hit2, sid2 = self._hits(ms, s2, n, hit)
+            own = np.isin(sid, planes) & (sid2 == sid)
+
+            blocked = hit2 & ~own
+            if own.any():  # past the rectangle's hit on itself, the rest of the segment still counts
+                blocked |= own & self._past_own_plane(ms, si, ds, sid, own, n, hit)
+
+            local = np.where(blocked[:, None], 0.0, local)
+        dist = self._np(ds.dist)
+        local = np.where(hit[:, None], local, 0.0)
+        out["local"] = local
+        out["dist"] = np.where(hit, dist, 0.0)
+        # intensity I = lc, so local * pi r^2 = dc lc max(0, n.s): the exercise's diffuse term
+        out["local_x"] = np.where(hit[:, None], local * (math.pi * dist * dist)[:, None], 0.0)
+        out["shadow"] = out["p"][hit]  # shadow segments start (about) here; coverage check only
+
+    def _reflect(self, si, sid, reflective: list[int], n: int, level: int, out: dict[str, Any]) -> None:
+        """The reflected rays of the hits on reflective shapes, from Mitsuba's conductor, into ``out``: kr,
+        spawn, next_o, next_d."""
+        mi = self.mi
+        scalar = not self.jit
+        self.passes.append(f"conductor.sample(level {level})")
+        spawn = np.zeros(n, dtype=bool)
+        next_o, next_d = np.zeros((n, 3)), np.zeros((n, 3))
+        ctx = mi.BSDFContext()
+        # One conductor per reflection colour, sampled for every ray that hit a shape of that colour:
+        # shapes with the same colour have the same BSDF, and a lane's sample depends on its own ray
+        # alone, so the same numbers as a call per shape -- whose masked batch calls (kernels, read-backs)
+        # made a 1,024-ball check at 128x128 take 9 minutes in this loop.
+        by_colour: dict[tuple[float, ...], list[int]] = {}
+        for k in reflective:
+            by_colour.setdefault(tuple(self.scene.shapes[k].material.reflection), []).append(k)
+        for kr, shapes in by_colour.items():
+            mask_np = np.isin(sid, shapes)
+            if not mask_np.any():
+                continue
+            cond = self.conductor(kr)
+            mask = mi.Bool(bool(mask_np[0])) if scalar else mi.Bool(mask_np)
+            bs, weight = cond.sample(ctx, si, 0.5, mi.Point2f(0.5, 0.5), mask)
+            nray = si.spawn_ray(si.to_world(bs.wo))
+            self._eval(weight, nray.o, nray.d, bs.pdf)
+            ok = mask_np & self._np(mask & (bs.pdf > 0)).astype(bool)
+            out["kr"][ok] = self._np3(weight)[ok]
+            next_o[ok], next_d[ok] = self._np3(nray.o)[ok], self._np3(nray.d)[ok]
+            spawn |= ok & np.any(out["kr"] != 0, axis=1)
+        out.update(spawn=spawn, next_o=next_o, next_d=next_d)
 
     def _past_own_plane(self, ms, si, ds, sid, own, n: int, hit) -> np.ndarray:
         """Whether the shadow segments ``own`` (whose first hit was the rectangle of the plane their point

@@ -1,4 +1,4 @@
-"""What both render routes share (_Base): the scene loaded into Mitsuba from its XML with
+"""What both render routes share (MitsubaRender): the scene loaded into Mitsuba from its XML with
 ``optimize=False`` (so that every plane keeps its own shape), Mitsuba's shape registry ids mapped back
 to the scene's shape index (the package docstring's "Registry ids"), and the result's meta: version,
 settings, timings, the terms Mitsuba cannot simulate, and ``precision`` (accuracy.py).
@@ -30,7 +30,10 @@ def _unsupported_terms(scene: Scene, mode: str) -> list[str]:
     return out
 
 
-class _Base:
+class MitsubaRender:
+    """One render of a scene in Mitsuba, whichever route (``RayRender``, ``SensorRender``: subclasses with
+    a ``run``): the scene, its rules and the options, the variant loaded, and what both routes share."""
+
     def __init__(self, mi, variant: str, scene: Scene, rules: Rules, opts: dict[str, Any]):
         self.mi, self.variant, self.scene, self.rules, self.opts = mi, variant, scene, rules, opts
         self.jit = not variant.startswith("scalar")

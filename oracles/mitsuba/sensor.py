@@ -18,11 +18,11 @@ from minirt.model.result import RenderResult, geometry_from_flat
 from minirt.oracles.mitsuba.accuracy import RAY_EPSILON
 from minirt.oracles.mitsuba.exporter import sensor_params
 from minirt.oracles.mitsuba.planes import sensor_frames
-from minirt.oracles.mitsuba.render import _Base
+from minirt.oracles.mitsuba.render import MitsubaRender
 from minirt.oracles.mitsuba.variants import BACKEND
 
 
-class _SensorRender(_Base):
+class SensorRender(MitsubaRender):
     """Mitsuba's own perspective sensor and integrators (aov + direct; moment for spp > 1)."""
 
     def run(self) -> RenderResult:

@@ -22,7 +22,7 @@ VARIANTS = ("llvm_ad_rgb", "scalar_rgb")  # preferred first
 _state: dict[str, Any] = {}
 
 
-def _load_mitsuba() -> tuple[Any, str]:
+def load_mitsuba() -> tuple[Any, str]:
     """Import mitsuba and set the first usable variant; raises ImportError/RuntimeError with a reason."""
     if "mi" in _state:
         mi = _state["mi"]
@@ -80,6 +80,8 @@ def _log_as_warnings(mi: Any) -> None:
     logger.add_appender(_Warnings())
 
 
-def _one_line(e: BaseException) -> str:
+def one_line(e: BaseException) -> str:
+    """An exception as one line of at most 300 characters, its type first: the reason a skipped or
+    failed Mitsuba render gives (the oracle's ``available`` and ``render``)."""
     text = f"{type(e).__name__}: {e}".strip()
     return " ".join(text.split())[:300]

@@ -116,7 +116,7 @@ from minirt.oracles.povray.rays import (
     uses_mesh_camera,
 )
 from minirt.oracles.povray.runner import INSTALL_HINT, NAME, PovrayError, command, default_timeout
-from minirt.oracles.povray.runner import _run as _run  # benchmarks/bench.py times one pass with it
+from minirt.oracles.povray.runner import run_povray as run_povray  # benchmarks/bench.py times one pass with it
 
 __all__ = [
     "INSTALL_HINT",

@@ -26,8 +26,8 @@ from minirt.oracles.povray.buffers import FINE_ERROR, HALF_REL, SPLIT
 from minirt.oracles.povray.rays import (
     MESH_RAY_ERROR,
     MIN_ISECT_DEPTH,
-    _pinhole_directions,
     mesh_reach,
+    pinhole_directions,
     uses_mesh_camera,
 )
 
@@ -204,7 +204,7 @@ def origin_lift(scene: Scene, rules: Rules) -> float:
     the camera, so its t exceeds the harness's by at most this much."""
     if rules.ray_origin != "image-plane":
         return 0.0
-    dz = float(_pinhole_directions(scene, rules)[:, 2].min())
+    dz = float(pinhole_directions(scene, rules)[:, 2].min())
     return scene.camera.distance / dz if dz > 0 else math.inf
 
 

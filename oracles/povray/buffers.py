@@ -19,7 +19,7 @@ import numpy as np
 from minirt.model.effects import Effects, effects
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Material, Scene
-from minirt.oracles.povray.rays import MAX_DISTANCE, MESH_RAY_ERROR, MIN_ISECT_DEPTH, _pinhole_directions, mesh_reach
+from minirt.oracles.povray.rays import MAX_DISTANCE, MESH_RAY_ERROR, MIN_ISECT_DEPTH, mesh_reach, pinhole_directions
 
 FAR_ROOT_MARGIN = 10 * MIN_ISECT_DEPTH  # encoding_ranges: a near root this close to the start may be dropped
 SPLIT = 1024  # coarse/fine split of an encoded value
@@ -58,11 +58,14 @@ class Frame:
         )
 
 
-def _grey(c: tuple[float, float, float]) -> bool:
+def is_grey(c: tuple[float, float, float]) -> bool:
+    """All three channels equal: a colour POV-Ray's finish can take as one number."""
     return c[0] == c[1] == c[2]
 
 
-def _ambient_numerator(m: Material, scene: Scene, rules: Rules, fx: Effects) -> tuple[float, float, float]:
+def ambient_numerator(m: Material, scene: Scene, rules: Rules, fx: Effects) -> tuple[float, float, float]:
+    """The colour the exercise adds as ambient for material ``m``: its ambient, plus the background where
+    the rules add it on a hit (background "on-hit"), each only where the effects simulate it."""
     bg = scene.background if (rules.background == "on-hit" and fx.background) else (0.0, 0.0, 0.0)
     ac = m.ambient if fx.ambient else (0.0, 0.0, 0.0)
     return (ac[0] + bg[0], ac[1] + bg[1], ac[2] + bg[2])
@@ -75,10 +78,10 @@ def needs_per_channel(scene: Scene, rules: Rules) -> bool:
     fx = effects(scene, rules)
     for s in scene.shapes:
         m = s.material
-        if fx.specular and not _grey(m.specular):
+        if fx.specular and not is_grey(m.specular):
             return True
-        if fx.diffuse and not _grey(m.diffuse):
-            a = _ambient_numerator(m, scene, rules, fx)
+        if fx.diffuse and not is_grey(m.diffuse):
+            a = ambient_numerator(m, scene, rules, fx)
             if any(m.diffuse[i] == 0.0 and a[i] != 0.0 for i in range(3)):
                 return True
     return False
@@ -108,7 +111,7 @@ def encoding_ranges(scene: Scene, rules: Rules) -> list[dict[str, tuple[float, f
 
     A superset of what is visible (occlusion ignored), so every decoded value lies in its range. None
     for a shape no primary ray reaches."""
-    d = _pinhole_directions(scene, rules)
+    d = pinhole_directions(scene, rules)
     cam = np.array(scene.camera.position)
     dist = scene.camera.distance
     # where a ray starts, as a t from the camera: the image plane z = 0 for rule ray_origin "image-plane"

@@ -27,10 +27,10 @@ from minirt.oracles.povray.buffers import (
     ID_SCALE,
     SPLIT,
     Frame,
-    _ambient_numerator,
-    _grey,
+    ambient_numerator,
     color_frames,
     encoding_ranges,
+    is_grey,
 )
 from minirt.oracles.povray.rays import too_many_mesh_rays, uses_mesh_camera
 from minirt.oracles.povray.runner import command
@@ -131,7 +131,7 @@ def _shape_head(s) -> str:
 
 
 def _material(m: Material, scene: Scene, rules: Rules, fx: Effects, channel: int) -> str:
-    a = _ambient_numerator(m, scene, rules, fx)
+    a = ambient_numerator(m, scene, rules, fx)
     fin = []
     if channel >= 0:
         pigment = "rgb 1"
@@ -144,7 +144,7 @@ def _material(m: Material, scene: Scene, rules: Rules, fx: Effects, channel: int
             fin.append(f"reflection {{ rgb {_f(refl)} }}")
     else:
         dc = m.diffuse
-        if not fx.diffuse or _grey(dc):
+        if not fx.diffuse or is_grey(dc):
             pigment = "rgb 1"
             fin.append(f"ambient rgb {_v(a)}")
             fin.append(f"diffuse {_f(dc[0]) if fx.diffuse else '0'}")

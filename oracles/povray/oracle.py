@@ -49,11 +49,11 @@ from minirt.oracles.povray.runner import (
     MAX_ANTIALIAS,
     NAME,
     PovrayError,
-    _frame_files,
-    _run,
-    _version,
     command,
     default_timeout,
+    frame_files,
+    povray_version,
+    run_povray,
 )
 
 
@@ -101,7 +101,7 @@ class PovrayOracle(Oracle):
         if exe is None:
             raise FileNotFoundError(INSTALL_HINT)
         st = os.stat(exe)
-        v = _version(exe, st.st_mtime_ns, st.st_size)
+        v = povray_version(exe, st.st_mtime_ns, st.st_size)
         if isinstance(v, Exception):
             raise v
         return v
@@ -216,20 +216,7 @@ class PovrayOracle(Oracle):
 
     def _render(self, scene: Scene, rules: Rules, opts: dict[str, Any], meta: dict[str, Any]) -> RenderResult:
         w, h = scene.camera.width, scene.camera.height
-        samples = opts.get("samples", 1)
-        threads = opts.get("threads")
-        geometry = bool(opts.get("geometry", True))
-        antialias = opts.get("antialias")
-        if samples > 1:
-            # The exercise's samples: colour only (an average of positions is no position), like antialias.
-            geometry = False
-        if antialias is not None:
-            ok = isinstance(antialias, int) and not isinstance(antialias, bool) and 1 <= antialias <= MAX_ANTIALIAS
-            if not ok:
-                raise ValueError(f"antialias must be an integer in 1..{MAX_ANTIALIAS}, got {antialias!r}")
-            # Antialiased renders are colour only: supersampling jitters the geometry passes' encodings
-            # (an average of positions is no position), and the 8-bit PNG pass would pay the start-up twice.
-            geometry = False
+        samples, threads, geometry, antialias = _render_options(opts)
         t_start = time.perf_counter()
         fx = effects(scene, rules)
         cframes = color_frames(scene, rules)
@@ -268,7 +255,7 @@ class PovrayOracle(Oracle):
                 command(scene, n, 1, len(cframes), "png8", threads=threads, mesh_camera=mesh) if png_pass else None
             )
             with ThreadPoolExecutor(max_workers=2) as pool:
-                jobs = [pool.submit(_run, c, cwd, timeout) for c in (cmd_exr, cmd_png) if c is not None]
+                jobs = [pool.submit(run_povray, c, cwd, timeout) for c in (cmd_exr, cmd_png) if c is not None]
                 done = [j.result() for j in jobs]  # the first failure raises, in pass order
             passes.append({"name": "exr", "frames": [f.label for f in frames], "command": shlex.join(cmd_exr),
                            "timings": done[0][1]})  # fmt: skip
@@ -276,71 +263,15 @@ class PovrayOracle(Oracle):
                 passes.append({"name": "png8", "frames": [f.label for f in cframes],
                                "command": shlex.join(cmd_png), "timings": done[1][1]})  # fmt: skip
             t0 = time.perf_counter()
-            exr = _frame_files(cwd, "out", "exr")
-            png = _frame_files(cwd, "out", "png") if png_pass else {}
-            missing = [i for i in range(1, n + 1) if i not in exr] + [
-                i for i in range(1, len(cframes) + 1) if png_pass and i not in png
-            ]
-            if missing:
-                raise PovrayError(f"POV-Ray wrote no output for frame(s) {sorted(set(missing))}")
-            first = 1 if mesh else 0  # the mesh camera's extra first row (see command)
-
-            def read(path: Path, u8: bool = False) -> np.ndarray:
-                try:
-                    img = (read_image_u8(path) if u8 else read_image(path)[0])[first:]
-                except MinirtError as e:  # the file POV-Ray left is cut short or is not an image
-                    said = str(e).replace(str(path), path.name)
-                    raise PovrayError(f"POV-Ray wrote a truncated or corrupt {path.name} ({said})") from None
-                if img.shape[:2] != (h, w):
-                    got = f"{img.shape[1]}x{img.shape[0] + first}"
-                    raise PovrayError(f"POV-Ray wrote {path.name} at {got}, not the {w}x{h + first} asked for")
-                return img
-
-            color = np.zeros((h, w, 3))
-            color8: np.ndarray | None = np.zeros((h, w, 3), dtype=np.uint8) if png_pass else None
-            for i, f in enumerate(cframes, start=1):
-                img = read(exr[i])
-                img8 = read(png[i], u8=True) if png_pass else None
-                if f.index < 0:
-                    color = img[..., :3].astype(np.float64)
-                    if img8 is not None:
-                        color8 = img8[..., :3].copy()
-                else:
-                    color[..., f.index] = img[..., 0]
-                    if img8 is not None and color8 is not None:
-                        color8[..., f.index] = img8[..., 0]
-            geom: dict[str, np.ndarray] = {}
-            if gframes:
-                imgs = [read(exr[len(cframes) + 1 + g]) for g in range(len(gframes))]
-                geom = decode_geometry(scene, rules, imgs, ranges)
+            color, color8, geom = _read_frames(scene, rules, cwd, cframes, gframes, ranges, mesh, png_pass)
             timings["decode"] = time.perf_counter() - t0
         # The passes run side by side: setup, parse and trace are sums over them (each process's own
         # time), total is the wall time of the whole render.
-        timings["passes"] = {p["name"]: p["timings"] for p in passes}
-        timings["setup"] = sum(p["timings"]["setup"] for p in passes)
-        timings["trace"] = sum(p["timings"].get("trace", 0.0) for p in passes)
-        timings["parse"] = sum(p["timings"].get("parse", 0.0) for p in passes)
+        timings.update(_pass_timings(passes))
         timings["total"] = time.perf_counter() - t_start
         meta.update(passes=passes, commands=[p["command"] for p in passes], timings=timings)
         if gframes or geometry or samples > 1:  # geometry asked for (even with no shapes), or the exercise's samples
-            meta["precision"] = accuracy.precision(
-                scene, ranges or [None] * len(scene.shapes), mesh, mesh_reach(scene, rules)
-            )
-            inside = accuracy.band_inside_scales(scene, rules, samples)
-            root = accuracy.root_errors(scene, rules)
-            meta["precision"].update(
-                band_threshold=accuracy.band_threshold(scene, rules, samples, inside),
-                band_scale=accuracy.band_scales(scene, rules, samples),
-                band_origin_scale=accuracy.band_origin_scales(scene, rules, samples),
-                band_inside_scale=inside,
-                root_err=root,
-                root_normal_err=[
-                    e / s.radius if isinstance(s, Ball) else 0.0 for e, s in zip(root, scene.shapes, strict=True)
-                ],
-                max_distance=MAX_DISTANCE,
-                max_distance_lift=0.0 if mesh else accuracy.origin_lift(scene, rules),
-                **accuracy.start_decision(scene, rules, mesh),
-            )
+            meta["precision"] = _precision(scene, rules, ranges, mesh, samples)
         if gframes:
             meta["encoding_ranges"] = ranges
             # pixels where the three frames' alpha and the id channel disagree on hit/miss (expected 0)
@@ -437,3 +368,101 @@ class PovrayOracle(Oracle):
         passes = [tm["passes"]["exr"]] if "exr" in tm["passes"] else list(tm["passes"].values())
         work = sum(p.get(k, 0.0) for p in passes for k in cls.SWEEP_STAGES)
         return round(work, 6), sum(p["wall"] for p in passes) - work, cls.SWEEP_RESOLUTION
+
+
+def _render_options(opts: dict[str, Any]) -> tuple[int, Any, bool, int | None]:
+    """(samples, threads, geometry, antialias) of a render's options, checked."""
+    samples = opts.get("samples", 1)
+    threads = opts.get("threads")
+    geometry = bool(opts.get("geometry", True))
+    antialias = opts.get("antialias")
+    if samples > 1:
+        # The exercise's samples: colour only (an average of positions is no position), like antialias.
+        geometry = False
+    if antialias is not None:
+        ok = isinstance(antialias, int) and not isinstance(antialias, bool) and 1 <= antialias <= MAX_ANTIALIAS
+        if not ok:
+            raise ValueError(f"antialias must be an integer in 1..{MAX_ANTIALIAS}, got {antialias!r}")
+        # Antialiased renders are colour only: supersampling jitters the geometry passes' encodings
+        # (an average of positions is no position), and the 8-bit PNG pass would pay the start-up twice.
+        geometry = False
+    return samples, threads, geometry, antialias
+
+
+def _read_frame(path: Path, first: int, h: int, w: int, u8: bool = False) -> np.ndarray:
+    """One frame POV-Ray wrote, without the mesh camera's extra first row (``first``), checked whole and
+    of the size asked for."""
+    try:
+        img = (read_image_u8(path) if u8 else read_image(path)[0])[first:]
+    except MinirtError as e:  # the file POV-Ray left is cut short or is not an image
+        said = str(e).replace(str(path), path.name)
+        raise PovrayError(f"POV-Ray wrote a truncated or corrupt {path.name} ({said})") from None
+    if img.shape[:2] != (h, w):
+        got = f"{img.shape[1]}x{img.shape[0] + first}"
+        raise PovrayError(f"POV-Ray wrote {path.name} at {got}, not the {w}x{h + first} asked for")
+    return img
+
+
+def _read_frames(
+    scene: Scene, rules: Rules, cwd: Path, cframes: list, gframes: list, ranges, mesh: bool, png_pass: bool
+) -> tuple[np.ndarray, np.ndarray | None, dict[str, np.ndarray]]:
+    """(colour, POV-Ray's own 8-bit colour or None, the decoded geometry buffers) from the frames the
+    passes wrote in ``cwd``."""
+    w, h = scene.camera.width, scene.camera.height
+    n = len(cframes) + len(gframes)
+    exr = frame_files(cwd, "out", "exr")
+    png = frame_files(cwd, "out", "png") if png_pass else {}
+    missing = [i for i in range(1, n + 1) if i not in exr] + [
+        i for i in range(1, len(cframes) + 1) if png_pass and i not in png
+    ]
+    if missing:
+        raise PovrayError(f"POV-Ray wrote no output for frame(s) {sorted(set(missing))}")
+    first = 1 if mesh else 0  # the mesh camera's extra first row (see command)
+    color = np.zeros((h, w, 3))
+    color8: np.ndarray | None = np.zeros((h, w, 3), dtype=np.uint8) if png_pass else None
+    for i, f in enumerate(cframes, start=1):
+        img = _read_frame(exr[i], first, h, w)
+        img8 = _read_frame(png[i], first, h, w, u8=True) if png_pass else None
+        if f.index < 0:
+            color = img[..., :3].astype(np.float64)
+            if img8 is not None:
+                color8 = img8[..., :3].copy()
+        else:
+            color[..., f.index] = img[..., 0]
+            if img8 is not None and color8 is not None:
+                color8[..., f.index] = img8[..., 0]
+    geom: dict[str, np.ndarray] = {}
+    if gframes:
+        imgs = [_read_frame(exr[len(cframes) + 1 + g], first, h, w) for g in range(len(gframes))]
+        geom = decode_geometry(scene, rules, imgs, ranges)
+    return color, color8, geom
+
+
+def _pass_timings(passes: list[dict[str, Any]]) -> dict[str, Any]:
+    """The passes run side by side: setup, parse and trace are sums over them (each process's own time)."""
+    return {
+        "passes": {p["name"]: p["timings"] for p in passes},
+        "setup": sum(p["timings"]["setup"] for p in passes),
+        "trace": sum(p["timings"].get("trace", 0.0) for p in passes),
+        "parse": sum(p["timings"].get("parse", 0.0) for p in passes),
+    }
+
+
+def _precision(scene: Scene, rules: Rules, ranges, mesh: bool, samples: int) -> dict[str, Any]:
+    """What the harness's tolerance reads of a render (``meta["precision"]``): minirt.oracles.povray.accuracy's
+    bounds for this scene, camera and sampling."""
+    precision = accuracy.precision(scene, ranges or [None] * len(scene.shapes), mesh, mesh_reach(scene, rules))
+    inside = accuracy.band_inside_scales(scene, rules, samples)
+    root = accuracy.root_errors(scene, rules)
+    precision.update(
+        band_threshold=accuracy.band_threshold(scene, rules, samples, inside),
+        band_scale=accuracy.band_scales(scene, rules, samples),
+        band_origin_scale=accuracy.band_origin_scales(scene, rules, samples),
+        band_inside_scale=inside,
+        root_err=root,
+        root_normal_err=[e / s.radius if isinstance(s, Ball) else 0.0 for e, s in zip(root, scene.shapes, strict=True)],
+        max_distance=MAX_DISTANCE,
+        max_distance_lift=0.0 if mesh else accuracy.origin_lift(scene, rules),
+        **accuracy.start_decision(scene, rules, mesh),
+    )
+    return precision

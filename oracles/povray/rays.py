@@ -34,7 +34,9 @@ MESH_RAY_ERROR = 2.0**-21
 MAX_MESH_RAYS = 2**21  # samples x pixels: ~130 bytes of scene text each, ~3.5 s of parsing per million
 
 
-def _pinhole_directions(scene: Scene, rules: Rules) -> np.ndarray:
+def pinhole_directions(scene: Scene, rules: Rules) -> np.ndarray:
+    """The primary rays' directions (N, 3) as from a pinhole at the camera (ray_origin "camera"): what
+    POV-Ray's camera shoots, whatever the rules' ray origin."""
     from dataclasses import replace
 
     _, d = camera.primary_rays(scene, replace(rules, ray_origin="camera"))

@@ -111,7 +111,10 @@ STARTUP_TIMEOUT = "Timed out waiting for worker thread startup"
 STARTUP_RETRIES = 3
 
 
-def _run(cmd: list[str], cwd: Path, timeout: float) -> tuple[str, dict[str, float]]:
+def run_povray(cmd: list[str], cwd: Path, timeout: float) -> tuple[str, dict[str, float]]:
+    """Run one POV-Ray command (``command``) in ``cwd`` within ``timeout`` seconds: its output and its
+    timings. A start-up that timed out is tried again (``STARTUP_RETRIES``); any other failure raises
+    PovrayError with its reason."""
     for attempt in range(STARTUP_RETRIES):
         try:
             return _run_once(cmd, cwd, timeout)
@@ -142,7 +145,7 @@ def _run_once(cmd: list[str], cwd: Path, timeout: float) -> tuple[str, dict[str,
 
 
 @functools.lru_cache(maxsize=8)
-def _version(exe: str, mtime_ns: int, size: int) -> str | RuntimeError:
+def povray_version(exe: str, mtime_ns: int, size: int) -> str | RuntimeError:
     """``povray --version`` of one executable, once per process (each call is a ~0.6 s start-up, and a
     check asks for every scene and pass); keyed by the file's path, time and size, so another povray
     on PATH is asked again. A failure is cached too (returned, not raised): a --version that hangs costs
@@ -160,7 +163,9 @@ def _version(exe: str, mtime_ns: int, size: int) -> str | RuntimeError:
     return f"POV-Ray {m.group(1)}"
 
 
-def _frame_files(cwd: Path, stem: str, ext: str) -> dict[int, Path]:
+def frame_files(cwd: Path, stem: str, ext: str) -> dict[int, Path]:
+    """The files POV-Ray wrote in ``cwd`` for the frames of one run, by frame number: ``stem<N>.<ext>``
+    (a single frame, not numbered, is frame 1)."""
     out = {}
     for p in cwd.glob(f"{stem}*.{ext}"):
         num = p.name[len(stem) : -len(ext) - 1] or "1"  # a single frame is not numbered

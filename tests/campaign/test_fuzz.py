@@ -22,9 +22,9 @@ from support.inproc import minirt
 
 from minirt.campaign import campaign
 from minirt.campaign.families import FAMILIES
+from minirt.harness.backends import oracle_names
 from minirt.io import documents
 from minirt.model.result import RenderResult
-from minirt.oracles import names as oracle_names
 
 ROOT = Path(__file__).resolve().parents[2]
 PER_FAMILY = 3  # scenes of each family in the subset

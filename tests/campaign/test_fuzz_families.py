@@ -235,7 +235,7 @@ def test_power_of_two_scaling_keeps_hits_bit_identical(k):
         for sc, origins in ((base, o), (scaled, o * factor)):
             tr = Tracer(sc, rules)
             with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
-                ids, t = tr.closest(tr._load(origins), tr._load(d))
+                ids, t = tr.closest(tr.load(origins), tr.load(d))
                 dr.eval(ids, t)
             out.append((np.asarray(ids).reshape(H, W), np.asarray(t).reshape(H, W)))
         (ids0, t0), (ids1, t1) = out

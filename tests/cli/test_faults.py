@@ -102,14 +102,14 @@ def test_a_faulty_povray_does_not_stop_the_others(fake_povray, tmp_path, monkeyp
 
 
 def test_a_hanging_povray_times_out_and_is_killed(fake_povray, tmp_path, monkeypatch):
-    from minirt import oracles
+    from minirt.harness import backends
     from minirt.model.bundled import bundled_scene
     from minirt.model.rules import resolve
 
     monkeypatch.setenv("FAKE_MODE", "hang")
     scene = bundled_scene("exercise").with_overrides(width=8, height=8)
     t0 = time.perf_counter()
-    pov = oracles.get("povray")
+    pov = backends.get("povray")
     res = pov.render(scene, pov.adapt(resolve(scene)), {"timeout": 1.5})
     assert time.perf_counter() - t0 < 20
     assert res.status == "error" and "timed out after 1.5 s" in res.reason, res.reason
@@ -123,12 +123,12 @@ def test_a_hanging_povray_times_out_and_is_killed(fake_povray, tmp_path, monkeyp
 def test_povrays_startup_race_is_run_again_and_said_when_it_stays(fake_povray, tmp_path, monkeypatch):
     """POV-Ray's "Timed out waiting for worker thread startup" (a loaded machine) is retried; a pass that keeps
     failing so is an ERROR that says it."""
-    from minirt import oracles
+    from minirt.harness import backends
     from minirt.model.bundled import bundled_scene
     from minirt.model.rules import resolve
 
     scene = bundled_scene("exercise").with_overrides(width=8, height=8)
-    pov = oracles.get("povray")
+    pov = backends.get("povray")
     monkeypatch.setenv("FAKE_MODE", "startup-once")
     res = pov.render(scene, pov.adapt(resolve(scene)), {})
     assert res.ok, res.reason

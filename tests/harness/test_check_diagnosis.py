@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from minirt import oracles
+from minirt.harness import backends
 from minirt.harness.results import CheckResult
 from minirt.harness.run import check_scene
 from minirt.model import bitmap
@@ -55,7 +55,7 @@ def test_povray_diagnosis_names_the_rules_it_follows(checked):
     assert d.ran
     sc = load_scene(SCENE).with_overrides(width=SIZE[0], height=SIZE[1])
     rules = resolve(sc)
-    followed = oracles.get("povray").adapt(rules)
+    followed = backends.get("povray").adapt(rules)
     declared = {n: format_rule_value(n, getattr(followed, n)) for n in rules.differs(followed)}
     assert d.declared == declared
     shown = shown_by_scene(rules, followed)

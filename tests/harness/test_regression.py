@@ -13,8 +13,8 @@ from support.evidence import dump_check
 from support.scenes import SHINY, ball, plane, scene_text, write_scene
 
 from minirt.harness import backends
+from minirt.harness.backends import oracle_names
 from minirt.harness.run import check_scene
-from minirt.oracles import names as oracle_names
 
 SIZE = (64, 64)
 # (scene, backend) -> a phrase the SKIP reason must contain

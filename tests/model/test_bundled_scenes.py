@@ -75,3 +75,19 @@ def test_an_unknown_name_is_one_line_naming_the_bundled_ones(tmp_path, command):
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("minirt: error: exercize: no such scene file"), p.stderr
     assert all(n in lines[0] for n in NAMES)
+
+
+def test_scene_and_rules_reads_overrides_and_resolves_as_render_does():
+    """The one function behind the API, the harness and the CLI: a bundled name or a path, the flags'
+    overrides applied to the scene, then the profile, the scene's [model] and the --rule values, in order."""
+    from minirt.model.rules import resolve
+    from minirt.model.scene import load_scene
+
+    plain = load_scene(scenes.find_scene("rules"))
+    scene, rules = scenes.scene_and_rules("rules", width=12, height=10, samples=2, profile="conventional")
+    assert (scene.camera.width, scene.camera.height, scene.samples, scene.profile) == (12, 10, 2, "conventional")
+    assert rules == resolve(plain, "conventional")
+    _, flipped = scenes.scene_and_rules(plain, rules={"clamp": True})
+    assert flipped.clamp is True and resolve(plain).clamp is not True  # the override wins over the scene's model
+    same, own = scenes.scene_and_rules(plain)
+    assert same == plain and own == resolve(plain)

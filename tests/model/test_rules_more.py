@@ -146,14 +146,14 @@ def test_shifted_rays_are_bit_identical_numpy_and_drjit(shift, pixel_sample):
         tr = Tracer(scene, rules)
         o, d = tr.primary_rays()
         o_np, d_np = camera.primary_rays(scene, rules)
-        assert tr._to_numpy3(o).tobytes() == o_np.tobytes()
-        assert tr._to_numpy3(d).tobytes() == d_np.tobytes()
+        assert tr.to_numpy3(o).tobytes() == o_np.tobytes()
+        assert tr.to_numpy3(d).tobytes() == d_np.tobytes()
         # several samples per pixel: the same sub-pixel offsets through both
         u, v = camera.sample_offsets(4, 1, 13 * 7)
-        o, d = tr._sample_rays(u, v)
+        o, d = tr.sample_rays(u, v)
         o_np, d_np = camera.rays_through(scene, rules, u, v)
-        assert tr._to_numpy3(o).tobytes() == o_np.tobytes()
-        assert tr._to_numpy3(d).tobytes() == d_np.tobytes()
+        assert tr.to_numpy3(o).tobytes() == o_np.tobytes()
+        assert tr.to_numpy3(d).tobytes() == d_np.tobytes()
 
 
 @pytest.mark.parametrize("pixel_sample", ["corner", "center"])
@@ -198,13 +198,13 @@ def test_eth2014_problem_b(precision):
     scene = parse_scene(SCENE_B)
     rules = PROFILES["eth2014"]
     tr = Tracer(scene, rules, precision=precision)
-    o, d = tr._load(np.array([[0.0, 0.0, -3.0]])), tr._load(np.array([[0.0, 0.0, 1.0]]))
+    o, d = tr.load(np.array([[0.0, 0.0, -3.0]])), tr.load(np.array([[0.0, 0.0, 1.0]]))
     assert float(np.asarray(tr.intersect(scene.shapes[0], o, d))[0]) == 2.0
     ids, t = tr.closest(o, d)
     assert int(np.asarray(ids)[0]) == 0 and float(np.asarray(t)[0]) == 2.0
     assert Plain(scene, rules).intersect(scene.shapes[0], (0.0, 0.0, -3.0), (0.0, 0.0, 1.0)) == 2.0
     # from inside (no near-root-only rule in 2014): the far root
-    o_in = tr._load(np.array([[0.0, 0.0, 0.0]]))
+    o_in = tr.load(np.array([[0.0, 0.0, 0.0]]))
     assert float(np.asarray(tr.intersect(scene.shapes[0], o_in, d))[0]) == 1.0
 
 
@@ -494,8 +494,8 @@ def test_runtime_subset_rays_same_bits(precision):
         tr = Tracer(scene, replace(PROFILES["exercise"], **change), precision=precision, runtime=True)
         (o, d), (os_, ds) = tr.primary_rays(), tr.primary_rays(idx)
         for full, sub in ((o, os_), (d, ds)):
-            whole = tr._to_numpy3(full)
-            assert np.array_equal(whole[idx].view(np.uint8), tr._to_numpy3(sub).view(np.uint8)), change
+            whole = tr.to_numpy3(full)
+            assert np.array_equal(whole[idx].view(np.uint8), tr.to_numpy3(sub).view(np.uint8)), change
 
 
 # ---------------------------------------------------------------------------------------------

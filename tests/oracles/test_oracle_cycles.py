@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from minirt.harness.backends import get
 from minirt.harness.results import CheckResult, SceneCheck, worst
 from minirt.harness.run import check_scene
 from minirt.model import camera
 from minirt.model.rules import resolve
 from minirt.model.scene import Ball, load_scene, parse_scene
-from minirt.oracles import get
 from minirt.oracles.cycles import CyclesOracle, run
 from minirt.oracles.cycles import precision as pr
 from minirt.oracles.cycles import scene as cs

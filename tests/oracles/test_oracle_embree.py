@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from minirt.harness.backends import get
 from minirt.model import camera
 from minirt.model.rules import resolve
 from minirt.model.scene import Ball, load_scene
-from minirt.oracles import get
 from minirt.oracles.embree import EmbreeOracle, scene_to_mesh, tessellation
 from minirt.reference import band, tracer
 

@@ -15,13 +15,13 @@ from support.exact_cases import FLOOR, TANGENT_BALL, exact_case
 
 from minirt.campaign.campaign import DEFECTS, _DefectiveReference
 from minirt.harness import backends, judge
+from minirt.harness.backends import get
 from minirt.harness.compare import check_backend
 from minirt.harness.references import ReferenceCache
 from minirt.model.bundled import find_scene
 from minirt.model.result import edge_classes
 from minirt.model.rules import PROFILES, Rules, resolve
 from minirt.model.scene import load_scene
-from minirt.oracles import get
 from minirt.oracles.exact import CHECK_WHOLE_PIXELS, WHOLE_IMAGE_PIXELS, choose_pixels, stratified
 from minirt.oracles.exact.model import CULL_FROM
 from minirt.oracles.exact.render import PRECISIONS, PixelTracer

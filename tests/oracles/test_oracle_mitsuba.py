@@ -256,7 +256,7 @@ def test_import_failure_is_a_skip(monkeypatch):
     def boom():
         raise ImportError("No module named 'mitsuba'")
 
-    monkeypatch.setattr(mitsuba_oracle, "_load_mitsuba", boom)  # where the oracle finds it
+    monkeypatch.setattr(mitsuba_oracle, "load_mitsuba", boom)  # where the oracle finds it
     o = om.MitsubaOracle()
     ok, why = o.available()
     assert not ok and "mitsuba" in why

@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 from support.scenes import ball, material, plane, scene_text
 
-from minirt import oracles
+from minirt.harness import backends
 from minirt.io.images import read_image_u8
 from minirt.model import camera
 from minirt.model import rules as R
@@ -107,7 +107,7 @@ def test_available_and_version():
     ok, why = ORACLE.available()
     assert ok, why  # a fresh machine must have povray installed (make test installs it)
     assert re.fullmatch(r"POV-Ray 3\.7\.\d+\.\d+", ORACLE.version())
-    assert oracles.get("povray").name == "povray"
+    assert backends.get("povray").name == "povray"
 
 
 @pytest.mark.parametrize("case", CASE_IDS)

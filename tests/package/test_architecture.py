@@ -1,10 +1,13 @@
-"""The shape of the code, kept: rooms of a readable size, each saying what it may import, and no
-backend's name compared outside its own module and the registry (the layers themselves are checked by
-import-linter, tools/lint-imports.sh, in make test)."""
+"""The shape of the code, kept: rooms of a readable size, each saying exactly what the import-linter
+contracts let it import (pyproject.toml; README's diagram drawn from the same contracts), and no
+backend's name compared outside its own module and the registry (the contracts themselves are checked
+by import-linter, tools/lint-imports.sh, in make test)."""
 
 from __future__ import annotations
 
 import ast
+import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -28,10 +31,74 @@ def test_the_package_is_rooms_not_a_pile():
     assert len(top) <= MAX_TOP_LEVEL_MODULES, top
 
 
-@pytest.mark.parametrize("package", sorted(p.parent.name for p in (ROOT / "minirt").glob("*/__init__.py")))
-def test_each_room_says_what_lives_there_and_what_it_may_import(package):
-    doc = ast.get_docstring(ast.parse((ROOT / "minirt" / package / "__init__.py").read_text())) or ""
-    assert "May import" in doc, f"minirt/{package}/__init__.py: say what lives here and what it may import"
+def _layers():
+    """tools/layers.py, the contracts' reader (tools/ is not a package: loaded from its file)."""
+    spec = importlib.util.spec_from_file_location("layers", ROOT / "tools" / "layers.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+LAYERS = _layers()
+CONTRACT_LAYERS, FORBIDDEN = LAYERS.contracts(ROOT / "pyproject.toml")
+ROOMS = [r for layer in CONTRACT_LAYERS for r in layer]
+
+
+def _room_init(room: str) -> Path:
+    """A room's __init__.py (minirt.oracles lives in oracles/, pyproject.toml's package-dir)."""
+    short = room.removeprefix("minirt.")
+    return ROOT / "oracles" / "__init__.py" if short == "oracles" else ROOT / "minirt" / short / "__init__.py"
+
+
+def _doc(path: Path) -> str:
+    return ast.get_docstring(ast.parse(path.read_text())) or ""
+
+
+def test_every_room_is_in_the_layers():
+    """Each subpackage of minirt (and the oracles) is a room the contracts place."""
+    packages = {f"minirt.{p.parent.name}" for p in (ROOT / "minirt").glob("*/__init__.py")} | {"minirt.oracles"}
+    assert packages <= set(ROOMS), sorted(packages - set(ROOMS))
+
+
+@pytest.mark.parametrize("room", [r for r in ROOMS if _room_init(r).exists()])
+def test_each_room_may_import_exactly_what_the_contracts_allow(room):
+    """The room's "May import:" line names what pyproject.toml's contracts allow it, no more, no less, and
+    the rest of its paragraph names no other room."""
+    doc = _doc(_room_init(room))
+    said = LAYERS.may_import(doc, CONTRACT_LAYERS)
+    where = _room_init(room).relative_to(ROOT)
+    assert said is not None, f"{where}: say what lives here and what it may import (a 'May import:' line)"
+    allowed = LAYERS.allowed(room, CONTRACT_LAYERS, FORBIDDEN)
+    assert said == allowed, f"{where}: the docstring says more {sorted(said - allowed)}, less {sorted(allowed - said)}"
+    paragraph = " ".join(doc[doc.index("May import:") :].split("\n\n")[0].split())
+    rest = paragraph[LAYERS.MAY_IMPORT.match(paragraph).end() :]
+    assert not re.findall(r"minirt\.\w+", rest), f"{where}: a room named after the list: {rest!r}"
+
+
+def test_the_docstring_check_can_fail():
+    layers = [["minirt.a"], ["minirt.b", "minirt.c"], ["minirt.d"]]
+    forbidden = {"minirt.a": {"minirt.c"}}
+    assert LAYERS.allowed("minirt.a", layers, forbidden) == {"minirt.b", "minirt.d"}
+    assert LAYERS.may_import("Lives here.\n\nMay import: minirt.b and below.", layers) == {
+        "minirt.b",
+        "minirt.c",
+        "minirt.d",
+    }
+    assert LAYERS.may_import("May import: minirt.b, minirt.d.", layers) == {"minirt.b", "minirt.d"}
+    assert LAYERS.may_import("May import: minirt.b and\n  minirt.d -- never the rest.", layers) == {
+        "minirt.b",
+        "minirt.d",
+    }
+    assert LAYERS.may_import("Nothing said.", layers) is None
+    # a room that says it may import what a forbidden contract excludes is caught
+    assert LAYERS.may_import("May import: minirt.b and below.", layers) != LAYERS.allowed("minirt.a", layers, forbidden)
+
+
+def test_readme_draws_the_layers_the_contracts_declare():
+    readme = (ROOT / "README.md").read_text()
+    assert LAYERS.readme_block(readme) == LAYERS.diagram(CONTRACT_LAYERS, FORBIDDEN), (
+        "README.md's architecture diagram is not the contracts': python tools/layers.py --write"
+    )
 
 
 def _compared_names(tree: ast.AST, names: set[str]) -> list[tuple[int, str]]:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from minirt.oracles import names as oracle_names
+from minirt.harness.backends import oracle_names
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -96,7 +96,7 @@ def test_tangent_and_grazing_rays(precision):
     d /= np.linalg.norm(d, axis=1)[:, None]
     out = []
     for tr in (tr_loop, tr_bvh):
-        ids, t = tr.closest(tr._load(o), tr._load(d))
+        ids, t = tr.closest(tr.load(o), tr.load(d))
         out.append((np.asarray(ids), np.asarray(t)))
     assert np.array_equal(out[0][0], out[1][0])
     assert out[0][1].tobytes() == out[1][1].tobytes()

@@ -19,9 +19,9 @@ from support.scenes import ball, scene_text
 from minirt.campaign.generate import balls_scene
 from minirt.harness.references import ReferenceCache
 from minirt.model import camera
-from minirt.model.backend import Margins
 from minirt.model.rules import resolve
 from minirt.model.scene import load_scene, parse_scene
+from minirt.model.tolerance import Margins
 from minirt.reference import band
 
 

@@ -138,7 +138,7 @@ def test_auto_picks_the_wavefront_for_many_balls():
     tree_auto, tree_levels = tr.trace(o, d, tree=True)
     assert len(tree_levels) == 1
     tree_wave, _ = tr.trace(o, d, tree=True, path="wavefront")
-    assert np.array_equal(tr._to_numpy3(tree_auto), tr._to_numpy3(tree_wave))
+    assert np.array_equal(tr.to_numpy3(tree_auto), tr.to_numpy3(tree_wave))
     with pytest.raises(ValueError, match="record"):
         tr.trace(*tr.primary_rays(), record=True, path="fused")
 

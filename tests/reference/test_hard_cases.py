@@ -76,11 +76,11 @@ def trace(scene: Scene, rules: Rules, o, d, precision: str = "f64", record: bool
     tr = Tracer(scene, rules, precision=precision)
     o = np.atleast_2d(np.asarray(o, dtype=np.float64))
     d = np.atleast_2d(np.asarray(d, dtype=np.float64))
-    c, levels = tr.trace(tr._load(o), tr._load(d), record=record)
+    c, levels = tr.trace(tr.load(o), tr.load(d), record=record)
     dr.eval(c, levels[0].shape_id, levels[0].t)  # one kernel (without record, trace leaves them lazy)
     ids = np.asarray(levels[0].shape_id)
     t = np.asarray(levels[0].t, dtype=np.float64)
-    return ids, t, tr._to_numpy3(c), levels
+    return ids, t, tr.to_numpy3(c), levels
 
 
 def unit(v) -> np.ndarray:

@@ -160,10 +160,10 @@ def test_tracer_rays_are_the_oracles_rays(rule, precision):
     o_np, d_np = camera.primary_rays(scene, rules)
     dt = np.float64 if precision == "f64" else np.float32
     if precision == "f64":
-        assert tr._to_numpy3(o).tobytes() == o_np.tobytes()
-        assert tr._to_numpy3(d).tobytes() == d_np.tobytes()
+        assert tr.to_numpy3(o).tobytes() == o_np.tobytes()
+        assert tr.to_numpy3(d).tobytes() == d_np.tobytes()
     else:  # float32 rays: the same rays rounded once (the tracer computes them in float32)
-        assert np.allclose(tr._to_numpy3(d), d_np.astype(dt), rtol=0, atol=4e-7)
+        assert np.allclose(tr.to_numpy3(d), d_np.astype(dt), rtol=0, atol=4e-7)
 
 
 @pytest.mark.parametrize("rule", [{}, {"ray_origin": "camera"}])
@@ -179,10 +179,10 @@ def test_sample_rays_are_camera_rays_through(rule, precision):
     dt = np.float64 if precision == "f64" else np.float32
     for s in (0, 4, 8):
         u, v = camera.sample_offsets(9, s, 37 * 23)
-        o, d = tr._sample_rays(u, v)
+        o, d = tr.sample_rays(u, v)
         o_np, d_np = camera.rays_through(scene, rules, u, v)
-        assert tr._to_numpy3(o).astype(dt).tobytes() == o_np.astype(dt).tobytes()
-        assert tr._to_numpy3(d).astype(dt).tobytes() == d_np.astype(dt).tobytes()
+        assert tr.to_numpy3(o).astype(dt).tobytes() == o_np.astype(dt).tobytes()
+        assert tr.to_numpy3(d).astype(dt).tobytes() == d_np.astype(dt).tobytes()
 
 
 def test_every_backend_writes_identical_files_twice(tmp_path):

@@ -30,7 +30,7 @@ def _trace(shapes: str, o, d, profile="exercise", precision="f64"):
     o = np.atleast_2d(np.array(o, dtype=float))
     d = np.atleast_2d(np.array(d, dtype=float))
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    _, levels = tr.trace(tr._load(o), tr._load(d))
+    _, levels = tr.trace(tr.load(o), tr.load(d))
     lvl = levels[0]
     dr.eval(lvl.shape_id, lvl.t, lvl.n)  # one kernel (trace leaves them lazy)
     ids = np.asarray(lvl.shape_id)
@@ -129,7 +129,7 @@ def test_shadow_predicate_decides_as_the_distance(near_root_only, precision):
     kind = rng.integers(0, 4, 4000)
     d = np.where((kind == 0)[:, None], tangent, np.where((kind == 1)[:, None], -radial,
                  np.where((kind == 2)[:, None], radial, dirs)))  # fmt: skip
-    orig, dirn = tr._load(o), tr._load(d)
+    orig, dirn = tr.load(o), tr.load(d)
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         by_t = np.asarray(tr.intersect_ball(ball, orig, dirn) < math.inf)
         by_sign = np.asarray(tr.occludes_ball(ball, orig, dirn))

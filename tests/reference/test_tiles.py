@@ -54,7 +54,7 @@ def test_buffers_written_by_the_kernel_are_the_traced_values(name, precision):
     hit = np.asarray(lvl.shape_id) >= 0
 
     def flat(v, masked=False):
-        a = tr._to_numpy3(v)
+        a = tr.to_numpy3(v)
         return np.where(hit[:, None], a, 0.0) if masked else a
 
     want = {"color": flat(color), "position": flat(lvl.p, True), "normal": flat(lvl.n, True)}
@@ -193,8 +193,8 @@ def test_row_and_column_of_any_pixel(monkeypatch, width, below):
     tr = Tracer(scene, rules)
     o, d = tr.primary_rays(pixels)
     o_np, d_np = camera.primary_rays(scene, rules, pixels)
-    assert tr._to_numpy3(d).tobytes() == d_np.tobytes()
-    assert tr._to_numpy3(o).tobytes() == np.broadcast_to(o_np, (len(pixels), 3)).tobytes()
+    assert tr.to_numpy3(d).tobytes() == d_np.tobytes()
+    assert tr.to_numpy3(o).tobytes() == np.broadcast_to(o_np, (len(pixels), 3)).tobytes()
 
 
 def _kernels(run) -> tuple[Any, list[dict]]:
