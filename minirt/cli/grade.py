@@ -230,7 +230,8 @@ def _print_grade(g, page: Path | None) -> None:
     for u in d.unexplained:
         err.print(terminal_text(f"  unexplained: {u.sentence}", MAX_MESSAGE))
         if u.fit is not None:
-            err.print(terminal_text(f"    fitted: {u.fit.sentence}", MAX_MESSAGE))
+            said = "fitted" if u.fit.reproduces else "not fitted"
+            err.print(terminal_text(f"    {said}: {u.fit.sentence}", MAX_MESSAGE))
         err.print(f"    one of them step by step: {terminal_text(g.probe_command(*u.example), MAX_MESSAGE)}")
     for i in d.indistinguishable:
         tell = (

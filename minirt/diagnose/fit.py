@@ -42,6 +42,10 @@ MIN_PIXELS = 12
 # A fit "reproduces the group" when it reproduces at least this share of its pixels on every shape: the
 # rest are pixels where the fitted formula's own decisions (a shadow's edge) fall otherwise.
 REPRODUCES = 0.95
+# ... and when every colour it fits lies within +-PLAUSIBLE: a material's colours are of order 1 (a scene's
+# are in [0, 1]; a student's formula may double one or make it negative), and a fit that needs a
+# highlight of 280 to match a handful of pixels fits their noise, not a formula anyone wrote.
+PLAUSIBLE = 4.0
 
 
 def choices(rules: Rules) -> list[tuple[str, float, bool]]:
@@ -59,19 +63,29 @@ class ShapeFit:
     parameters: dict[str, Any]
     sentence: str
 
+    @property
+    def plausible(self) -> bool:
+        colours = [c for k in ("ambient", "diffuse", "specular", "reflection") for c in self.parameters[k]]
+        return all(abs(c) <= PLAUSIBLE for c in colours)
+
 
 @dataclass
 class Fit:
     pixels: int
     of: int
     shapes: list[ShapeFit] = field(default_factory=list)
+    reflected: bool = False  # the group lies where another shape is seen in a reflection: not fitted here
 
     @property
     def reproduces(self) -> bool:
-        return bool(self.shapes) and all(s.pixels >= REPRODUCES * s.of for s in self.shapes)
+        return bool(self.shapes) and all(s.pixels >= REPRODUCES * s.of and s.plausible for s in self.shapes)
 
     @property
     def sentence(self) -> str:
+        if self.reflected:
+            return (
+                "not fitted here: what differs is the shape seen in the reflection, fitted where it is seen directly."
+            )
         if not self.shapes:
             return "too few pixels on any one shape to fit the exercise's formula to them."
         said = "; ".join(s.sentence for s in self.shapes)
@@ -88,6 +102,7 @@ class Fit:
             "pixels": self.pixels,
             "of": self.of,
             "reproduces": self.reproduces,
+            "reflected": self.reflected,
             "parameters": {str(s.shape): s.parameters for s in self.shapes},
             "sentence": self.sentence,
         }
@@ -96,6 +111,11 @@ class Fit:
 def fit_groups(scene: Scene, rules: Rules, target: Target, groups: list) -> None:
     """Attach a ``Fit`` to each group (``rest.Group.fit``)."""
     for g in groups:
+        if g.conditions.get("reflects") is not None:
+            # drawn otherwise where another shape is seen in a reflection: that shape's colours are what
+            # differ, and its own group (if it has one) is where they are fitted
+            g.fit = Fit(0, int(g.mask.sum()), [], reflected=True)
+            continue
         at = np.flatnonzero(g.mask.reshape(-1))
         keys = {(light, sh) for light, _, sh in choices(rules)}
         geo = {(light, sh): _geometry(scene, rules, at, light, sh) for light, sh in sorted(keys)}
@@ -241,7 +261,10 @@ def _decoded(target: Target, rules: Rules, idx: np.ndarray) -> np.ndarray:
 
 
 def _round(x: float) -> float:
-    return float(f"{x:.3g}") if math.isfinite(x) else x
+    """Three significant digits; below 1e-6 (a colour no 8-bit level shows, least squares' round-off) 0."""
+    if not math.isfinite(x):
+        return x
+    return 0.0 if abs(x) < 1e-6 else float(f"{x:.3g}")
 
 
 def _vec(v) -> str:
