@@ -62,14 +62,17 @@ def _print(g) -> None:
             f"; {d['mismatch_pixels']} pixels unexplained" if d["mismatch_pixels"] else ""
         )
         out.print(terminal_text(f"  {d['scene']:<14} {d['verdict']:<8} {what}", MAX_MESSAGE))
-    for e in g.diagnosis.explained:
+    for e in g.as_dict()["diagnosis"]["explained"]:
+        if not e["decided"]:
+            continue
         err.print(
             terminal_text(
-                f"  {e['scene']}: {e['rule']}={e['value']} ({e['pixels']} pixels): {e['sentence']}", MAX_MESSAGE
+                f"  {e['rule']}={e['value']} ({e['pixels']} pixels over the suite): {e['sentence']}", MAX_MESSAGE
             )
         )
-    for rule, by_scene in g.diagnosis.conflicts.items():
-        vals = ", ".join(f"{k}: {v}" for k, v in by_scene.items())
-        err.print(terminal_text(f"  the scenes disagree on {rule} ({vals})", MAX_MESSAGE))
+    if g.diagnosis.undetermined_sentence:
+        err.print(terminal_text(f"  one of: {g.diagnosis.undetermined_sentence}", MAX_MESSAGE))
+    for r in g.diagnosis.rejected:
+        err.print(terminal_text(f"  not named: {r.rule}={r.value} ({r.pixels} for, {r.against} against)", MAX_MESSAGE))
     for i in g.diagnosis.indistinguishable:
         err.print(terminal_text(f"  cannot tell {i['rule']}={i['value']} from {i['as']} in any scene of the suite"))

@@ -13,6 +13,9 @@ One module per concern, and this package's names are its API (``from minirt impo
 - minirt.diagnose.variants: the candidates' renders and the ``VariantCache`` a class run shares
   (``EPS_REL``: the ill-conditioned pixels);
 - minirt.diagnose.search: the greedy descent in rule space;
+- minirt.diagnose.evidence: what the image shows of each rule (leave-one-out) and "one of" where it cannot
+  decide; minirt.diagnose.fit: the exercise's formula fitted to what no rule explains; minirt.diagnose.rest:
+  where that lies; minirt.diagnose.joint: one diagnosis for several images of one program (``diagnose_joint``);
 - minirt.diagnose.explain: ``diagnose`` (the search, then what each changed rule explains) and the settings
   a scene cannot tell apart (``indistinguishable``, ``tells_apart``, ``GRADING_SET``).
 
@@ -30,6 +33,7 @@ from minirt.diagnose.explain import (
     tells_apart,
     why_same,
 )
+from minirt.diagnose.joint import JointDiagnosis, diagnose_joint
 from minirt.diagnose.target import FLOAT_TOL, LEVEL_TOL, Target
 from minirt.diagnose.variants import EPS_REL, Variant, VariantCache
 
@@ -41,10 +45,12 @@ __all__ = [
     "SAME_UNDER_EXERCISE",
     "Diagnosis",
     "Explained",
+    "JointDiagnosis",
     "Target",
     "Variant",
     "VariantCache",
     "diagnose",
+    "diagnose_joint",
     "distinct_pixels",
     "indistinguishable",
     "tells_apart",

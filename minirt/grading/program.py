@@ -79,55 +79,19 @@ class SceneGrade:
         return out
 
 
-@dataclass
-class SuiteDiagnosis:
-    """The program's diagnosis over the suite: the rule settings that explain its images (``rules``, values
-    as --rule takes them), those the scenes disagree on (``conflicts``: rule -> {scene: value}), the
-    pixels no setting explains (each group naming its scene) and the pairs no scene of the suite tells
-    apart."""
-
-    rules: dict[str, str]
-    conflicts: dict[str, dict[str, str]]
-    explained: list[dict[str, Any]]
-    unexplained: list[dict[str, Any]]
-    indistinguishable: list[dict[str, Any]]
-    mismatch_pixels: int
-
-
-def diagnose_suite(graded: list[SceneGrade]) -> SuiteDiagnosis:
-    """Combine the scenes' own diagnoses into the program's. A rule setting named by the scenes that name the
-    rule at all, all with the same value, is the program's; one named with different values is a conflict
-    (the program is not one rule set, or a scene was explained by accident). A pair of values is
-    indistinguishable only when no scene of the suite told it apart."""
-    named: dict[str, dict[str, str]] = {}
-    explained, unexplained, counts = [], [], {}
-    for g in graded:
-        if g.diagnosis is None:
-            continue
-        d, stem = g.diagnosis, g.scene.name
-        for rule, value in d.changed.items():
-            named.setdefault(rule, {})[stem] = value
-        for e in d.explained:
-            s = sentence(e.rule, getattr(d.best, e.rule), getattr(d.given, e.rule))
-            explained.append({"scene": stem, "rule": e.rule, "value": e.value, "pixels": e.pixels, "sentence": s})
-        unexplained += [{"scene": stem, **u.as_dict()} for u in d.unexplained]
-        for i in d.indistinguishable:
-            key = (i["rule"], str(i["value"]), str(i["as"]))
-            counts.setdefault(key, [i, 0])[1] += 1
-    rules = {r: next(iter(v.values())) for r, v in sorted(named.items()) if len(set(v.values())) == 1}
-    conflicts = {r: v for r, v in sorted(named.items()) if len(set(v.values())) > 1}
-    diagnosed = sum(g.diagnosis is not None for g in graded)
-    # a pair is indistinguishable in the suite when it was so in every scene diagnosed
-    same = [dict(i, scene_that_tells=None) for i, n in counts.values() if n == diagnosed and diagnosed]
-    mismatch = sum(g.diagnosis.mismatch_pixels for g in graded if g.diagnosis is not None)
-    return SuiteDiagnosis(rules, conflicts, explained, unexplained, same, mismatch)
+def diagnose_suite(graded: list[SceneGrade], cache: dg.VariantCache | None = None) -> dg.JointDiagnosis:
+    """The program's one diagnosis: the images it drew, weighed together (minirt.diagnose.joint), so that a
+    setting that fits one scene by accident and breaks another is never chosen. Scenes that failed take
+    no part."""
+    items = [(g.scene, g.rules, g.target) for g in graded if g.target is not None]
+    return dg.diagnose_joint(items, cache)
 
 
 @dataclass
 class ProgramGrade:
     spec: ProgramSpec
     scenes: list[SceneGrade]
-    diagnosis: SuiteDiagnosis
+    diagnosis: dg.JointDiagnosis
     compile: dict[str, Any] | None = None
     notes: list[str] = field(default_factory=list)
 
@@ -154,6 +118,11 @@ class ProgramGrade:
             head += f"; {d.mismatch_pixels} pixels unexplained"
         return head
 
+    def _sentence(self, rule: str) -> str:
+        """The sentence for the student on one rule of the program's diagnosis (against the suite's rules)."""
+        given = self.scenes[0].rules
+        return sentence(rule, self.diagnosis.changes[rule], getattr(given, rule))
+
     def as_dict(self) -> dict[str, Any]:
         d = self.diagnosis
         return {
@@ -162,10 +131,14 @@ class ProgramGrade:
             "program": {**self.spec.describe(), "compile": self.compile},
             "scenes": [g.as_dict() for g in self.scenes],
             "diagnosis": {
+                # decided by the images together; ``undetermined``: what they cannot decide
                 "rules": d.rules,
-                "conflicts": d.conflicts,
+                "undetermined": d.undetermined,
+                "undetermined_sentence": d.undetermined_sentence,
                 "mismatch_pixels": d.mismatch_pixels,
-                "explained": d.explained,
+                "broken_pixels": d.broken_pixels,
+                "explained": [dict(e, sentence=self._sentence(e["rule"])) for e in d.explained],
+                "rejected": [r.as_dict() for r in d.rejected],
                 "unexplained": d.unexplained,
             },
             "indistinguishable": d.indistinguishable,
@@ -216,7 +189,7 @@ def grade_program(
         if on_scene is not None:
             on_scene(g)
     compiled = build.as_dict() if build is not None else None
-    return ProgramGrade(spec, graded, diagnose_suite(graded), compile=compiled)
+    return ProgramGrade(spec, graded, diagnose_suite(graded, cache), compile=compiled)
 
 
 def format_rules(rules: Rules) -> dict[str, str]:

@@ -25,7 +25,11 @@ def test_grade_program_writes_its_document_and_exits_1_when_it_differs(tmp_path)
     doc = json.loads(p.stdout)
     assert doc["verdict"] == "differs" and doc["diagnosis"]["rules"] == {"pixel_sample": "center"}
     assert [s["scene"] for s in doc["scenes"]] == ["rules"] and doc["scenes"][0]["error"] == ""
-    assert doc["program"]["spec"] == spec and doc["indistinguishable"] == []
+    assert doc["program"]["spec"] == spec
+    # the rules scene alone cannot show a plane's normal unnormalised (its planes are written of unit length)
+    # nor the sign of s in an even, unclamped highlight: said, with why
+    assert {i["rule"] for i in doc["indistinguishable"]} == {"raw_normals_plane", "specular_s"}
+    assert all(i["why"] for i in doc["indistinguishable"])
 
 
 def test_render_takes_a_program_as_a_backend(tmp_path):

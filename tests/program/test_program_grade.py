@@ -69,7 +69,7 @@ def test_known_rule_changes_are_named_and_nothing_else(changes):
     g = gp.grade_program(make_spec(numpy_program(*(f"{k}={v}" for k, v in changes.items()))), suite())
     assert g.verdict == "differs"
     assert g.diagnosis.rules == changes
-    assert g.diagnosis.conflicts == {} and g.diagnosis.mismatch_pixels == 0
+    assert g.diagnosis.undetermined == {} and g.diagnosis.mismatch_pixels == 0
     doc = g.as_dict()
     assert [s["scene"] for s in doc["scenes"]] == ["rules", "three_balls", "exercise"]
     assert all(s["error"] == "" and s["mismatch_pixels"] == 0 for s in doc["scenes"])

@@ -1,0 +1,232 @@
+"""One diagnosis for several images of one tracer: a program graded over a suite of scenes.
+
+Each image alone is searched first (minirt.diagnose.search); the rule changes their answers propose are
+then weighed on *every* image at once, so a setting that fits one scene by accident and breaks another is
+never chosen:
+
+- a greedy descent from the scenes' own rules takes, one at a time, the proposed change (a coupled pair
+  together) that leaves the fewest pixels beyond tolerance summed over the images (then the fewest a
+  level off, then the fewest rules), while it removes some;
+- every rule of that answer is put back in turn and weighed by its evidence summed over the images
+  (minirt.diagnose.evidence: pixels for, against, matching neither); the weakest that fails is put back
+  and the rest weighed again;
+- a named rule whose other values fit every image exactly as well is undecided ("one of");
+- a single change of the answer that draws every image the same (on every pixel not ill-conditioned) is
+  what no scene of the suite tells apart: ``indistinguishable``, with the reason where it is known;
+- each image's pixels still beyond tolerance are grouped and fitted as one image's are
+  (minirt.diagnose.rest, minirt.diagnose.fit), each group naming its scene.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from minirt.diagnose import evidence, fit, rest
+from minirt.diagnose.explain import indistinguishable
+from minirt.diagnose.search import Search, valid_rules
+from minirt.diagnose.target import Target
+from minirt.diagnose.variants import VariantCache
+from minirt.model import rules as rules_mod
+from minirt.model.rules import Rules
+from minirt.model.scene import Scene
+
+
+@dataclass
+class Image:
+    """One image of the suite: its scene, the rules it is graded against, the image, and its search."""
+
+    scene: Scene
+    given: Rules
+    target: Target
+    search: Search = field(init=False, repr=False)
+
+
+@dataclass
+class JointDiagnosis:
+    rules: dict[str, str]  # named: decided by the images together
+    undetermined: dict[str, list[str]]  # rule -> the values that fit every image equally
+    explained: list[dict[str, Any]]  # per rule: value, pixels, against, neither (summed), and per scene
+    rejected: list[evidence.Rejected]
+    unexplained: list[dict[str, Any]]  # groups of what is left, each with its scene
+    indistinguishable: list[dict[str, Any]]
+    mismatch_pixels: int
+    broken_pixels: int
+    changes: dict[str, Any]  # the answer as overrides of every image's rules (undecided ones included)
+
+    @property
+    def undetermined_sentence(self) -> str | None:
+        if not self.undetermined:
+            return None
+        parts = [f"{k}: {' or '.join(v)}" for k, v in sorted(self.undetermined.items())]
+        return "the suite's images cannot decide " + "; ".join(parts) + ": each fits every image equally well"
+
+
+def _apply(given: Rules, changes: dict[str, Any]) -> Rules | None:
+    r = replace(given, **changes)
+    return r if valid_rules(r) else None
+
+
+def _score(images: list[Image], changes: dict[str, Any]) -> tuple[int, int] | None:
+    """(pixels beyond tolerance, pixels a level off) summed over the images, ill-conditioned ones left out."""
+    beyond = off = 0
+    for im in images:
+        r = _apply(im.given, changes)
+        if r is None:
+            return None
+        mb, offm, _ = im.search.final_mask(r, [])
+        beyond += int(mb.sum())
+        off += int(offm.sum())
+    return beyond, off
+
+
+def _proposals(images: list[Image]) -> list[dict[str, Any]]:
+    """The changes the images' own answers propose: each changed rule alone, the coupled offset pair
+    together."""
+    out: list[dict[str, Any]] = []
+    for im in images:
+        best = im.search.run(im.given)
+        names = im.given.differs(best)
+        for name in names:
+            unit = next((c for c in evidence.COUPLED if name in c), (name,))
+            change = {n: getattr(best, n) for n in unit if n in names} if len(unit) > 1 else {}
+            for c in ({name: getattr(best, name)}, change):
+                if c and c not in out:
+                    out.append(c)
+    return out
+
+
+def _descend(images: list[Image], proposals: list[dict[str, Any]]) -> dict[str, Any]:
+    current: dict[str, Any] = {}
+    score = _score(images, current)
+    while True:
+        found = None
+        for p in proposals:
+            if all(current.get(k) == v for k, v in p.items()):
+                continue
+            cand = {**current, **p}
+            s = _score(images, cand)
+            if s is None:
+                continue
+            key = (s, len(cand))
+            if s < score and (found is None or key < found[0]):
+                found = (key, cand)
+        if found is None:
+            return current
+        score, current = found[0][0], found[1]
+
+
+def _weigh(images: list[Image], changes: dict[str, Any]) -> list[tuple[tuple[str, ...], int, int, int, dict]]:
+    """Each changed rule (unit) of ``changes`` put back on every image: (unit, pixels, against, neither,
+    pixels per scene)."""
+    out = []
+    units: list[tuple[str, ...]] = []
+    for name in changes:
+        unit = next((c for c in evidence.COUPLED if name in c and set(c) <= set(changes)), (name,))
+        if unit not in units:
+            units.append(unit)
+    for unit in units:
+        total = [0, 0, 0]
+        per: dict[str, int] = {}
+        for im in images:
+            best = _apply(im.given, changes)
+            back = evidence.put_back(im.given, best, unit)
+            e = evidence.Weigher(im.search).evidence(best, back, unit)
+            total = [total[0] + e.pixels, total[1] + e.against, total[2] + e.neither]
+            per[im.scene.name] = e.pixels
+        out.append((unit, *total, per))
+    return out
+
+
+def _confirm(images: list[Image], changes: dict[str, Any]):
+    rejected: list[evidence.Rejected] = []
+    while True:
+        weighed = _weigh(images, changes)
+        weak = [w for w in weighed if not (w[1] >= 1 and w[1] > w[2] and w[1] >= w[3])]
+        if not weak:
+            return changes, weighed, rejected
+        unit, pixels, against, neither, _ = min(weak, key=lambda w: (w[1] - w[2] - w[3], w[1], w[0]))
+        for n in unit:
+            value = rules_mod.format_rule_value(n, changes[n])
+            rejected.append(evidence.Rejected(n, value, pixels, against, neither))
+        changes = {k: v for k, v in changes.items() if k not in unit}
+
+
+def _undecided(images: list[Image], changes: dict[str, Any]) -> dict[str, list[str]]:
+    base = _score(images, changes)
+    n = sum(im.target.model_shape[0] * im.target.model_shape[1] for im in images)
+    out: dict[str, list[str]] = {}
+    for name, value in changes.items():
+        for v in rules_mod.values(name):
+            if v == value:
+                continue
+            s = _score(images, {**changes, name: v})
+            if s is not None and s[0] == base[0] and abs(s[1] - base[1]) <= evidence.EQUAL_LEVELS * n + 1:
+                vals = out.setdefault(name, [rules_mod.format_rule_value(name, value)])
+                vals.append(rules_mod.format_rule_value(name, v))
+    return out
+
+
+def diagnose_joint(items: list[tuple[Scene, Rules, Target]], cache: VariantCache | None = None) -> JointDiagnosis:
+    """The diagnosis of several images of one tracer, weighed on all of them at once (see the module's
+    docstring). ``items``: (scene, the rules it is graded against, its image)."""
+    cache = cache or VariantCache(share=False)
+    images = []
+    for scene, given, target in items:
+        im = Image(scene, given, target)
+        im.search = Search(scene, target, cache, True)
+        images.append(im)
+    changes = _descend(images, _proposals(images))
+    changes, weighed, rejected = _confirm(images, changes)
+    undecided = _undecided(images, changes)
+    explained = [
+        {
+            "rule": n,
+            "value": rules_mod.format_rule_value(n, changes[n]),
+            "pixels": pixels,
+            "against": against,
+            "neither": neither,
+            "per_scene": per,
+            "decided": n not in undecided,
+        }
+        for unit, pixels, against, neither, per in weighed
+        for n in unit
+    ]
+    explained.sort(key=lambda e: (-e["pixels"], e["rule"]))
+    unexplained, mismatch, broken = [], 0, 0
+    for im in images:
+        best = _apply(im.given, changes)
+        mb, _, _ = im.search.final_mask(best, [im.given, best])
+        mg, _, _ = im.search.final_mask(im.given, [im.given, best])
+        mismatch += int(mb.sum())
+        broken += int((mb & ~mg).sum())
+        if mb.any():
+            groups = rest.groups(im.scene, best, mb, cache.first_hits(im.scene, best))
+            fit.fit_groups(im.scene, best, im.target, groups)
+            unexplained += [{"scene": im.scene.name, **g.as_dict()} for g in groups]
+    return JointDiagnosis(
+        rules={n: rules_mod.format_rule_value(n, v) for n, v in changes.items() if n not in undecided},
+        undetermined=undecided,
+        explained=explained,
+        rejected=rejected,
+        unexplained=unexplained,
+        indistinguishable=_same_everywhere(images, changes, cache),
+        mismatch_pixels=mismatch,
+        broken_pixels=broken,
+        changes=changes,
+    )
+
+
+def _same_everywhere(images: list[Image], changes: dict[str, Any], cache: VariantCache) -> list[dict[str, Any]]:
+    """Single changes of the answer that draw every image of the suite the same: no scene tells them apart."""
+    common: dict[tuple[str, str], dict[str, Any]] | None = None
+    for im in images:
+        best = _apply(im.given, changes)
+        found = {(e["rule"], e["value"]): e for e in indistinguishable(im.scene, best, cache, im.target)}
+        common = found if common is None else {k: v for k, v in common.items() if k in found}
+    out = []
+    for _key, e in sorted((common or {}).items()):
+        item = dict(e, scene_that_tells=None)
+        item["why"] = e.get("why") or "no scene of the suite tells them apart"
+        out.append(item)
+    return out
