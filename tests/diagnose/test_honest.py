@@ -193,3 +193,20 @@ def test_negative_material_colours_load_with_a_warning(tmp_path):
     assert scene.shapes[0].material.diffuse == (0.1, -0.9, -0.9)
     (line,) = colour_warnings(scene)
     assert "'m'" in line and "negative" in line and "-0.9" in line
+
+
+@pytest.mark.slow
+def test_one_diagnosis_for_several_images(cache):
+    """A program's images weighed together (minirt.diagnose.joint): a rule one scene cannot show (the rules
+    scene's planes are of unit length) is named from the scene that shows it, with nothing else."""
+    injected_changes = {"raw_normals_plane": "shading", "pixel_sample": "center"}
+    items = []
+    for stem in ("rules", "three_balls"):
+        scene = small_scene(stem, 48, 48)
+        given = R.resolve(scene)
+        items.append((scene, given, dg.Target(student_image(scene, replace(given, **injected_changes)), False, stem)))
+    j = dg.diagnose_joint(items, cache)
+    assert j.rules == {"raw_normals_plane": "shading", "pixel_sample": "center"}, (j.rules, j.undetermined)
+    assert j.undetermined == {} and j.mismatch_pixels == 0 and j.broken_pixels == 0
+    (e,) = [e for e in j.explained if e["rule"] == "raw_normals_plane"]
+    assert e["per_scene"]["rules"] == 0 and e["per_scene"]["three_balls"] > 0
