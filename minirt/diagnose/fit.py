@@ -83,9 +83,7 @@ class Fit:
     @property
     def sentence(self) -> str:
         if self.reflected:
-            return (
-                "not fitted here: what differs is the shape seen in the reflection, fitted where it is seen directly."
-            )
+            return "what differs here is the shape seen in the reflection: it is fitted where it is seen directly."
         if not self.shapes:
             return "too few pixels on any one shape to fit the exercise's formula to them."
         said = "; ".join(s.sentence for s in self.shapes)
