@@ -30,7 +30,7 @@ of these: the scene cannot tell the two apart, which ``indistinguishable`` says.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -91,13 +91,7 @@ class Rejected:
     neither: int
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "rule": self.rule,
-            "value": self.value,
-            "pixels": self.pixels,
-            "against": self.against,
-            "neither": self.neither,
-        }
+        return asdict(self)
 
 
 def groups_of(given: Rules, best: Rules) -> list[tuple[str, ...]]:

@@ -138,7 +138,19 @@ class Rules:
         return replace(self, **{name: _DEFAULTS[name] for name in OUTPUT_RULES})
 
 
-# The rules that change what is traced, and the ones that only say how the bitmap is written.
+# The rules from real solutions' bugs (see the module's docstring): no oracle follows them
+# (``minirt.model.backend.Backend.adapt``), and documents leave them out at their defaults.
+BUG_RULES: tuple[str, ...] = (
+    "t_max",
+    "raw_normals_ball",
+    "raw_normals_plane",
+    "shadow_rays",
+    "ball_normal",
+    "light",
+    "hit_point",
+    "specular_s",
+)
+# The rules that change what is traced (below: the ones that only say how the bitmap is written).
 TRACE_RULES: tuple[str, ...] = (
     "background",
     "near_root_only",
@@ -151,26 +163,7 @@ TRACE_RULES: tuple[str, ...] = (
     "pixel_sample",
     "specular_exponent",
     "pixel_shift",
-    "t_max",
-    "raw_normals_ball",
-    "raw_normals_plane",
-    "shadow_rays",
-    "ball_normal",
-    "light",
-    "hit_point",
-    "specular_s",
-)
-# The rules from real solutions' bugs (see the module's docstring): no oracle follows them
-# (``minirt.model.backend.Backend.adapt``), and documents leave them out at their defaults.
-BUG_RULES: tuple[str, ...] = (
-    "t_max",
-    "raw_normals_ball",
-    "raw_normals_plane",
-    "shadow_rays",
-    "ball_normal",
-    "light",
-    "hit_point",
-    "specular_s",
+    *BUG_RULES,
 )
 QUIET_AT_DEFAULT: tuple[str, ...] = BUG_RULES
 # Names a scene's [model] or --rule may use for several rules at once: raw_normals sets both kinds.

@@ -18,7 +18,6 @@ The image: ``{out}`` is a path without an extension; the program writes ``{out}.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +26,7 @@ import numpy as np
 from minirt.errors import MinirtError
 from minirt.io.images import read_student_image
 from minirt.model.scene import Ball, Material, Scene
+from minirt.model.toml_out import dump_toml
 
 FLOAT_EXTENSIONS = (".pfm", ".exr")
 IMAGE_EXTENSIONS = (*FLOAT_EXTENSIONS, ".tif", ".tiff", ".png", ".ppm", ".pnm", ".bmp", ".tga")
@@ -61,39 +61,10 @@ def scene_document(scene: Scene) -> dict[str, Any]:
     }
 
 
-def _value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            raise ValueError(f"not a finite number: {v}")
-        return repr(v)  # the shortest text that reads back as the same double
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)  # a TOML basic string: JSON's escapes are TOML's
-    if isinstance(v, list):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    raise TypeError(type(v))
-
-
 def to_toml(doc: dict[str, Any]) -> str:
-    """``scene_document``'s dict as TOML (tables of scalars and arrays, ``materials`` a table of tables,
-    ``shapes`` an array of tables): the subset the scene format uses."""
-    lines: list[str] = []
-    for section in ("scene", "camera", "light", "render"):
-        lines.append(f"[{section}]")
-        lines += [f"{k} = {_value(v)}" for k, v in doc[section].items()]
-        lines.append("")
-    for name, table in doc["materials"].items():
-        lines.append(f"[materials.{name}]")
-        lines += [f"{k} = {_value(v)}" for k, v in table.items()]
-        lines.append("")
-    for shape in doc["shapes"]:
-        lines.append("[[shapes]]")
-        lines += [f"{k} = {_value(v)}" for k, v in shape.items()]
-        lines.append("")
-    return "\n".join(lines)
+    """``scene_document``'s dict as TOML (minirt.model.toml_out: ``materials`` a table of tables, ``shapes``
+    an array of tables)."""
+    return dump_toml(doc)
 
 
 def write_scene(scene: Scene, folder: Path) -> dict[str, Path]:
