@@ -457,9 +457,7 @@ def common_unexplained(rows: list[ClassRow], top: int = 10) -> list[dict[str, An
                     e["ranges"][k] = v
     out = []
     for e in seen.values():
-        conds = {
-            k: (v if not isinstance(v, tuple) else (v[0] if v[0] == v[1] else list(v))) for k, v in e["ranges"].items()
-        }
+        conds = {k: _range(v) for k, v in e["ranges"].items()}
         out.append({"scene": e["scene"], "shapes": e["shapes"], "conditions": conds, "students": len(e["students"]),
                     "images": e["images"], "pixels": e["pixels"], "sentence": e["sentence"]})  # fmt: skip
     out.sort(key=lambda m: (-m["students"], -m["pixels"], m["scene"], m["shapes"], repr(m["conditions"])))

@@ -143,9 +143,6 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
         return v
     w, h = g.scene.camera.width, g.scene.camera.height
     disp = display(w, h, TILE)
-    student8 = _as8(g.target.pixels, g.target.is_float)
-    given8 = bitmap.bitmap(d.given_color, d.given)
-    best8 = bitmap.bitmap(d.best_color, d.best)
     fmt = "float" if g.target.is_float else "8-bit"
     v.update(
         error=False,
@@ -155,32 +152,7 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
         tolerance=_tolerance(g),
         ill=int(d.ill.sum()),
         pixelated=disp["pixelated"],
-        pictures=[
-            _picture(
-                assets,
-                f"{stem}-image.png",
-                student8,
-                disp,
-                title="the image, as stored",
-                what=f"{student8.shape[1]}×{student8.shape[0]}, {fmt}",
-            ),
-            _picture(
-                assets,
-                f"{stem}-given.png",
-                given8,
-                disp,
-                title="the exercise's model",
-                what="the scene's rules, written the exercise's way",
-            ),
-            _picture(
-                assets,
-                f"{stem}-best.png",
-                best8,
-                disp,
-                title="best-matching variant",
-                what=", ".join(f"{k}={x}" for k, x in sorted(d.changed.items())) or "the scene's rules",
-            ),
-        ],
+        pictures=_pictures(g, stem, assets, disp),
     )
     heat = []
     for name, title, color, rules, count in (
@@ -204,38 +176,7 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
     v["heatmaps"] = heat
     v["colorbar"] = _colorbar(assets)
     v["clip"] = CLIP
-    explained = []
-    base = g.target.in_layout(d.best)
-    base8 = _as8(base, g.target.is_float) if base is not None and base.shape[:2] == (h, w) else None
-    for k, e in enumerate(d.explained):
-        yours, given = getattr(d.best, e.rule), getattr(d.given, e.rule)
-        item = {
-            "rule": e.rule,
-            "value": e.value,
-            "given": rules_mod.format_rule_value(e.rule, given),
-            "pixels": e.pixels,
-            "against": e.against,
-            "neither": e.neither,
-            "decided": e.rule not in d.undetermined,
-            "sentence": _rule_sentence(e.rule, yours, given),
-            "picture": None,
-        }
-        if base8 is not None and e.mask is not None and e.mask.shape == (h, w):
-            rule_part = e.rule if re.fullmatch(r"[a-z][a-z0-9_]{0,31}", e.rule) else "rule"
-            shown = highlight(base8, e.mask, MASK_RGB)
-            item["picture"] = _picture(assets, f"{stem}-rule{k}-{rule_part}.png", shown, disp)
-        explained.append(item)
-    v["explained"] = explained
-    groups = []
-    for k, u in enumerate(d.unexplained):
-        item = {"pixels": u.pixels, "sentence": u.sentence, "example": u.example, "picture": None,
-                "probe": g.probe_command(*u.example),
-                "fit": u.fit.sentence if u.fit is not None else None,
-                "fit_reproduces": bool(u.fit is not None and u.fit.reproduces)}  # fmt: skip
-        if base8 is not None and u.mask.shape == (h, w):
-            item["picture"] = _picture(assets, f"{stem}-rest{k}.png", highlight(base8, u.mask, MASK_RGB), disp)
-        groups.append(item)
-    v["groups"] = groups
+    v["explained"], v["groups"] = _explained_and_groups(g, stem, assets, disp)
     v["mask_rgb"] = "#{:02x}{:02x}{:02x}".format(*MASK_RGB)
     v["ill_rgb"] = "#{:02x}{:02x}{:02x}".format(*ILL_RGB)
     v["indistinguishable"] = [
@@ -257,6 +198,79 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
     ]  # fmt: skip
     v["renders"] = f"{d.renders:g}"
     return v
+
+
+def _pictures(g: Grade, stem: str, assets: Assets, disp: dict[str, Any]) -> list[dict[str, Any]]:
+    """The image as stored, the exercise's model of the scene, and the best-matching variant, side by side."""
+    d = g.diagnosis
+    fmt = "float" if g.target.is_float else "8-bit"
+    student8 = _as8(g.target.pixels, g.target.is_float)
+    given8 = bitmap.bitmap(d.given_color, d.given)
+    best8 = bitmap.bitmap(d.best_color, d.best)
+    return [
+        _picture(
+            assets,
+            f"{stem}-image.png",
+            student8,
+            disp,
+            title="the image, as stored",
+            what=f"{student8.shape[1]}×{student8.shape[0]}, {fmt}",
+        ),
+        _picture(
+            assets,
+            f"{stem}-given.png",
+            given8,
+            disp,
+            title="the exercise's model",
+            what="the scene's rules, written the exercise's way",
+        ),
+        _picture(
+            assets,
+            f"{stem}-best.png",
+            best8,
+            disp,
+            title="best-matching variant",
+            what=", ".join(f"{k}={x}" for k, x in sorted(d.changed.items())) or "the scene's rules",
+        ),
+    ]
+
+
+def _explained_and_groups(g: Grade, stem: str, assets: Assets, disp: dict[str, Any]) -> tuple[list, list]:
+    """The page's rules (each with its evidence, its sentence and the pixels it explains over the image) and
+    its unexplained groups (each with its mask, its fit and the probe command for one of its pixels)."""
+    d = g.diagnosis
+    w, h = g.scene.camera.width, g.scene.camera.height
+    explained = []
+    base = g.target.in_layout(d.best)
+    base8 = _as8(base, g.target.is_float) if base is not None and base.shape[:2] == (h, w) else None
+    for k, e in enumerate(d.explained):
+        yours, given = getattr(d.best, e.rule), getattr(d.given, e.rule)
+        item = {
+            "rule": e.rule,
+            "value": e.value,
+            "given": rules_mod.format_rule_value(e.rule, given),
+            "pixels": e.pixels,
+            "against": e.against,
+            "neither": e.neither,
+            "decided": e.rule not in d.undetermined,
+            "sentence": _rule_sentence(e.rule, yours, given),
+            "picture": None,
+        }
+        if base8 is not None and e.mask is not None and e.mask.shape == (h, w):
+            rule_part = e.rule if re.fullmatch(r"[a-z][a-z0-9_]{0,31}", e.rule) else "rule"
+            shown = highlight(base8, e.mask, MASK_RGB)
+            item["picture"] = _picture(assets, f"{stem}-rule{k}-{rule_part}.png", shown, disp)
+        explained.append(item)
+    groups = []
+    for k, u in enumerate(d.unexplained):
+        item = {"pixels": u.pixels, "sentence": u.sentence, "example": u.example, "picture": None,
+                "probe": g.probe_command(*u.example),
+                "fit": u.fit.sentence if u.fit is not None else None,
+                "fit_reproduces": bool(u.fit is not None and u.fit.reproduces)}  # fmt: skip
+        if base8 is not None and u.mask.shape == (h, w):
+            item["picture"] = _picture(assets, f"{stem}-rest{k}.png", highlight(base8, u.mask, MASK_RGB), disp)
+        groups.append(item)
+    return explained, groups
 
 
 def _peak(levels: np.ndarray) -> str:

@@ -166,66 +166,17 @@ def shade(
     if fx.ambient:
         terms["ambient"] = dr.select(hit, values.material(shape_id, "ambient"), zero)
         local = local + terms["ambient"]
-    r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction: the highlight's r·s takes it as computed
-    # The reflected Ray's direction, normalised: the exercise's Ray holds a normalised direction, and its
-    # ball intersection (Appendix 2) drops d·d = 1. r is of unit length only to within the normal's error,
-    # which is relative to the ball's radius, not to the hit point: a ball of radius 20 hit 4e7 from the
-    # origin has |n|^2 - 1 ~ 1e-10, and a ray of that length, solved as if unit, lands 1.5e-3 inside a
-    # planet 1.6e7 away -- its shadow ray then starts inside and sees no blocker (the campaign's far_6005_0).
-    r_dir = dr.normalize(r)
-    # rules raw_normals_ball, raw_normals_plane: the normal as a solution that never normalises it has it, of
-    # length r for a ball (p - c) and |n| as written for a plane (values.normal_length); the offset keeps the
-    # unit one. Under ``runtime`` the switches are read at run time: one kernel for every value (a diagnosis
-    # tries them all).
-    raw_shading = _per_kind(tr, shape_id, "shading")
-    raw_reflection = _per_kind(tr, shape_id, "reflection")
-    nr = None
-    if raw_shading is not False or raw_reflection is not False:
-        nr = ns * values.normal_length(shape_id)
-    if raw_reflection is not False:
-        r_raw = d - 2 * dr.dot(d, nr) * nr  # the highlight's r·s takes it as computed
-        r_unit = dr.normalize(r_raw)  # normalised, as above
-        if raw_reflection is True:
-            r, r_dir = r_raw, r_unit
-        else:
-            r, r_dir = dr.select(raw_reflection, r_raw, r), dr.select(raw_reflection, r_unit, r_dir)
+    r, r_dir, nr, raw_shading = _reflected(tr, shape_id, d, ns)
     err = interaction.error_bound(tr, shape_id, p, o) if rules.offset == "error-bound" else None
     outward = interaction.outward(tr, shape_id)
-    clamp_all, clamp_specular = values.rule(rules.clamp is True), values.rule(rules.clamp == "specular")
+    clamp_all = values.rule(rules.clamp is True)
     if fx.diffuse or fx.specular:
-        lpos = values.vec("light")
         lc = values.vec("light_color")
-        to_light = lpos - p
-        light_dist = dr.norm(to_light)
-        # The light exactly at the hit point has no direction: that point is unlit (not 0/0).
-        at_light = ~(light_dist > 0)
-        s = dr.select(at_light, zero, to_light * (1.0 / dr.select(at_light, 1, light_dist)))
-        as_direction = values.rule(rules.light == "direction")
-        if as_direction is not False:
-            # rule light "direction": the light's position used as the direction towards it, the same s at
-            # every point (a light at the origin has none: unlit, as above)
-            l_len = dr.norm(lpos)
-            at_light = ~(l_len > 0) if as_direction is True else dr.select(as_direction, ~(l_len > 0), at_light)
-            s_fixed = dr.select(at_light, zero, lpos * (1.0 / dr.select(at_light, 1, l_len)))
-            s = s_fixed if as_direction is True else dr.select(as_direction, s_fixed, s)
+        s, light_dist, at_light = _to_light(tr, p)
         sn = dr.dot(s, ns)
         lit = hit & ~at_light
         if fx.shadows and rules.shadow_rays:  # rule shadow_rays false: no shadow test at all
-            so = interaction.offset_origin(tr, p, ns, err, s, outward)
-            blocked, shadow_ts = shadow_blocked(tr, so, s, light_dist, record)
-            lit = hit & ~blocked
-            if margins is True:
-                rec["shadow_margin"] = shadow_margin(tr, so, s, light_dist, hit)
-            elif margins is not False:  # in a conditional: the loop's later levels skip the ball loop
-                rec["shadow_margin"] = dr.if_stmt(
-                    (so, s, light_dist, hit, margins),
-                    margins,
-                    lambda so, s, light_dist, hit, _: shadow_margin(tr, so, s, light_dist, hit),
-                    lambda *_: T.Float(1e30),
-                    label="margins",
-                )
-            if record:
-                rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
+            lit = _shadow_test(tr, p, ns, err, s, outward, light_dist, hit, record, margins, rec)
         if fx.diffuse:
             sd = sn  # s·n, or with raw_shading s·(the raw normal): the same sign
             if raw_shading is True:
@@ -239,23 +190,7 @@ def shade(
             terms["diffuse"] = dr.select(lit, lc * values.material(shape_id, "diffuse") * fac, zero)
             local = local + terms["diffuse"]
         if fx.specular:
-            rs = dr.dot(r, s)
-            negated = values.rule(rules.specular_s == "-s")
-            if negated is not False:  # rule specular_s "-s": (r·(-s))^e, the incoming light's direction
-                rs = -rs if negated is True else dr.select(negated, -rs, rs)
-            e = rules.specular_exponent
-            if tr.runtime:
-                pw = _power_runtime(rs, dr.opaque(T.UInt, e), SPECULAR_EXPONENT_MAX.bit_length())
-            else:
-                pw = _power(rs, e)  # (r·s)^e: for e = 8 rs2, rs4, rs4 * rs4
-            on = lit
-            if tr.runtime:
-                on = lit & dr.select(clamp_all, (sn > 0) & (rs > 0), ~clamp_specular | (rs > 0))
-            elif clamp_all:
-                on = lit & (sn > 0) & (rs > 0)
-            elif clamp_specular:
-                on = lit & (rs > 0)
-            terms["specular"] = dr.select(on, lc * values.material(shape_id, "specular") * pw, zero)
+            terms["specular"] = _specular(tr, shape_id, r, s, sn, lit, lc)
             local = local + terms["specular"]
     bg = background(tr, hit)
     kr = values.material(shape_id, "reflection") if fx.reflection else zero
@@ -281,6 +216,99 @@ def shade(
         ro = interaction.offset_origin(tr, p, ns, err, r_dir, outward)
         lvl.record["next"] = (ro, r_dir)
     return lvl, spawn
+
+
+def _reflected(tr: TraceSettings, shape_id, d, ns) -> tuple[Any, Any, Any, Any]:
+    """(r, the reflected ray's direction, the raw normal or None, rule raw_normals' "shading" switch) at a hit
+    whose shading normal is ``ns``."""
+    values = tr.values
+    r = d - 2 * dr.dot(d, ns) * ns  # reflected incoming direction: the highlight's r·s takes it as computed
+    # The reflected Ray's direction, normalised: the exercise's Ray holds a normalised direction, and its
+    # ball intersection (Appendix 2) drops d·d = 1. r is of unit length only to within the normal's error,
+    # which is relative to the ball's radius, not to the hit point: a ball of radius 20 hit 4e7 from the
+    # origin has |n|^2 - 1 ~ 1e-10, and a ray of that length, solved as if unit, lands 1.5e-3 inside a
+    # planet 1.6e7 away -- its shadow ray then starts inside and sees no blocker (the campaign's far_6005_0).
+    r_dir = dr.normalize(r)
+    # rules raw_normals_ball, raw_normals_plane: the normal as a solution that never normalises it has it, of
+    # length r for a ball (p - c) and |n| as written for a plane (values.normal_length); the offset keeps the
+    # unit one. Under ``runtime`` the switches are read at run time: one kernel for every value (a diagnosis
+    # tries them all).
+    raw_shading = _per_kind(tr, shape_id, "shading")
+    raw_reflection = _per_kind(tr, shape_id, "reflection")
+    nr = None
+    if raw_shading is not False or raw_reflection is not False:
+        nr = ns * values.normal_length(shape_id)
+    if raw_reflection is not False:
+        r_raw = d - 2 * dr.dot(d, nr) * nr  # the highlight's r·s takes it as computed
+        r_unit = dr.normalize(r_raw)  # normalised, as above
+        if raw_reflection is True:
+            r, r_dir = r_raw, r_unit
+        else:
+            r, r_dir = dr.select(raw_reflection, r_raw, r), dr.select(raw_reflection, r_unit, r_dir)
+    return r, r_dir, nr, raw_shading
+
+
+def _to_light(tr: TraceSettings, p) -> tuple[Any, Any, Any]:
+    """(s, the light's distance, unlit because the light is at the point) at hit points p (rule light)."""
+    rules, values, zero = tr.rules, tr.values, tr.T.zero3()
+    lpos = values.vec("light")
+    to_light = lpos - p
+    light_dist = dr.norm(to_light)
+    # The light exactly at the hit point has no direction: that point is unlit (not 0/0).
+    at_light = ~(light_dist > 0)
+    s = dr.select(at_light, zero, to_light * (1.0 / dr.select(at_light, 1, light_dist)))
+    as_direction = values.rule(rules.light == "direction")
+    if as_direction is not False:
+        # rule light "direction": the light's position used as the direction towards it, the same s at
+        # every point (a light at the origin has none: unlit, as above)
+        l_len = dr.norm(lpos)
+        at_light = ~(l_len > 0) if as_direction is True else dr.select(as_direction, ~(l_len > 0), at_light)
+        s_fixed = dr.select(at_light, zero, lpos * (1.0 / dr.select(at_light, 1, l_len)))
+        s = s_fixed if as_direction is True else dr.select(as_direction, s_fixed, s)
+    return s, light_dist, at_light
+
+
+def _shadow_test(tr: TraceSettings, p, ns, err, s, outward, light_dist, hit, record: bool, margins, rec) -> Any:
+    """Lit or not: the shadow ray's test (its margins and, with ``record``, its rays recorded in ``rec``)."""
+    T = tr.T
+    so = interaction.offset_origin(tr, p, ns, err, s, outward)
+    blocked, shadow_ts = shadow_blocked(tr, so, s, light_dist, record)
+    lit = hit & ~blocked
+    if margins is True:
+        rec["shadow_margin"] = shadow_margin(tr, so, s, light_dist, hit)
+    elif margins is not False:  # in a conditional: the loop's later levels skip the ball loop
+        rec["shadow_margin"] = dr.if_stmt(
+            (so, s, light_dist, hit, margins),
+            margins,
+            lambda so, s, light_dist, hit, _: shadow_margin(tr, so, s, light_dist, hit),
+            lambda *_: T.Float(1e30),
+            label="margins",
+        )
+    if record:
+        rec.update(shadow_origin=so, shadow_dir=s, light_dist=light_dist, shadow_ts=shadow_ts)
+    return lit
+
+
+def _specular(tr: TraceSettings, shape_id, r, s, sn, lit, lc) -> Any:
+    """The highlight (r·s)^e where the clamp rule lets it shine (rule specular_s: -s)."""
+    T, rules, values, zero = tr.T, tr.rules, tr.values, tr.T.zero3()
+    clamp_all, clamp_specular = values.rule(rules.clamp is True), values.rule(rules.clamp == "specular")
+    rs = dr.dot(r, s)
+    negated = values.rule(rules.specular_s == "-s")
+    if negated is not False:  # rule specular_s "-s": (r·(-s))^e, the incoming light's direction
+        rs = -rs if negated is True else dr.select(negated, -rs, rs)
+    e = rules.specular_exponent
+    bits = SPECULAR_EXPONENT_MAX.bit_length()
+    # (r·s)^e: for e = 8 rs2, rs4, rs4 * rs4
+    pw = _power_runtime(rs, dr.opaque(T.UInt, e), bits) if tr.runtime else _power(rs, e)
+    on = lit
+    if tr.runtime:
+        on = lit & dr.select(clamp_all, (sn > 0) & (rs > 0), ~clamp_specular | (rs > 0))
+    elif clamp_all:
+        on = lit & (sn > 0) & (rs > 0)
+    elif clamp_specular:
+        on = lit & (rs > 0)
+    return dr.select(on, lc * values.material(shape_id, "specular") * pw, zero)
 
 
 def _per_kind(tr: TraceSettings, shape_id, use: str) -> Any:

@@ -238,6 +238,8 @@ class CyclesOracle(Oracle):
             **extra,
         }  # fmt: skip
 
+    # one piece: two Blender jobs (a black world for the buffers and the diffuse term, the scene's world for
+    # the colour) whose outputs are read back and combined into one result, in that order
     def _one_sample(self, scene: Scene, rules: Rules, opts: dict, folder: Path) -> RenderResult:
         """One sample per pixel on the rules' rays: geometry, Cycles' colour and its diffuse term."""
         w, h = scene.camera.width, scene.camera.height

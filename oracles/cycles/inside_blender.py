@@ -90,6 +90,9 @@ def _material(m: dict) -> bpy.types.Material:
     return mat
 
 
+# one piece: Blender's scene set up step by step in the order bpy needs it (factory settings, render and
+# film, world, camera, objects and materials) -- each step a few assignments to bpy's shared state,
+# which runs in Blender's own Python where the job's dict is all there is
 def build(job: dict) -> bpy.types.Scene:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     sc = bpy.context.scene

@@ -136,6 +136,9 @@ def viewing_distance(scene: Scene, rules: Rules) -> float | None:
     return median_light_distance(scene, o, d, best)
 
 
+# one piece: the XML written top to bottom in the order Mitsuba reads it (integrator, sensor, light, each
+# shape with its material); each element is a few lines of the same string building, and split up every
+# part would take the whole scene, the rules and the writer again
 def scene_to_xml(
     scene: Scene,
     rules: Rules,
