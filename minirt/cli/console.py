@@ -78,9 +78,16 @@ def own_warnings() -> None:
     as one line, ``minirt: warning: CATEGORY: message`` -- never the library's source path and line
     (``hazards.py:428: RuntimeWarning: overflow encountered in cast`` and the code). Each text once
     (minirt.jobs.logs.warnings_as_lines; the embedded cluster's workers say theirs the same way)."""
-    from minirt.jobs.logs import warnings_as_lines
+    import warnings
 
-    warnings_as_lines(lambda line: err.print(line, markup=False))
+    def first(message, category, filename, lineno, file=None, line=None) -> None:
+        # the hook is made when a warning first shows: `minirt --help` imports nothing of minirt.jobs
+        from minirt.jobs.logs import warnings_as_lines
+
+        warnings_as_lines(lambda text: err.print(text, markup=False))
+        warnings.showwarning(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = first
 
 
 def emit_json(dest: str, data: dict[str, Any]) -> None:

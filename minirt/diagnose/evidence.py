@@ -3,11 +3,13 @@ it cannot decide.
 
 The search (minirt.diagnose.search) returns the rule set that fits best; greedy steps can take a rule that
 gains a few pixels by accident, or that imitates a bug the table lacks. Before the diagnosis names a rule,
-``confirm`` puts it back to the scene's value in the final rule set and counts, on every pixel that is not
-ill-conditioned in either (``Search.ill_at``, float32 flips):
+``confirm`` puts it back to the scene's value in the final rule set and counts:
 
-- ``pixels``: made wrong by putting it back (the evidence for it);
-- ``against``: made right by putting it back (pixels the rule breaks);
+- ``pixels``: made wrong by putting it back (the evidence for it) -- but for a pixel where a tracer
+  following the scene's value could draw it as the image does (ill-conditioned under it: ``Search.ill_at``,
+  or drawn so by its float32 render);
+- ``against``: made right by putting it back (pixels the rule breaks) -- but where a tracer following the
+  rule could draw it as the image does;
 - ``neither``: pixels whose picture the rule changes (the two renders differ beyond tolerance) and that
   match neither: the rule acts there, but the image shows something else.
 
@@ -21,11 +23,13 @@ back is listed (``Rejected``), with its counts, and the pixels it had claimed st
 
 ``one_of`` then asks whether other rule sets fit the image exactly as well -- the same pixels beyond
 tolerance and (8-bit) nearly the same exact matches: the rule sets the search compared on every pixel,
-every single-rule change of the answer, the other ``offset_along`` with its own best offset, and for the
-numbers read off the image (offset, t_max, the exponent) the interval of values that fit equally. Rules on
-which such sets disagree are not named: they go to ``undetermined`` with the values that fit. A change of
-a rule the answer leaves at the scene's value whose image is the answer's own on every pixel is not one
-of these: the scene cannot tell the two apart, which ``indistinguishable`` says.
+every single-rule change of the answer, one named rule put back with another changed, the other
+``offset_along`` with its own best offset, and for the numbers read off the image (offset, t_max, the
+exponent) the interval of values that fit equally. Rules on which such sets disagree, where one of them
+changes a rule the answer names, are not named: they go to ``undetermined`` with the values that fit. So
+does a rule whose every deciding pixel is ill-conditioned under one of its values while putting it back
+leaves pixels beyond tolerance (``confirm``). A change of a rule the answer leaves at the scene's value is
+no claim about the image: ``indistinguishable`` says which of those the scene cannot show.
 """
 
 from __future__ import annotations
@@ -70,6 +74,7 @@ class Evidence:
     against: int  # made right by putting it back: pixels the rule breaks
     neither: int  # changed by the rule, matching neither value
     mask: np.ndarray = field(repr=False)  # (H, W): the ``pixels``
+    undecided: bool = False  # nil evidence both ways, on ill-conditioned pixels only (``confirm``)
 
     @property
     def holds(self) -> bool:
@@ -120,6 +125,14 @@ def put_back(given: Rules, best: Rules, unit: tuple[str, ...]) -> Rules:
     return back
 
 
+def _worse_without(search: Search, given: Rules, best: Rules, unit: tuple[str, ...]) -> bool:
+    """Does putting ``unit`` back leave more pixels beyond tolerance, counted as the diagnosis reports them
+    (``Search.final_mask``)?"""
+    back = put_back(given, best, unit)
+    pair = [given, best, back]
+    return int(search.final_mask(back, pair)[0].sum()) > int(search.final_mask(best, pair)[0].sum())
+
+
 class Weigher:
     """Per-pixel classes (0 exact, 1 a level off, 2 beyond tolerance) of rule sets on one image, kept."""
 
@@ -135,9 +148,13 @@ class Weigher:
 
     def ill(self, a: Rules, b: Rules, at: np.ndarray) -> np.ndarray:
         """Ill-conditioned in either rule set, or drawn otherwise by a float32 render of either, at ``at``."""
+        return self.ill_one(a, at) | self.ill_one(b, at)
+
+    def ill_one(self, r: Rules, at: np.ndarray) -> np.ndarray:
+        """Where a tracer following ``r`` could draw a pixel otherwise than its renders do: ill-conditioned
+        under ``r`` (band, shadow), or drawn otherwise by its float32 render, at ``at``."""
         s = self.search
-        va, vb = s.either(a)[1], s.either(b)[1]
-        return s.ill_at(a, va, at) | s.ill_at(b, vb, at) | s.flips(a)[at] | s.flips(b)[at]
+        return s.ill_at(r, s.either(r)[1], at) | s.flips(r)[at]
 
     def one_level(self, a: Rules, b: Rules) -> bool:
         """Do a and b's images never differ by more than one level (or FLOAT_TOL) on any pixel? Then only
@@ -160,16 +177,19 @@ class Weigher:
             mask = np.ones(n, bool) if ck is None else np.zeros(n, bool)
             return Evidence(unit, n if ck is None else 0, n if cb is None else 0, 0, mask.reshape(h, w))
         differ = np.flatnonzero(cb != ck)
-        keep = ~self.ill(best, back, differ)
+        # A pixel the image shows as ``best`` draws it and ``back`` does not is evidence for ``best`` unless a
+        # tracer following ``back`` could have drawn it so (ill-conditioned under ``back``); the other way
+        # round, evidence against ``best`` unless one following ``best`` could have.
+        ill_best, ill_back = self.ill_one(best, differ), self.ill_one(back, differ)
         a, k = cb[differ], ck[differ]
         if self.one_level(best, back):
             made_right, made_wrong = (k >= 1) & (a == 0), (a >= 1) & (k == 0)
         else:
             made_right, made_wrong = (k == 2) & (a < 2), (a == 2) & (k < 2)
         mask = np.zeros(n, bool)
-        mask[differ[made_right & keep]] = True
+        mask[differ[made_right & ~ill_back]] = True
         neither = self._neither(best, back)
-        return Evidence(unit, int(mask.sum()), int((made_wrong & keep).sum()), neither, mask.reshape(h, w))
+        return Evidence(unit, int(mask.sum()), int((made_wrong & ~ill_best).sum()), neither, mask.reshape(h, w))
 
     def _neither(self, best: Rules, back: Rules) -> int:
         """Pixels beyond tolerance under both whose two renders differ beyond tolerance (written under best's
@@ -192,12 +212,18 @@ class Weigher:
 def confirm(search: Search, given: Rules, best: Rules) -> tuple[Rules, list[Evidence], list[Rejected]]:
     """Put back, one at a time and weakest first, every changed rule the image does not bear out (see the
     module's docstring); return the rule set that is left, the evidence of each rule it changes, and what
-    was put back."""
+    was put back. A rule whose evidence is nil both ways only because every pixel it decides is
+    ill-conditioned in one of the two, while putting it back leaves pixels beyond tolerance, stays: the
+    image cannot decide it (``Evidence.undecided``; ``one_of`` lists both values)."""
     weigh = Weigher(search)
     rejected: list[Rejected] = []
     while True:
         found = [weigh.evidence(best, put_back(given, best, u), u) for u in groups_of(given, best)]
-        weak = [e for e in found if not e.holds]
+        for e in found:
+            e.undecided = (
+                not e.holds and e.pixels == e.against == e.neither == 0 and _worse_without(search, given, best, e.rules)
+            )
+        weak = [e for e in found if not e.holds and not e.undecided]
         if not weak:
             return best, found, rejected
         worst = min(weak, key=lambda e: (e.weight, e.pixels, e.rules))
@@ -263,13 +289,14 @@ def _candidates(search: Search, given: Rules, best: Rules) -> list[Rules]:
     return unique
 
 
-def one_of(search: Search, given: Rules, best: Rules) -> OneOf | None:
+def one_of(search: Search, given: Rules, best: Rules, undecided: list[tuple[str, ...]] = ()) -> OneOf | None:
     """The rules on which rule sets that fit as well as ``best`` disagree, among those that change a rule
-    ``best`` names (None when there are none)."""
+    ``best`` names (None when there are none); ``undecided``: units ``confirm`` could not decide, each
+    with its scene value as the alternative."""
     named = set(given.differs(best))
-    equals: list[Rules] = []
+    equals: list[Rules] = [put_back(given, best, u) for u in undecided]
     for r in _candidates(search, given, best):
-        if same_tracer(best, r) or not search.quick_not_worse(best, r):
+        if r in equals or same_tracer(best, r) or not search.quick_not_worse(best, r):
             continue
         if not equal(search, best, r):
             continue

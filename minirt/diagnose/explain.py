@@ -124,7 +124,7 @@ def diagnose(
             pair = [given, best]
             mg, _, ill_g = search.final_mask(given, pair)
             mb, off_b, ill_b = search.final_mask(best, pair)
-        one_of = evidence.one_of(search, given, best)
+        one_of = evidence.one_of(search, given, best, [e.rules for e in found if e.undecided])
     shape = search.target.model_shape
     explained = []
     if alternatives:

@@ -26,7 +26,12 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = sorted(p.name for p in (ROOT / "scenes").glob("*.toml"))
 # every module of the oracles, subpackages included, as a path under oracles/ ("povray/oracle.py")
-ORACLES = sorted(p.relative_to(ROOT / "oracles").as_posix() for p in (ROOT / "oracles").rglob("*.py"))
+# the oracles' modules, and the course-side C++ files the program oracle hands a student's source
+ORACLES = sorted(
+    p.relative_to(ROOT / "oracles").as_posix()
+    for p in [*(ROOT / "oracles").rglob("*.py"), *(ROOT / "oracles" / "program" / "course").glob("*")]
+    if "__pycache__" not in p.parts
+)
 
 
 def run(*cmd: str | Path, cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
