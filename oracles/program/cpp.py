@@ -30,7 +30,7 @@ from minirt.jobs.cache import trusted_folder
 from minirt.model.scene import Ball, Scene
 from minirt.oracles.program import sandbox
 
-DRIVER_VERSION = 1  # raised whenever a course file or driver changes what a compiled program does
+DRIVER_VERSION = 2  # raised whenever a course file or driver changes what a compiled program does
 COURSE_FILES = ("bitmap.h", "bitmap.cpp", "vector3.h", "vector3.cpp", "scene_io.h")
 NEIGHBOUR_SUFFIXES = (".h", ".hpp", ".hh", ".cpp", ".cc", ".cxx", ".inl")
 NEIGHBOURS_MAX = 64  # files beside the source copied with it ...

@@ -10,11 +10,8 @@
 #undef main
 #include "scene_io.h"
 
-static Color minirt_color(const MinirtColor& c) { return Color(float(c.r), float(c.g), float(c.b)); }
-
 int main(int argc, char** argv) {
-    MinirtScene s;
-    if (argc != 3 || !minirt_read_scene(argv[1], s)) { std::fprintf(stderr, "minirt driver: cannot read the scene\n"); return 3; }
+    const MinirtScene s = minirt_scene_or_exit(argc, argv);
     Scene scene(Vector(s.camera[0], s.camera[1], s.camera[2]), Vector(s.light[0], s.light[1], s.light[2]),
                 minirt_color(s.light_color), s.width, s.height);
     for (const MinirtShape& sh : s.shapes)

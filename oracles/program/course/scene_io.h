@@ -12,6 +12,7 @@
 #define MINIRT_SCENE_IO_H
 
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -44,6 +45,19 @@ static bool minirt_read_scene(const char* path, MinirtScene& s) {
     }
     return true;
 }
+
+// The driver's start: the scene in argv[1] (argv[2]: where the colours go), or a message and exit status 3.
+static MinirtScene minirt_scene_or_exit(int argc, char** argv) {
+    MinirtScene s;
+    if (argc != 3 || !minirt_read_scene(argv[1], s)) {
+        std::fprintf(stderr, "minirt driver: cannot read the scene\n");
+        std::exit(3);
+    }
+    return s;
+}
+
+// A MinirtColor as the course's Color (bitmap.h, included before this file).
+static Color minirt_color(const MinirtColor& c) { return Color(float(c.r), float(c.g), float(c.b)); }
 
 // pixel(x, y) gives three floats; y = 0 is the top row.
 template <class Pixel>
