@@ -54,6 +54,7 @@ robust: the reference's own rounding may flip it, and it is not judged.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -123,8 +124,10 @@ class Uncertain(Exception):
         self.what = what
 
 
+@functools.lru_cache(maxsize=4096)
 def q(x: float) -> fmpq:
-    """A binary64 number as the exact rational it is."""
+    """A binary64 number as the exact rational it is (kept for the numbers a render asks for again and again:
+    sub-pixel positions, shifts; fmpq is immutable)."""
     n, d = float(x).as_integer_ratio()
     return fmpq(n, d)
 
@@ -272,6 +275,7 @@ class Model:
         ]
         self.offset_zero = off != "error-bound" and off == 0 and not slack
         self.g6, self.g4 = arb(gamma(6)), arb(gamma(4))
+        self.inv_r = {k: 1 / b[1] for k, b in self.balls.items()}  # frame's 1/r, at this model's precision
         cam = scene.camera
         dist = q(cam.distance)
         camera_o = (fmpq(0), fmpq(0), -dist) if rules.ray_origin == "camera" else None
@@ -455,7 +459,11 @@ class Model:
         if not self.slack:
             return v
         # float(c) is float(c.mid()) (the midpoint to nearest) at half the cost
-        size = 1.0 if unit else max(abs(float(c)) + float(c.rad()) for c in v)
+        if unit:
+            size = 1.0
+        else:
+            a, b, c = v
+            size = max(abs(float(a)) + float(a.rad()), abs(float(b)) + float(b.rad()), abs(float(c)) + float(c.rad()))
         e = arb(0, self.slack * size)
         return (v[0] + e, v[1] + e, v[2] + e)
 
@@ -598,8 +606,7 @@ class Model:
         k = hit.shape
         p = self.widen(add(o, scale(d, hit.t)))
         if k in self.balls:
-            center, r, _, _, _ = self.balls[k]
-            return p, scale(sub(p, center), 1 / r)
+            return p, scale(sub(p, self.balls[k][0]), self.inv_r[k])
         return p, self.planes[k][2]
 
     def trace(self, hit: Hit | None, o: Vec, d: Vec, depth_left: int, levels: list[Level] | None) -> Vec:
