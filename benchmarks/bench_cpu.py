@@ -2,14 +2,16 @@
 
     .venv/bin/python benchmarks/bench_cpu.py [--runs 5] [--versus TREE] [--only NAME ...] [--out FILE.json]
 
-Each command runs as a child process (``python -m minirt ...``, start-up, imports and files included); its
-cost is the processor time of the child and of every process it waited for (user + system,
-``resource.getrusage(RUSAGE_CHILDREN)`` around the run: the certified oracle's workers, POV-Ray, Blender,
-the Dask workers), not the wall time a shared machine stretches. One warm-up run of each command first (it
+Each command runs as a child process (``TREE/.venv/bin/python -m minirt ...``: start-up, imports and files
+included); its cost is the processor time of the child and of every process it waited for (user + system,
+``resource.getrusage(RUSAGE_CHILDREN)`` around the run: the certified oracle's workers, POV-Ray, Blender, the
+Dask workers), not the wall time a shared machine stretches. One warm-up run of each command first (it
 compiles Dr.Jit's kernels into the cache the counted runs then read, except where a command asks for an empty
-cache). With ``--versus TREE`` (another checkout of minirt, put first on ``PYTHONPATH``: the same interpreter
-and packages) every command runs in both trees in turn, A B A B ..., and the ratio A/B is taken pair by pair,
-so a machine whose speed drifts moves both sides of a ratio alike. Figures: min / median / max.
+cache). With ``--versus TREE`` every command runs in both trees in turn, A B A B ..., and the ratio A/B is
+taken pair by pair, so a machine whose speed drifts moves both sides of a ratio alike. Figures: min / median /
+max. Each tree runs in its own virtual environment (``make setup`` there, or a copy of this one's with its
+editable install pointed at TREE): the package maps ``minirt.oracles`` to the top-level ``oracles/`` folder
+through its install, so another tree put first on ``PYTHONPATH`` would still import this one's oracles.
 
 The first line names the machine: processor model, core count, and whether it has AVX-512 (Dr.Jit's LLVM
 kernels and NumPy use it where it is there: the same command costs ~2x the CPU-seconds on an AVX2-only EPYC as
@@ -83,15 +85,14 @@ def prepare(tmp: Path, names: list[str]) -> None:
         student_png(ROOT / "scenes/rules.toml", 800, wrong, tmp / "single.png")
 
 
-def cpu_of(args: list[str], env: dict[str, str], tree: Path | None, tmp: Path) -> float:
-    """User + system seconds of ``python -m minirt ARGS`` and of every process it waited for."""
-    full = {**os.environ}
-    if tree is not None:
-        full["PYTHONPATH"] = os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+def cpu_of(args: list[str], env: dict[str, str], tree: Path, tmp: Path) -> float:
+    """User + system seconds of ``TREE/.venv/bin/python -m minirt ARGS`` and of every process it waited for."""
+    full = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     for k, v in env.items():
         full[k] = tempfile.mkdtemp(dir=tmp, prefix="kernels-") if v == "{fresh}" else v
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    done = subprocess.run([sys.executable, "-m", "minirt", *args], cwd=ROOT, env=full, capture_output=True)
+    python = tree / ".venv" / "bin" / "python"
+    done = subprocess.run([str(python), "-m", "minirt", *args], cwd=tree, env=full, capture_output=True)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode not in (0, 1):
         raise SystemExit(f"minirt {' '.join(args)} failed ({done.returncode}): {done.stderr.decode()[-2000:]}")
@@ -113,7 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     table = commands(tmp)
     names = a.only or list(table)
     prepare(tmp, names)
-    trees: dict[str, Path | None] = {"A": ROOT} | ({"B": a.versus.resolve()} if a.versus else {})
+    trees: dict[str, Path] = {"A": ROOT} | ({"B": a.versus.resolve()} if a.versus else {})
+    for tree in trees.values():
+        if not (tree / ".venv" / "bin" / "python").exists():
+            raise SystemExit(f"{tree}: no .venv/bin/python (make setup there)")
     print(f"machine: {machine()}; python {platform.python_version()}")
     print("| command | " + " | ".join(f"{t} CPU-s (min / median / max)" for t in trees)
           + (" | A/B paired (min / median / max) |" if a.versus else " |"))  # fmt: skip

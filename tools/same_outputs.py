@@ -4,9 +4,10 @@
         [--command 'render three_balls -b exact --width 48 --height 32 --out {out}'] [--keep DIR]
 
 Each command is a ``minirt`` command line with ``{out}`` for an output folder of its own (files it writes go
-there); it runs as ``python -m minirt ...`` with the tree first on ``PYTHONPATH`` -- the same interpreter and
-installed packages for both trees, so only minirt's own code differs (child Python processes, such as the
-certified oracle's workers, inherit the path). Then, per command:
+there); it runs as ``TREE/.venv/bin/python -m minirt ...``, each tree's own virtual environment (``make
+setup`` there, or a copy of this one's with its editable install pointed at the tree): the package maps
+``minirt.oracles`` to the top-level ``oracles/`` folder through its install, so a tree put first on
+``PYTHONPATH`` alone would still import the installed tree's oracles. Then, per command:
 
 - the exit status must be equal;
 - the two output folders must hold the same file names; a ``.json`` file must hold the same document once
@@ -66,15 +67,26 @@ def strip_times(doc):
     return doc
 
 
-def run(tree: Path, command: str, out: Path) -> int:
-    """``python -m minirt COMMAND`` with ``tree`` first on the module path; its exit status."""
+def interpreter(tree: Path) -> Path:
+    """The tree's own Python (module docstring), after checking that it imports minirt and its oracles from
+    the tree."""
+    python = tree / ".venv" / "bin" / "python"
+    if not python.exists():
+        raise SystemExit(f"{tree}: no .venv/bin/python (make setup there)")
+    probe = "import minirt, minirt.oracles; print(minirt.__file__); print(minirt.oracles.__file__)"
+    where = subprocess.run([str(python), "-c", probe], cwd=tempfile.gettempdir(), capture_output=True, text=True)
+    paths = [Path(p).resolve() for p in where.stdout.split()]
+    if where.returncode or len(paths) != 2 or not all(p.is_relative_to(tree.resolve()) for p in paths):
+        raise SystemExit(f"{tree}: its .venv imports minirt from elsewhere: {where.stdout.strip() or where.stderr}")
+    return python
+
+
+def run(python: Path, command: str, out: Path) -> int:
+    """``python -m minirt COMMAND`` in the output folder; its exit status."""
     out.mkdir(parents=True, exist_ok=True)
     args = [a.replace("{out}", str(out)) for a in shlex.split(command)]
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep),
-    }
-    done = subprocess.run([sys.executable, "-m", "minirt", *args], env=env, cwd=out, capture_output=True)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    done = subprocess.run([str(python), "-m", "minirt", *args], env=env, cwd=out, capture_output=True)
     return done.returncode
 
 
@@ -110,11 +122,12 @@ def main() -> int:
     ap.add_argument("--keep", type=Path, default=None, help="keep both trees' outputs in DIR/a and DIR/b")
     args = ap.parse_args()
     commands = args.command or list(SETS[args.set])
+    pythons = (interpreter(args.tree), interpreter(args.base))
     root = args.keep or Path(tempfile.mkdtemp(prefix="same-outputs-"))
     failed = 0
     for k, command in enumerate(commands):
         out_a, out_b = root / "a" / f"{k:02d}", root / "b" / f"{k:02d}"
-        status = (run(args.tree.resolve(), command, out_a), run(args.base.resolve(), command, out_b))
+        status = (run(pythons[0], command, out_a), run(pythons[1], command, out_b))
         diffs = [] if status[0] == status[1] else [f"exit status {status[0]} != {status[1]}"]
         diffs += compare(out_a, out_b)
         files = sum(1 for p in out_a.rglob("*") if p.is_file())
