@@ -276,6 +276,9 @@ class Model:
         self.offset_zero = off != "error-bound" and off == 0 and not slack
         self.g6, self.g4 = arb(gamma(6)), arb(gamma(4))
         self.inv_r = {k: 1 / b[1] for k, b in self.balls.items()}  # frame's 1/r, at this model's precision
+        # per plane, the one component of its normal that is not 0 (an axis-aligned plane), else None
+        axes = {k: [i for i in range(3) if p[3][i] != 0] for k, p in self.planes.items()}
+        self.plane_axis = {k: a[0] if len(a) == 1 else None for k, a in axes.items()}
         cam = scene.camera
         dist = q(cam.distance)
         camera_o = (fmpq(0), fmpq(0), -dist) if rules.ray_origin == "camera" else None
@@ -446,8 +449,12 @@ class Model:
             elif not self.rules.near_root_only and (cs < 0 or bs < 0):  # the far root, > 0
                 cands.append(((-arb(fv) + sq) / lv, k, ds, (-fv / vv) if ds == 0 else None, self.key(k, 1)))
         for k, (_, _, _, nq, aq) in self.planes.items():
-            den = nq[0] * v[0] + nq[1] * v[1] + nq[2] * v[2]
-            num = aq - (nq[0] * o[0] + nq[1] * o[1] + nq[2] * o[2])
+            i = self.plane_axis[k]  # rational and exact: an axis-aligned plane's zero components add nothing
+            if i is None:
+                den = nq[0] * v[0] + nq[1] * v[1] + nq[2] * v[2]
+                num = aq - (nq[0] * o[0] + nq[1] * o[1] + nq[2] * o[2])
+            else:
+                den, num = nq[i] * v[i], aq - nq[i] * o[i]
             if den == 0 or qsign(num) * qsign(den) <= 0:
                 continue
             s = num / den
