@@ -185,14 +185,22 @@ def edge_classes(ref: RenderResult) -> dict[str, np.ndarray]:
     return dict(out)
 
 
+def changes(labels: np.ndarray) -> np.ndarray:
+    """(H, W) bool: where a label differs from another in its 3x3 neighbourhood (the image's edge rows and
+    columns repeated outwards) -- scipy.ndimage's maximum_filter != minimum_filter (size 3, mode "nearest"),
+    computed as a max and a min over rows, then over columns (both separate), without importing
+    scipy.ndimage (~0.3 CPU-s, more than the check of a small scene spends on its edges)."""
+    padded = np.pad(labels, 1, mode="edge")
+    h, w = labels.shape
+
+    def box(op) -> np.ndarray:
+        rows = op(op(padded[:, 0:w], padded[:, 1 : w + 1]), padded[:, 2 : w + 2])
+        return op(op(rows[0:h], rows[1 : h + 1]), rows[2 : h + 2])
+
+    return box(np.maximum) != box(np.minimum)
+
+
 def _edge_classes(ref: RenderResult) -> dict[str, np.ndarray]:
-    from scipy import ndimage
-
-    def changes(labels: np.ndarray) -> np.ndarray:
-        mx = ndimage.maximum_filter(labels, size=3, mode="nearest")
-        mn = ndimage.minimum_filter(labels, size=3, mode="nearest")
-        return mx != mn
-
     sil = changes(ref.shape_id)
     lit = (ref.terms.get("diffuse", np.zeros((ref.height, ref.width, 3))) > 0).any(-1) | (
         ref.terms.get("specular", np.zeros((ref.height, ref.width, 3))) > 0

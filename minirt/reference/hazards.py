@@ -54,19 +54,24 @@ def _surface(shape, x: np.ndarray) -> np.ndarray:
 
 
 def _secondary(
-    scene: Scene, rules: Rules, res: RenderResult, pixels: np.ndarray | None = None, directions: bool = True
+    scene: Scene,
+    rules: Rules,
+    res: RenderResult,
+    pixels: np.ndarray | None = None,
+    directions: bool = True,
+    fx: Any = None,
 ) -> dict[str, np.ndarray | None]:
     """Per primary hit (flat): the point, shading normal, own shape, and the shadow and reflection
     directions of the secondary rays the render spawns there (mask: whether it spawns them).
     ``pixels``: the row-major indices of the hit pixels wanted (default: every hit). ``directions``:
     False leaves the two directions out (None; the kinds spawned are still said by their keys): an
-    offset along the normal does not need them."""
+    offset along the normal does not need them. ``fx``: the scene's effects and its shapes' reflecting (as
+    ``_reflecting`` gives them), made once for a render's chunks of hits."""
     if pixels is None:
         pixels = np.flatnonzero(res.hit.reshape(-1))
-    p = res.position.reshape(-1, 3)[pixels]
-    n = res.normal.reshape(-1, 3)[pixels]
+    p, n = _gather(res, "position", pixels), _gather(res, "normal", pixels)
     sid = res.shape_id.reshape(-1)[pixels]
-    fx = effects(scene, rules)
+    fx, kr = fx or _reflecting(scene, rules)
     d = None
     if rules.two_sided or (directions and fx.reflection):
         _, d = camera.primary_rays(scene, rules, pixels)  # the hit pixels' rays, the same bits as the image's
@@ -79,11 +84,27 @@ def _secondary(
             s = np.asarray(scene.light.position) - p
             out["shadow"] = s / np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-300)
     if fx.reflection:
-        kr = np.array([any(c != 0 for c in sh.material.reflection) for sh in scene.shapes], dtype=bool)
         r = None if d is None else d - 2 * np.einsum("ij,ij->i", d, n)[:, None] * n
         # normalised, as the tracer's reflected Ray (minirt.reference.shading)
         out["reflection"] = None if r is None else r / np.linalg.norm(r, axis=1, keepdims=True)
         out["reflects"] = kr[sid] if len(sid) else np.zeros(0, dtype=bool)
+    return out
+
+
+def _reflecting(scene: Scene, rules: Rules) -> tuple[Any, np.ndarray]:
+    """The scene's effects, and per shape whether its material reflects."""
+    kr = np.array([any(c != 0 for c in sh.material.reflection) for sh in scene.shapes], dtype=bool)
+    return effects(scene, rules), kr
+
+
+def _gather(res: RenderResult, name: str, pixels: np.ndarray) -> np.ndarray:
+    """(N, 3): the vector buffer ``name`` at these row-major pixels, gathered from its components as the
+    result holds them (a render's Planes are not stacked into a whole-image copy: 50 MB at 1024^2 for the
+    position and the normal, most of what the warnings cost there)."""
+    comps = res.components(name)
+    out = np.empty((len(pixels), 3))
+    for k, c in enumerate(comps):
+        out[:, k] = c.reshape(-1)[pixels]
     return out
 
 
@@ -125,6 +146,7 @@ CHUNK = 1 << 20  # points per pass of _jumped_tree: bounds its (point, node) pai
 HAZARD_CHUNK = 1 << 16  # hits judged at a time by offset_warnings: ~20 MB of temporaries, reused
 GRID_CELLS_PER_BALL = 8  # the grid's cells, per ball: a few balls per cell, a few cells per ball
 GRID_CELLS = (64, 1 << 22)  # ... within these bounds (a tiny scene still gets a grid; memory stays bounded)
+SCREEN_MAX_PAIRS = 1 << 22  # shape x ball gaps ``_Balls.gaps`` keeps (32 MB); beyond, every point goes to the grid
 GRID_SPREAD = 4  # a point visits at most this many cells on average, a ball is filed in at most this many
 # times GRID_CELLS_PER_BALL cells on average; beyond that (huge offsets, balls far larger than their
 # neighbours' spacing) the grid would cost more than the tree, which then answers instead
@@ -139,13 +161,29 @@ class _Balls(NamedTuple):
     radius: np.ndarray
     tree: list[Any]  # [] until built, then [tree, order]
     grid: list[Any]  # [] until built, then [pad, _Grid or None (a grid would not pay)]
+    gap: list[Any]  # [] until built, then [the (shapes, balls) gaps of ``gaps``, or None (too many)]
 
     @classmethod
     def of(cls, scene: Scene) -> _Balls:
         ids = [k for k, s in enumerate(scene.shapes) if isinstance(s, Ball)]
         center = np.array([scene.shapes[k].center for k in ids], dtype=np.float64).reshape(-1, 3)
         radius = np.array([scene.shapes[k].radius for k in ids], dtype=np.float64)
-        return cls(ids, center, radius, [], [])
+        return cls(ids, center, radius, [], [], [])
+
+    def gaps(self, shapes: Sequence[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Per shape, the least distance between its surface and another ball's (``_gaps``, the least over
+        the balls; NaN where one is NaN), whether it is a ball, and its slot among the balls (-1: a plane).
+        None when there are more than SCREEN_MAX_PAIRS pairs (then every point is tested)."""
+        if not self.gap:
+            if len(shapes) * len(self.ids) > SCREEN_MAX_PAIRS:
+                self.gap.append(None)
+            else:
+                is_ball = np.zeros(len(shapes), dtype=bool)
+                is_ball[self.ids] = True
+                slot = np.full(len(shapes), -1, dtype=np.int64)
+                slot[self.ids] = np.arange(len(self.ids))
+                self.gap.append((_gaps(shapes, self).min(axis=1), is_ball, slot))  # min: NaN if any is
+        return self.gap[0]
 
     def grid_for(self, pad: float) -> _Grid | None:
         """A grid of the balls' boxes widened by at least ``pad`` (more is as exact: a ball filed where
@@ -161,6 +199,66 @@ class _Balls(NamedTuple):
 
             self.tree.extend(accel.build(self.center, self.radius) if self.ids else (None, None))
         return self.tree[0], self.tree[1]
+
+
+def _gaps(shapes: Sequence[Any], balls: _Balls) -> np.ndarray:
+    """``_Balls.gaps``: between balls |C_k - C_j| - r_k - r_j (apart), or r_j - |C_k - C_j| - r_k (k inside
+    j), or r_k - |C_k - C_j| - r_j (j inside k), the one that is positive (none: the surfaces cross, 0); from a
+    plane n·x = a (n of unit length) to a ball |n·C_j - a| - r_j, or 0 where the ball crosses it."""
+    out = np.zeros((len(shapes), len(balls.ids)))
+    with np.errstate(invalid="ignore", over="ignore"):
+        for k, shape in enumerate(shapes):
+            if isinstance(shape, Ball):
+                dist = row_norm(balls.center - np.asarray(shape.center))
+                apart = dist - shape.radius - balls.radius
+                inside = np.maximum(balls.radius - dist - shape.radius, shape.radius - dist - balls.radius)
+                out[k] = np.maximum(np.maximum(apart, inside), 0.0)
+            else:
+                side = np.abs(balls.center @ np.asarray(shape.normal) - shape.distance)
+                out[k] = np.maximum(side - balls.radius, 0.0)
+    for j, k in enumerate(balls.ids):
+        out[k, j] = np.inf  # a point's own ball is not tested
+    return out
+
+
+def _near_shapes(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray, balls: _Balls) -> np.ndarray | None:
+    """Per point: whether a ball other than its own may come near enough to its segment p -> q that the ball's
+    sign changes along it (the points ``_jumped`` tests against the balls); None: every point may (no screen).
+
+    Point i lies e_i = |f_k(p_i)| from its own shape k's surface (f_k its implicit function, computed), so at
+    least gap(k, j) - e_i from ball j's surface (``_Balls.gaps``), and q_i within L_i = |q_i - p_i| of p_i:
+    at both ends the ball's implicit function is at least gap - e_i - L_i from 0, on the same side. Its
+    computed value errs by less than pad (``_jumped``), as do e_i's and the gap's (roundings of the same
+    sizes, and of the planes' |a|); so where gap(k, j) > max_i (e_i + L_i (1 + 2^-40)) + 4 pad + 2^-40 (max|x|
+    + reach + max|a|), no point of shape k can see ball j's sign change -- the answer testing it gives, found
+    without testing it. The points of shapes with no ball that near are left out: what the test costs is then
+    in proportion to the near contacts a scene has (what it can find), not to its pixels. A point whose e_i or
+    L_i is not finite is kept."""
+    gaps = balls.gaps(scene.shapes)
+    if gaps is None or not len(p) or sid.min() < 0 or sid.max() >= len(scene.shapes):
+        return None
+    least, is_ball, slot = gaps
+    with np.errstate(invalid="ignore", over="ignore"):
+        own = np.empty(len(p))
+        on_ball = is_ball[sid]
+        b = slot[sid[on_ball]]
+        own[on_ball] = row_norm(p[on_ball] - balls.center[b]) - balls.radius[b]
+        for k, shape in enumerate(scene.shapes):
+            if not isinstance(shape, Ball):
+                at = sid == k
+                own[at] = p[at] @ np.asarray(shape.normal) - shape.distance
+        reach = np.abs(own) + row_norm(q - p) * (1 + 2.0**-40)
+        bad = ~np.isfinite(reach)
+        worst = float(np.where(bad, 0.0, reach).max())
+        x_max = float(max(np.abs(p).sum(axis=1).max(), np.abs(q).sum(axis=1).max()))
+        ball_reach = float((row_norm(balls.center) + balls.radius).max())
+        planes = [abs(s.distance) for s in scene.shapes if not isinstance(s, Ball)]
+        pad = 16 * UNIT_ROUNDOFF["f64"] * (x_max + ball_reach)  # _pad's
+        margin = 4 * pad + 2.0**-40 * (x_max + ball_reach + max(planes, default=0.0))
+        if not math.isfinite(worst + margin):
+            return None
+        near = ~(least > worst + margin)  # per shape; NaN: near
+        return near[sid] | bad
 
 
 def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray, balls: _Balls | None = None) -> np.ndarray:
@@ -187,6 +285,20 @@ def _jumped(scene: Scene, p: np.ndarray, q: np.ndarray, sid: np.ndarray, balls: 
     if balls is None:
         balls = _Balls.of(scene)
     if not balls.ids or not len(p):
+        return out
+    near = _near_shapes(scene, p, q, sid, balls)
+    if near is not None:  # only the points some ball comes near (the rest cannot cross one)
+        at = np.flatnonzero(near)
+        if len(at) < len(p):
+            out[at] |= _jumped_balls(balls, p[at], q[at], sid[at])
+            return out
+    return out | _jumped_balls(balls, p, q, sid)
+
+
+def _jumped_balls(balls: _Balls, p: np.ndarray, q: np.ndarray, sid: np.ndarray) -> np.ndarray:
+    """``_jumped``'s test of the balls alone, on the grid or through the tree."""
+    out = np.zeros(len(p), dtype=bool)
+    if not len(p):
         return out
     found = _grid_pairs(balls, p, q)
     if found is None:
@@ -353,10 +465,11 @@ def offset_warnings(scene: Scene, rules: Rules, res: RenderResult, precision: st
     # and is reused chunk after chunk (fresh memory costs a page fault per 4 KiB, slow on a VM).
     hits = np.flatnonzero(res.hit.reshape(-1))
     balls = _Balls.of(scene)
+    made = _reflecting(scene, rules)
     below = jumped = 0
     worst = -math.inf
     for a in range(0, len(hits), HAZARD_CHUNK):
-        g = _secondary(scene, rules, res, hits[a : a + HAZARD_CHUNK], directions=rules.offset_along == "ray")
+        g = _secondary(scene, rules, res, hits[a : a + HAZARD_CHUNK], rules.offset_along == "ray", made)
         j = _judge(scene, rules, g, precision, balls)
         below += int(j["below"].sum())
         jumped += int(j["jumped"].sum())

@@ -54,6 +54,7 @@ robust: the reference's own rounding may flip it, and it is not judged.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -74,6 +75,45 @@ CULL_REL, CULL_RAD, CULL_ROUND = 2.0**-20, 256.0, 64.0
 # From this many balls the line is first tested against groups of at most GROUP_SIZE neighbouring balls
 # (Model.near_balls): 10,000 balls cost 150 us a ray one by one, a few dozen by groups.
 GROUP_FROM, GROUP_SIZE = 512, 32
+# The primary rays of a batch of pixels are culled against the balls all at once, in NumPy (``line_misses``):
+# the same test as ``near_balls``, from one ball on (a batch's rays cost a few microseconds each, where the
+# rational test of one ball costs about ten).
+PRIMARY_CULL_FROM = 1
+
+
+def primary_lines(scene: Scene, rules: Rules, indices, uv, slack: float) -> tuple[np.ndarray, ...]:
+    """The primary rays of pixels (row-major indices, sub-pixel positions (N, 2)) as float64 lines for
+    ``Model.line_misses``: origins, unit directions and the radii within which the exact rays (and their
+    widened intervals under ``slack``, the robust evaluation's) lie.
+
+    The image-plane point ((x + u) + dx)/W - 1/2 takes four roundings, each within u of a size at most
+    |x + u + dx|/W + 1/2, so it lies within 8 u (|fx|/W + |fy|/H + 1) of the exact rational (twice the count);
+    the direction V/|V| moves by at most twice V's error over |V|, plus 4 u for its own roundings. The robust
+    model widens the origin by slack times its largest component and the unit direction by slack (Model.widen;
+    raised by 2^-40 here, over the radii arb rounds up)."""
+    cam = scene.camera
+    w, h = cam.width, cam.height
+    index = np.asarray(indices, dtype=np.int64)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    y, x = np.divmod(index, w)
+    sx, sy = rules.pixel_shift
+    fx = (x + uv[:, 0]) + sx
+    fy = (y + uv[:, 1]) + sy
+    px, py = fx / w - 0.5, -fy / h + 0.5
+    err = 8 * 2.0**-53 * (np.abs(fx) / w + np.abs(fy) / h + 1)
+    v = np.stack([px, py, np.full(len(px), cam.distance)], axis=1)
+    if rules.ray_origin == "camera":
+        o = np.zeros_like(v)
+        o[:, 2] = -cam.distance
+        err_o = np.zeros(len(px))
+    else:
+        o = np.stack([px, py, np.zeros(len(px))], axis=1)
+        err_o = err
+    lv = np.sqrt(np.einsum("ij,ij->i", v, v))
+    grow = 1 + 2.0**-40
+    ro = slack * (np.abs(o).max(axis=1) + err_o) * grow + err_o
+    rw = slack * grow + 2 * np.sqrt(3) * err / lv + 4 * 2.0**-53
+    return o, v / lv[:, None], ro, rw
 
 
 class Uncertain(Exception):
@@ -84,8 +124,10 @@ class Uncertain(Exception):
         self.what = what
 
 
+@functools.lru_cache(maxsize=4096)
 def q(x: float) -> fmpq:
-    """A binary64 number as the exact rational it is."""
+    """A binary64 number as the exact rational it is (kept for the numbers a render asks for again and again:
+    sub-pixel positions, shifts; fmpq is immutable)."""
     n, d = float(x).as_integer_ratio()
     return fmpq(n, d)
 
@@ -95,25 +137,29 @@ def gamma(n: int) -> fmpq:
     return n * U64 / (1 - n * U64)
 
 
-def sign(x: arb, what: str) -> int:
-    """The certified sign of x: 1, -1, or 0 when x is exactly 0; ``Uncertain`` otherwise."""
+def sign(x: arb, what: str, *args) -> int:
+    """The certified sign of x: 1, -1, or 0 when x is exactly 0; ``Uncertain`` otherwise, naming the decision
+    ``what.format(*args)`` (formatted only then: most decisions are certified)."""
     if x > 0:
         return 1
     if x < 0:
         return -1
     if x.is_zero():
         return 0
-    raise Uncertain(what)
+    raise Uncertain(what.format(*args) if args else what)
 
 
-def midpoint_sign(x: arb, what: str) -> int:
+def midpoint_sign(x: arb, what: str, *args) -> int:
     """The sign of the interval's midpoint: how a tie's picture takes a decision no precision certified."""
     m = x.mid()
     return (m > 0) - (m < 0)
 
 
 def qsign(x: fmpq) -> int:
-    return (x > 0) - (x < 0)
+    """The sign of a rational: its numerator's (the denominator is positive); a comparison of two fmpq costs
+    several times one of an fmpz with an int."""
+    n = x.p
+    return (n > 0) - (n < 0)
 
 
 Vec = tuple[arb, arb, arb]
@@ -222,8 +268,21 @@ class Model:
         self.exponent = rules.specular_exponent
         off = rules.offset
         self.offset = None if off == "error-bound" else arb(off)
+        self.offset_f = None if self.offset is None else float(self.offset.mid())
+        # per shape, |C| + r (ball) or |a| (plane): offset_sure's sizes
+        self.sizes = [
+            math.hypot(*s.center) + s.radius if isinstance(s, Ball) else abs(s.distance) for s in scene.shapes
+        ]
         self.offset_zero = off != "error-bound" and off == 0 and not slack
         self.g6, self.g4 = arb(gamma(6)), arb(gamma(4))
+        self.inv_r = {k: 1 / b[1] for k, b in self.balls.items()}  # frame's 1/r, at this model's precision
+        # per plane, the one component of its normal that is not 0 (an axis-aligned plane), else None
+        axes = {k: [i for i in range(3) if p[3][i] != 0] for k, p in self.planes.items()}
+        self.plane_axis = {k: a[0] if len(a) == 1 else None for k, a in axes.items()}
+        cam = scene.camera
+        dist = q(cam.distance)
+        camera_o = (fmpq(0), fmpq(0), -dist) if rules.ray_origin == "camera" else None
+        self.primary_consts = (fmpq(cam.width), fmpq(cam.height), fmpq(1, 2), dist, camera_o)
 
     def _group_balls(self) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
         """Groups of at most GROUP_SIZE balls (median splits of the centres along the widest axis): each
@@ -263,6 +322,26 @@ class Model:
             margin = (CULL_REL * big * big + CULL_RAD * big * (ro + big * rw)
                       + CULL_ROUND * 2.0**-53 * big * (np.abs(om).sum() + csize))  # fmt: skip
         return np.einsum("ij,ij->i", g, g), margin, big
+
+    def line_misses(self, om: np.ndarray, wu: np.ndarray, ro: np.ndarray, rw: np.ndarray) -> np.ndarray:
+        """``near_balls``' test for many lines at once, one ball at a time against every line: (N, balls) true
+        where line k (origin om[k], unit direction wu[k], the exact line's origin within ro[k] and direction
+        within rw[k] per component, as ``near_balls`` takes an interval's radii) passes outside the ball (in
+        ``ball_ids`` order) by the cull's margin -- a certified miss at every precision, as there."""
+        n, nb = len(om), len(self.ball_ids)
+        out = np.zeros((n, nb), dtype=bool)
+        osize = np.abs(om).sum(axis=1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            for j in range(nb):
+                f = om - self.ball_c[j]
+                b = np.einsum("ij,ij->i", f, wu)
+                g = f - b[:, None] * wu
+                r = self.ball_r[j]
+                big = np.sqrt(np.einsum("ij,ij->i", f, f)) + r
+                margin = (CULL_REL * big * big + CULL_RAD * big * (ro + big * rw)
+                          + CULL_ROUND * 2.0**-53 * big * (osize + self.ball_csize[j]))  # fmt: skip
+                out[:, j] = np.einsum("ij,ij->i", g, g) - r * r > margin  # NaN: not culled
+        return out
 
     def near_balls(self, o, w, keep=()) -> list[int]:
         """The balls whose surface the line o + t w may meet, in id order: every ball but those a float64 test
@@ -334,25 +413,27 @@ class Model:
     # ---- the primary ray, rational ------------------------------------------------------------
     def primary(self, fx: fmpq, fy: fmpq) -> tuple[tuple[fmpq, ...], tuple[fmpq, ...]]:
         """Origin and direction V (not unit) of the ray through image-plane position (fx, fy) in pixels."""
-        cam = self.scene.camera
-        px = fx / cam.width - fmpq(1, 2)
-        py = -fy / cam.height + fmpq(1, 2)
-        dist = q(cam.distance)
+        width, height, half, dist, camera_o = self.primary_consts
+        px = fx / width - half
+        py = -fy / height + half
         v = (px, py, dist)
-        o = (fmpq(0), fmpq(0), -dist) if self.rules.ray_origin == "camera" else (px, py, fmpq(0))
+        o = camera_o if camera_o is not None else (px, py, fmpq(0))
         return o, v
 
-    def closest_primary(self, o: tuple[fmpq, ...], v: tuple[fmpq, ...]) -> tuple[Hit | None, Vec, Vec]:
-        """The closest hit of the primary ray, with its origin and unit direction as arb vectors."""
+    def closest_primary(
+        self, o: tuple[fmpq, ...], v: tuple[fmpq, ...], near: list[int] | None = None
+    ) -> tuple[Hit | None, Vec, Vec]:
+        """The closest hit of the primary ray, with its origin and unit direction as arb vectors. ``near``: the
+        balls the ray may meet, culled for a batch of rays at once (``line_misses``), or None (``near_balls``)."""
         vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
         lv = arb(vv).sqrt()
         oa: Vec = tuple(arb(x) for x in o)
         d = tuple(arb(x) / lv for x in v)
         if self.slack:  # the robust evaluation: the ray widened, its decisions made on the widened ray
             oa, d = self.widen(oa), self.widen(d, unit=True)
-            return self.closest(oa, d, None), oa, d
+            return self.closest(oa, d, None, near), oa, d
         cands: list[tuple[arb, int, int, fmpq | None]] = []  # (t, shape, dn sign, t/|V| when rational)
-        for k in self.near_balls(o, v):
+        for k in self.near_balls(o, v) if near is None else near:
             _, _, _, cq, rq = self.balls[k]
             f = (o[0] - cq[0], o[1] - cq[1], o[2] - cq[2])
             fv = f[0] * v[0] + f[1] * v[1] + f[2] * v[2]
@@ -368,8 +449,12 @@ class Model:
             elif not self.rules.near_root_only and (cs < 0 or bs < 0):  # the far root, > 0
                 cands.append(((-arb(fv) + sq) / lv, k, ds, (-fv / vv) if ds == 0 else None, self.key(k, 1)))
         for k, (_, _, _, nq, aq) in self.planes.items():
-            den = nq[0] * v[0] + nq[1] * v[1] + nq[2] * v[2]
-            num = aq - (nq[0] * o[0] + nq[1] * o[1] + nq[2] * o[2])
+            i = self.plane_axis[k]  # rational and exact: an axis-aligned plane's zero components add nothing
+            if i is None:
+                den = nq[0] * v[0] + nq[1] * v[1] + nq[2] * v[2]
+                num = aq - (nq[0] * o[0] + nq[1] * o[1] + nq[2] * o[2])
+            else:
+                den, num = nq[i] * v[i], aq - nq[i] * o[i]
             if den == 0 or qsign(num) * qsign(den) <= 0:
                 continue
             s = num / den
@@ -380,7 +465,12 @@ class Model:
         """v with every component widened by slack times |v|_inf (or, for a unit vector, by slack)."""
         if not self.slack:
             return v
-        size = 1.0 if unit else max(abs(float(c.mid())) + float(c.rad()) for c in v)
+        # float(c) is float(c.mid()) (the midpoint to nearest) at half the cost
+        if unit:
+            size = 1.0
+        else:
+            a, b, c = v
+            size = max(abs(float(a)) + float(a.rad()), abs(float(b)) + float(b.rad()), abs(float(c)) + float(c.rad()))
         e = arb(0, self.slack * size)
         return (v[0] + e, v[1] + e, v[2] + e)
 
@@ -416,21 +506,22 @@ class Model:
         o + t w (w unit) at ball k and the sign of w·n there (-1 the near root, 1 the far one), None on a
         miss. ``own`` (the ray leaves this ball): 0, o lies exactly on it (an offset of 0); 1 or -1, o lies
         outside or inside it by construction (the error-bound offset's side), whatever o's interval says."""
-        center, _, r2, _, _ = self.balls[k]
-        f = sub(o, center)
-        b = dot(f, w)
-        g = sub(f, scale(w, b))
-        disc = r2 - dot(g, g)
+        (c0, c1, c2), _, r2, _, _ = self.balls[k]
+        w0, w1, w2 = w
+        f = (f0, f1, f2) = (o[0] - c0, o[1] - c1, o[2] - c2)  # sub(o, center)
+        b = f0 * w0 + f1 * w1 + f2 * w2  # dot(f, w)
+        g0, g1, g2 = f0 - w0 * b, f1 - w1 * b, f2 - w2 * b  # sub(f, scale(w, b))
+        disc = r2 - (g0 * g0 + g1 * g1 + g2 * g2)
         if own == 0:  # c = 0 exactly: roots 0 (never counts) and -2 b
             if self.rules.near_root_only:
                 return None
-            return (-2 * b, 1) if self.sign(b, f"own ball {k}'s far root") < 0 else None
-        ds = self.sign(disc, f"ball {k}'s discriminant")
+            return (-2 * b, 1) if self.sign(b, "own ball {}'s far root", k) < 0 else None
+        ds = self.sign(disc, "ball {}'s discriminant", k)
         if ds < 0:
             return None
         c = dot(f, f) - r2
-        cs = own if own is not None else self.sign(c, f"ray origin on ball {k}")
-        bs = self.sign(b, f"ball {k}: b")
+        cs = own if own is not None else self.sign(c, "ray origin on ball {}", k)
+        bs = self.sign(b, "ball {}: b", k)
         sq = disc.sqrt()
         if cs > 0 and bs < 0:
             return -b - sq, -1
@@ -445,20 +536,21 @@ class Model:
         if own == 0:
             return None
         den = dot(n, w)
-        ds = self.sign(den, f"plane {k}: n·d")
+        ds = self.sign(den, "plane {}: n·d", k)
         if ds == 0:
             return None
         num = a - dot(n, o)
-        ns = -own if own is not None else self.sign(num, f"plane {k}: ray origin on the plane")
+        ns = -own if own is not None else self.sign(num, "plane {}: ray origin on the plane", k)
         if ns * ds <= 0:
             return None
         return num / den, ds
 
-    def closest(self, o: Vec, w: Vec, own: tuple[int, int] | None) -> Hit | None:
-        """The closest hit of the ray (o, w); ``own``: (the shape it leaves, ``ball_first``'s own) or None."""
+    def closest(self, o: Vec, w: Vec, own: tuple[int, int] | None, near: list[int] | None = None) -> Hit | None:
+        """The closest hit of the ray (o, w); ``own``: (the shape it leaves, ``ball_first``'s own) or None;
+        ``near``: as for ``closest_primary`` (a primary ray's, which leaves no shape)."""
         mine = self.owned(own)
         cands = []
-        for k in self.near_balls(o, w, mine):
+        for k in self.near_balls(o, w, mine) if near is None else near:
             got = self.ball_first(k, o, w, mine.get(k))
             if got is not None:  # d·n at the hit: (b + t)/r, the sign of the root's branch
                 cands.append((got[0], k, got[1], None, self.key(k, got[1])))
@@ -474,11 +566,13 @@ class Model:
         to_light = self.rules.shadow_range != "any"
         for k in self.near_balls(o, s, mine):
             got = self.ball_first(k, o, s, mine.get(k))
-            if got is not None and (not to_light or self.sign(light_dist - got[0], f"ball {k} against the light") > 0):
+            if got is not None and (not to_light or self.sign(light_dist - got[0], "ball {} against the light", k) > 0):
                 return True
         for k in self.planes:
             got = self.plane_t(k, o, s, mine.get(k))
-            if got is not None and (not to_light or self.sign(light_dist - got[0], f"plane {k} against the light") > 0):
+            if got is not None and (
+                not to_light or self.sign(light_dist - got[0], "plane {} against the light", k) > 0
+            ):
                 return True
         return False
 
@@ -506,25 +600,20 @@ class Model:
         to) of shape k by construction? Exactly: always, except into a ball by more than its diameter. Robust:
         also only when the offset exceeds OFFSET_SURE u (|p| + |C| + r) -- a float64 tracer's error of its hit
         point across the surface (about 4 u of those sizes: the point's rounding, f = p - C's) 8 times over."""
-        off = float(self.offset.mid())
-        size = abs(float(self.planes[k][1].mid())) if k in self.planes else 0.0
-        if k in self.balls:
-            s = self.scene.shapes[k]
-            if flip < 0 and off >= 2 * s.radius:
-                return False
-            size = math.hypot(*s.center) + s.radius
+        off = self.offset_f
+        if k in self.balls and flip < 0 and off >= 2 * self.scene.shapes[k].radius:
+            return False
         if not self.slack:
             return True
-        reach = max(abs(float(c.mid())) + float(c.rad()) for c in p) * math.sqrt(3)
-        return off > OFFSET_SURE * float(U64) * (reach + size)
+        reach = max(abs(float(c)) + float(c.rad()) for c in p) * math.sqrt(3)
+        return off > OFFSET_SURE * 2.0**-53 * (reach + self.sizes[k])
 
     def frame(self, hit: Hit, o: Vec, d: Vec) -> tuple[Vec, Vec]:
         """The hit point p = o + t d and the hit shape's own normal there: (p - C)/r, or the plane's n/|n|."""
         k = hit.shape
         p = self.widen(add(o, scale(d, hit.t)))
         if k in self.balls:
-            center, r, _, _, _ = self.balls[k]
-            return p, scale(sub(p, center), 1 / r)
+            return p, scale(sub(p, self.balls[k][0]), self.inv_r[k])
         return p, self.planes[k][2]
 
     def trace(self, hit: Hit | None, o: Vec, d: Vec, depth_left: int, levels: list[Level] | None) -> Vec:

@@ -109,9 +109,47 @@ def test_culling_balls_changes_no_bit_and_culls(profile, groups, monkeypatch):
     culled = _exact(scene, rules)
     assert calls and sum(calls) < 0.25 * 40 * len(calls)  # most balls culled from most rays
     monkeypatch.setattr(model, "CULL_FROM", 10**9)
+    monkeypatch.setattr(model, "PRIMARY_CULL_FROM", 10**9)
     every = _exact(scene, rules)
     for k in ("hit", "shape_id", "t", "position", "normal", "color"):
         assert np.array_equal(getattr(culled, k), getattr(every, k), equal_nan=True), k
+    for k, v in every.aux.items():
+        assert np.array_equal(culled.aux[k], v, equal_nan=True), k
+
+
+@pytest.mark.parametrize(
+    ("name", "rule"),
+    [
+        ("three_balls", {}),
+        ("rules", {"ray_origin": "image-plane"}),
+        ("shadows", {"pixel_shift": [0.5, -0.25], "pixel_sample": "center"}),
+    ],
+)
+def test_the_primary_rays_cull_for_a_batch_changes_no_bit(name, rule, monkeypatch):
+    # every primary ray of a batch tested against every ball at once (PRIMARY_CULL_FROM, from one ball): most
+    # balls are culled from most rays, and every buffer -- robust bounds and radii included -- is the same as
+    # with each ray testing every ball in ball arithmetic
+    from minirt.oracles.exact import model
+    from minirt.oracles.exact import render as exact_render
+
+    scene = load_scene(find_scene(name)).with_overrides(width=24, height=20)
+    rules = resolve(scene, overrides=rule)
+    kept = []
+    prepare = exact_render.PixelTracer.prepare
+
+    def counted(self, indices, uv):
+        prepare(self, indices, uv)
+        kept.extend(len(v) for v in self._near.values())
+
+    monkeypatch.setattr(exact_render.PixelTracer, "prepare", counted)
+    culled = _exact(scene, rules)
+    balls = sum(1 for s in scene.shapes if type(s).__name__ == "Ball")
+    assert len(kept) == 24 * 20 and sum(kept) < 0.5 * balls * len(kept)
+    monkeypatch.setattr(model, "PRIMARY_CULL_FROM", 10**9)
+    every = _exact(scene, rules)
+    for k in ("hit", "shape_id", "t", "position", "normal", "color"):
+        assert np.array_equal(getattr(culled, k), getattr(every, k), equal_nan=True), k
+    assert culled.aux.keys() == every.aux.keys()
     for k, v in every.aux.items():
         assert np.array_equal(culled.aux[k], v, equal_nan=True), k
 

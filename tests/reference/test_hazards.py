@@ -160,3 +160,48 @@ def test_the_bvh_finds_the_same_jumps_as_testing_every_shape(seed):
     want = _brute_jumped(shapes, p, q, sid)
     assert 0 < want.sum() < m  # the case can fail both ways
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_screen_by_near_contacts_changes_no_answer(seed):
+    # short segments (offsets 1e-9 .. 1e-5) from points on balls with near contacts (gaps 1e-9 .. 1e-3) and on
+    # balls far from any: the points of the far ones are left out of the ball test (_near_shapes), and every
+    # answer is still the one testing every shape gives
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(20, 120))
+    center = rng.uniform(-40, 40, (n, 3))
+    radius = rng.uniform(0.2, 1.0, n)
+    contacts = []
+    for k in range(0, n - 1, 6):
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        gap = 10.0 ** rng.uniform(-9, -3)
+        center[k + 1] = center[k] + u * (radius[k] + radius[k + 1] + gap)
+        contacts.append((k, u, gap))
+    shapes = [Ball(tuple(c), float(r), None) for c, r in zip(center, radius, strict=True)]
+    shapes.append(Plane((0.0, 1.0, 0.0), -41.0, None))
+    m = 6_000
+    sid = rng.integers(0, len(shapes), m)
+    p = np.empty((m, 3))
+    for i, k in enumerate(sid):
+        s = shapes[k]
+        if isinstance(s, Ball):
+            u = rng.normal(size=3)
+            p[i] = np.asarray(s.center) + s.radius * u / np.linalg.norm(u)
+        else:
+            p[i] = (rng.uniform(-50, 50), -41.0, rng.uniform(-50, 50))
+    v = rng.normal(size=(m, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    q = p + 10.0 ** rng.uniform(-9, -5, (m, 1)) * v
+    for i in range(0, 600, 3):  # segments from a contact towards the neighbour, some across its surface
+        k, u, gap = contacts[i // 3 % len(contacts)]
+        sid[i] = k
+        p[i] = center[k] + radius[k] * u
+        q[i] = p[i] + gap * rng.uniform(0.5, 2.0) * u
+    scene = SimpleNamespace(shapes=shapes)
+    near = hazards._near_shapes(scene, p, q, sid, hazards._Balls.of(scene))
+    assert near is not None and 0 < near.sum() < 0.6 * m  # the screen leaves most points out
+    want = _brute_jumped(shapes, p, q, sid)
+    assert want.sum() > 0
+    np.testing.assert_array_equal(hazards._jumped(scene, p, q, sid), want)
+    assert not (want & ~near).any()  # no point left out could have jumped
