@@ -273,9 +273,13 @@ def _candidates(search: Search, given: Rules, best: Rules) -> list[Rules]:
     names = rules_mod.TRACE_RULES + (rules_mod.OUTPUT_RULES if search.outputs else ())
     out += single_moves(best, names)
     for unit in groups_of(given, best):
+        # a named rule put back and another of its kind changed (a traced rule stands in for a traced one; an
+        # output rule's one level or layout for an output rule's)
+        kind = rules_mod.TRACE_RULES if set(unit) <= set(rules_mod.TRACE_RULES) else rules_mod.OUTPUT_RULES
         back = put_back(given, best, unit)
-        out += [m for m in single_moves(back, names, search.moot(back)) if not set(back.differs(m)) <= set(unit)]
-    if isinstance(best.offset, float) and "offset" not in search.moot(best):
+        out += [m for m in single_moves(back, kind, search.moot(back)) if not set(back.differs(m)) <= set(unit)]
+    asked = {"offset", "offset_along"} & set(given.differs(best))  # the offset's alternatives, when it is named
+    if asked and isinstance(best.offset, float) and "offset" not in search.moot(best):
         for along in rules_mod.values("offset_along"):
             other = replace(best, offset_along=along)
             x = search.best_offset_everywhere(other)
@@ -296,13 +300,14 @@ def one_of(search: Search, given: Rules, best: Rules, undecided: list[tuple[str,
     named = set(given.differs(best))
     equals: list[Rules] = [put_back(given, best, u) for u in undecided]
     for r in _candidates(search, given, best):
-        if r in equals or same_tracer(best, r) or not search.quick_not_worse(best, r):
-            continue
-        if not equal(search, best, r):
-            continue
         if not set(best.differs(r)) & named:
             continue  # about a rule the answer does not name: ``indistinguishable`` says what the scene cannot show
-        equals.append(r)
+        if r in equals or same_tracer(best, r) or search.clearly_worse(best, r):
+            continue
+        if not search.quick_not_worse(best, r):
+            continue
+        if equal(search, best, r):
+            equals.append(r)
     values: dict[str, list[Any]] = {}
     for name, (lo, hi) in _intervals(search, given, best).items():
         values[name] = [{"from": lo, "to": hi}]
@@ -354,7 +359,8 @@ def _intervals(search: Search, given: Rules, best: Rules) -> dict[str, tuple[flo
         for step in (-1, 1):
             x = e + step
             while abs(x - e) <= EXPONENT_REACH and 1 <= x <= rules_mod.SPECULAR_EXPONENT_MAX:
-                if not equal(search, best, replace(best, specular_exponent=x)):
+                other = replace(best, specular_exponent=x)
+                if not (search.quick_not_worse(best, other) and equal(search, best, other)):
                     break
                 lo, hi = min(lo, x), max(hi, x)
                 x += step
