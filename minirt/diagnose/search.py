@@ -181,7 +181,7 @@ class Search:
         # with that one at 0.0 for the offset, inf for t_max: ``interval``)
         self.compared: list[Rules] = []
         # every candidate's estimated gain over the step's rule set it was scored against, with the margin
-        # three pixels of that step's stride stand for: current -> {candidate: (gain beyond tolerance, margin)}
+        # three pixels of that step's stride stand for, by traced rules: current -> {candidate: (gain, margin)}
         self.estimates: dict[Rules, dict[Rules, tuple[float, float]]] = {}
         self.intervals: dict[tuple[str, Rules], tuple[float, float]] = {}
         target.model_shape = (scene.camera.height, scene.camera.width)
@@ -315,6 +315,7 @@ class Search:
         """Did a step of the descent already find b worse than a, beyond its stride's margin? True when some
         step scored both (a as the step's own rule set, or as a candidate beside b) and b's estimated gain
         falls short of a's by more than three pixels of that stride: no render needed to rule b out."""
+        a, b = a.traced(), b.traced()  # scored on pixels beyond tolerance: the output rules move them by a level
         for current, est in self.estimates.items():
             if b not in est:
                 continue
@@ -415,7 +416,8 @@ class Search:
                 if v32 is not None:
                     e = self._gain_on(sub, current, vc, c, *est, flips, color2=v32.color)
             if e is not None:  # what the diagnosis's "one of" may reuse (``clearly_worse``)
-                self.estimates.setdefault(current, {})[c] = (e[0], 3 * max(sub.w_weight, sub.r_weight))
+                est = self.estimates.setdefault(current.traced(), {})
+                est[c.traced()] = (e[0], 3 * max(sub.w_weight, sub.r_weight))
             if e is not None and e > (0, 0):
                 scored.append([(-e[0], -e[1]), len(start.differs(c)), k, c, traced])
         scored.sort(key=lambda s: s[:3])
