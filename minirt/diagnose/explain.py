@@ -207,7 +207,11 @@ def _indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: T
                     "rule": name,
                     "value": rules_mod.format_rule_value(name, value),
                     "as": rules_mod.format_rule_value(name, getattr(best, name)),
-                    "scene_that_tells": tells_apart(name, getattr(best, name), value, cache),
+                    "scene_that_tells": (
+                        shows(name, getattr(best, name), value)
+                        if name in moot and name in rules_mod.BUG_RULES
+                        else tells_apart(name, getattr(best, name), value, cache)
+                    ),
                 }
             )
             if out[-1]["scene_that_tells"] is None:
@@ -272,6 +276,28 @@ def tells_apart(name: str, a: Any, b: Any, cache: VariantCache | None = None, mi
         return None
     for stem in GRADING_SET:
         if distinct_pixels(stem, name, a, b, cache) >= min_pixels:
+            return stem
+    return None
+
+
+def shows(name: str, a: Any, b: Any) -> str | None:
+    """For a rule from real solutions' bugs that the graded scene provably cannot show (it has no ball, or
+    its planes are written of unit length, ...): the first bundled grading scene where it is not so, found
+    without a render. The answer is the rendered one (``tells_apart``) for every pair of every such rule:
+    tests/diagnose/test_diagnose.py checks it."""
+    from minirt.errors import SceneError
+    from minirt.model.bundled import bundled_scene
+
+    if (name, frozenset({a, b})) in SAME_UNDER_EXERCISE:
+        return None
+    for stem in GRADING_SET:
+        try:
+            sc = bundled_scene(stem).with_overrides(samples=1)
+        except SceneError:
+            continue
+        base = rules_mod.resolve(sc)
+        ra, rb = _make_valid(replace(base, **{name: a})), _make_valid(replace(base, **{name: b}))
+        if name not in moot_rules(sc, ra) or name not in moot_rules(sc, rb):
             return stem
     return None
 

@@ -438,6 +438,18 @@ def test_discriminability_matrix(rule, big_cache):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("rule", R.BUG_RULES)
+def test_shows_names_the_scene_that_renders_the_difference(rule, big_cache):
+    """``shows`` answers without a render, for a bug rule the graded scene cannot show: its answer is the
+    rendered one (``tells_apart``) for every pair of values."""
+    from minirt.diagnose.explain import shows
+
+    for name, a, b in PAIRS:
+        if name == rule:
+            assert shows(name, a, b) == dg.tells_apart(name, a, b, big_cache), (name, a, b)
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("key", list(dg.SAME_UNDER_EXERCISE), ids=lambda k: k[0])
 def test_same_under_exercise_pairs(key, big_cache):
     """The pairs the exercise's rules make the same: under each grading scene's own rules no pixel is more
