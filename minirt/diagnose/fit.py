@@ -96,11 +96,9 @@ class Fit:
         )
 
     def as_dict(self) -> dict[str, Any]:
+        counts = {"pixels": self.pixels, "of": self.of, "reproduces": self.reproduces, "reflected": self.reflected}
         return {
-            "pixels": self.pixels,
-            "of": self.of,
-            "reproduces": self.reproduces,
-            "reflected": self.reflected,
+            **counts,
             "parameters": {str(s.shape): s.parameters for s in self.shapes},
             "sentence": self.sentence,
         }

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from minirt import diagnose as dg
-from minirt.grading.grade import DIFFERS, ERROR, EXIT, MATCH, sentence
+from minirt.grading.grade import DIFFERS, ERROR, EXIT, MATCH, Grade, sentence
 from minirt.model import rules as rules_mod
 from minirt.model.rules import PROFILES, Rules
 from minirt.model.scene import Scene
@@ -49,18 +49,19 @@ def given_rules(rules: Rules, spec: ProgramSpec, profile_given: bool) -> Rules:
 
 
 @dataclass
-class SceneGrade:
-    """One scene of the suite through the program."""
+class SceneGrade(Grade):
+    """One scene of the suite through the program: a ``Grade`` of the image it drew (``image`` the file's
+    name as the program wrote it; ``reason``, why it drew none), with the rules it was graded against and
+    the program's wall clock on it."""
 
-    scene: Scene
-    scene_file: str
-    rules: Rules
-    verdict: str
-    error: str = ""
-    diagnosis: dg.Diagnosis | None = None
-    target: dg.Target | None = None
+    rules: Rules | None = None
     seconds: float = 0.0  # the program's wall clock on it (not in the JSON)
     timeout: float = 0.0
+
+    @property
+    def error(self) -> str:
+        """Why the program drew no image of this scene ("" when it did)."""
+        return self.reason
 
     def as_dict(self) -> dict[str, Any]:
         d = self.diagnosis
@@ -158,14 +159,13 @@ def grade_scene(
         backends.render(backends.REFERENCE, scene, rules)
         timeout = timeout_for(time.perf_counter() - t0)
     run = oracle.run_scene(scene, timeout)
+    times = {"rules": rules, "seconds": run.seconds, "timeout": timeout}
     if run.error:
-        return SceneGrade(scene, scene_file, rules, ERROR, error=run.error, seconds=run.seconds, timeout=timeout)
+        return SceneGrade(scene, scene_file, "", ERROR, reason=run.error, **times)
     target = dg.Target(run.pixels, run.is_float, run.image_name)
     d = dg.diagnose(scene, rules, target, cache)
     verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
-    return SceneGrade(
-        scene, scene_file, rules, verdict, diagnosis=d, target=target, seconds=run.seconds, timeout=timeout
-    )
+    return SceneGrade(scene, scene_file, run.image_name, verdict, diagnosis=d, target=target, **times)
 
 
 def grade_program(

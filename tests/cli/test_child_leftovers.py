@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
+from support.scenes import ball, scene_text
 
 from minirt.oracles.cycles import CyclesOracle
 
@@ -117,22 +118,7 @@ def test_an_interrupted_run_on_workers_leaves_nothing_in_tmpdir(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-HUGE_BALL = """[scene]
-name = "huge"
-[camera]
-distance = 2.0
-width = 16
-height = 16
-[light]
-position = [10.0, 10.0, -1.0]
-[materials.m]
-diffuse = [0.5, 0.5, 0.5]
-[[shapes]]
-type = "ball"
-center = [0.0, 0.0, 4.0]
-radius = 1e100
-material = "m"
-"""
+HUGE_BALL = scene_text(ball((0.0, 0.0, 4.0), 1e100), size=16)  # a radius at the limit scenes allow
 
 
 @needs_blender

@@ -129,6 +129,20 @@ def _brute_jumped(shapes, p, q, sid):
     return out
 
 
+def _surface_points(rng, shapes, sid, on_plane) -> tuple[np.ndarray, np.ndarray]:
+    """A random point on each shape ``sid`` names (``on_plane()`` for a plane's) and a random unit direction."""
+    p = np.empty((sid.size, 3))
+    for i, k in enumerate(sid):
+        s = shapes[k]
+        if isinstance(s, Ball):
+            u = rng.normal(size=3)
+            p[i] = np.asarray(s.center) + s.radius * u / np.linalg.norm(u)
+        else:
+            p[i] = on_plane()
+    v = rng.normal(size=(sid.size, 3))
+    return p, v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_the_bvh_finds_the_same_jumps_as_testing_every_shape(seed):
     rng = np.random.default_rng(seed)
@@ -145,16 +159,7 @@ def test_the_bvh_finds_the_same_jumps_as_testing_every_shape(seed):
     shapes.append(Plane((0.0, 0.0, 1.0), 2.0, None))
     m = 20_000
     sid = rng.integers(0, len(shapes), m)
-    p = np.empty((m, 3))
-    for i, k in enumerate(sid):
-        s = shapes[k]
-        if isinstance(s, Ball):
-            u = rng.normal(size=3)
-            p[i] = np.asarray(s.center) + s.radius * u / np.linalg.norm(u)
-        else:
-            p[i] = (*rng.uniform(-50, 50, 2), 2.0)
-    v = rng.normal(size=(m, 3))
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    p, v = _surface_points(rng, shapes, sid, lambda: (*rng.uniform(-50, 50, 2), 2.0))
     q = p + 10.0 ** rng.uniform(-9, 1, (m, 1)) * v
     got = hazards._jumped(SimpleNamespace(shapes=shapes), p, q, sid)
     want = _brute_jumped(shapes, p, q, sid)
@@ -182,16 +187,7 @@ def test_the_screen_by_near_contacts_changes_no_answer(seed):
     shapes.append(Plane((0.0, 1.0, 0.0), -41.0, None))
     m = 6_000
     sid = rng.integers(0, len(shapes), m)
-    p = np.empty((m, 3))
-    for i, k in enumerate(sid):
-        s = shapes[k]
-        if isinstance(s, Ball):
-            u = rng.normal(size=3)
-            p[i] = np.asarray(s.center) + s.radius * u / np.linalg.norm(u)
-        else:
-            p[i] = (rng.uniform(-50, 50), -41.0, rng.uniform(-50, 50))
-    v = rng.normal(size=(m, 3))
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    p, v = _surface_points(rng, shapes, sid, lambda: (rng.uniform(-50, 50), -41.0, rng.uniform(-50, 50)))
     q = p + 10.0 ** rng.uniform(-9, -5, (m, 1)) * v
     for i in range(0, 600, 3):  # segments from a contact towards the neighbour, some across its surface
         k, u, gap = contacts[i // 3 % len(contacts)]
