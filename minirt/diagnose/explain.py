@@ -135,10 +135,7 @@ def diagnose(
                 explained.append(Explained(name, value, e.pixels, e.mask, e.against, e.neither, iv))
     else:
         for name in given.differs(best):
-            back = replace(best, **{name: getattr(given, name)})
-            if not valid_rules(back):
-                back = replace(best, **{n: getattr(given, n) for n in _coupled(name)})
-            _, off_back, _ = search.final_mask(back, [])
+            _, off_back, _ = search.final_mask(evidence.put_back(given, best, (name,)), [])
             gained = off_back & ~off_b & ~ill_b
             explained.append(
                 Explained(name, rules_mod.format_rule_value(name, getattr(best, name)), int(gained.sum()), gained)
@@ -165,13 +162,6 @@ def diagnose(
         one_of=one_of,
         broken_pixels=broken_pixels,
     )
-
-
-def _coupled(name: str) -> tuple[str, ...]:
-    """Rules that are only valid together (reverting one alone would be an invalid rule set)."""
-    if name in ("offset", "offset_along"):
-        return ("offset", "offset_along")
-    return (name,)
 
 
 def indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: Target) -> list[dict[str, Any]]:
