@@ -73,7 +73,7 @@ class Evidence:
     pixels: int  # made wrong by putting it back
     against: int  # made right by putting it back: pixels the rule breaks
     neither: int  # changed by the rule, matching neither value
-    mask: np.ndarray = field(repr=False)  # (H, W): the ``pixels``
+    mask: np.ndarray | None = field(repr=False)  # (H, W): the ``pixels`` (None: summed over several images)
     undecided: bool = False  # nil evidence both ways, on ill-conditioned pixels only (``confirm``)
 
     @property
@@ -209,6 +209,13 @@ class Weigher:
         return int((~self.ill(best, back, at)).sum()) if at.size else 0
 
 
+def weakest(found: list[Evidence]) -> Evidence | None:
+    """The rule (unit) to put back first: of those the image does not bear out (and that are not undecided),
+    the one with the least weight; None when every one holds."""
+    weak = [e for e in found if not e.holds and not e.undecided]
+    return min(weak, key=lambda e: (e.weight, e.pixels, e.rules)) if weak else None
+
+
 def confirm(search: Search, given: Rules, best: Rules) -> tuple[Rules, list[Evidence], list[Rejected]]:
     """Put back, one at a time and weakest first, every changed rule the image does not bear out (see the
     module's docstring); return the rule set that is left, the evidence of each rule it changes, and what
@@ -223,10 +230,9 @@ def confirm(search: Search, given: Rules, best: Rules) -> tuple[Rules, list[Evid
             e.undecided = (
                 not e.holds and e.pixels == e.against == e.neither == 0 and _worse_without(search, given, best, e.rules)
             )
-        weak = [e for e in found if not e.holds and not e.undecided]
-        if not weak:
+        worst = weakest(found)
+        if worst is None:
             return best, found, rejected
-        worst = min(weak, key=lambda e: (e.weight, e.pixels, e.rules))
         for name in worst.rules:
             value = rules_mod.format_rule_value(name, getattr(best, name))
             rejected.append(Rejected(name, value, worst.pixels, worst.against, worst.neither))
@@ -256,13 +262,16 @@ def same_tracer(a: Rules, b: Rules) -> bool:
     )
 
 
+def fits_equally(gain: tuple[int, int], pixels: int) -> bool:
+    """Does a rule set whose gain over another is ``gain`` (pixels beyond tolerance, pixels a level off) on an
+    image of ``pixels`` pixels fit it equally well (``EQUAL_LEVELS``)?"""
+    return gain[0] == 0 and abs(gain[1]) <= EQUAL_LEVELS * pixels + 1
+
+
 def equal(search: Search, a: Rules, b: Rules) -> bool:
-    """Do a and b fit the image equally well (``EQUAL_LEVELS``; ill-conditioned pixels left out)?"""
+    """Do a and b fit the image equally well (``fits_equally``; ill-conditioned pixels left out)?"""
     g = search.compare(a, b)
-    if g is None:
-        return False
-    n = search.target.model_shape[0] * search.target.model_shape[1]
-    return g[0] == 0 and abs(g[1]) <= EQUAL_LEVELS * n + 1
+    return g is not None and fits_equally(g, search.target.model_shape[0] * search.target.model_shape[1])
 
 
 def _candidates(search: Search, given: Rules, best: Rules) -> list[Rules]:

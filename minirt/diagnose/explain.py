@@ -62,6 +62,7 @@ class Diagnosis:
     rejected: list[evidence.Rejected] = field(default_factory=list)
     one_of: evidence.OneOf | None = None
     broken_pixels: int = 0
+    searched: Rules | None = None  # the search's own answer, before what the image does not bear out is put back
 
     @property
     def undetermined(self) -> dict[str, list[Any]]:
@@ -103,7 +104,7 @@ def diagnose(
     cache = cache or VariantCache()
     cache.requested = set()
     search = Search(scene, target, cache, outputs)
-    best = search.run(given)
+    best = searched = search.run(given)
     rejected: list[evidence.Rejected] = []
     one_of = None
     broken_pixels = 0
@@ -161,6 +162,7 @@ def diagnose(
         rejected=rejected,
         one_of=one_of,
         broken_pixels=broken_pixels,
+        searched=searched,
     )
 
 

@@ -40,6 +40,7 @@ class Image:
     given: Rules
     target: Target
     search: Search = field(init=False, repr=False)
+    weigher: evidence.Weigher = field(init=False, repr=False)  # its classes, kept while rules are weighed
 
 
 @dataclass
@@ -80,12 +81,11 @@ def _score(images: list[Image], changes: dict[str, Any]) -> tuple[int, int] | No
     return beyond, off
 
 
-def _proposals(images: list[Image]) -> list[dict[str, Any]]:
+def _proposals(images: list[Image], answers: list[Rules]) -> list[dict[str, Any]]:
     """The changes the images' own answers propose: each changed rule alone, the coupled offset pair
     together."""
     out: list[dict[str, Any]] = []
-    for im in images:
-        best = im.search.run(im.given)
+    for im, best in zip(images, answers, strict=True):
         names = im.given.differs(best)
         for name in names:
             unit = next((c for c in evidence.COUPLED if name in c), (name,))
@@ -116,9 +116,9 @@ def _descend(images: list[Image], proposals: list[dict[str, Any]]) -> dict[str, 
         score, current = found[0][0], found[1]
 
 
-def _weigh(images: list[Image], changes: dict[str, Any]) -> list[tuple[tuple[str, ...], int, int, int, dict]]:
-    """Each changed rule (unit) of ``changes`` put back on every image: (unit, pixels, against, neither,
-    pixels per scene)."""
+def _weigh(images: list[Image], changes: dict[str, Any]) -> list[tuple[evidence.Evidence, dict[str, int]]]:
+    """Each changed rule (unit) of ``changes`` put back on every image: its evidence summed over them, and the
+    pixels for it per scene."""
     out = []
     units: list[tuple[str, ...]] = []
     for name in changes:
@@ -126,15 +126,16 @@ def _weigh(images: list[Image], changes: dict[str, Any]) -> list[tuple[tuple[str
         if unit not in units:
             units.append(unit)
     for unit in units:
-        total = [0, 0, 0]
+        total = evidence.Evidence(unit, 0, 0, 0, None)
         per: dict[str, int] = {}
         for im in images:
             best = _apply(im.given, changes)
-            back = evidence.put_back(im.given, best, unit)
-            e = evidence.Weigher(im.search).evidence(best, back, unit)
-            total = [total[0] + e.pixels, total[1] + e.against, total[2] + e.neither]
+            e = im.weigher.evidence(best, evidence.put_back(im.given, best, unit), unit)
+            total.pixels, total.against, total.neither = (
+                total.pixels + e.pixels, total.against + e.against, total.neither + e.neither
+            )  # fmt: skip
             per[im.scene.name] = e.pixels
-        out.append((unit, *total, per))
+        out.append((total, per))
     return out
 
 
@@ -142,14 +143,13 @@ def _confirm(images: list[Image], changes: dict[str, Any]):
     rejected: list[evidence.Rejected] = []
     while True:
         weighed = _weigh(images, changes)
-        weak = [w for w in weighed if not (w[1] >= 1 and w[1] > w[2] and w[1] >= w[3])]
-        if not weak:
+        worst = evidence.weakest([e for e, _ in weighed])
+        if worst is None:
             return changes, weighed, rejected
-        unit, pixels, against, neither, _ = min(weak, key=lambda w: (w[1] - w[2] - w[3], w[1], w[0]))
-        for n in unit:
+        for n in worst.rules:
             value = rules_mod.format_rule_value(n, changes[n])
-            rejected.append(evidence.Rejected(n, value, pixels, against, neither))
-        changes = {k: v for k, v in changes.items() if k not in unit}
+            rejected.append(evidence.Rejected(n, value, worst.pixels, worst.against, worst.neither))
+        changes = {k: v for k, v in changes.items() if k not in worst.rules}
 
 
 def _undecided(images: list[Image], changes: dict[str, Any]) -> dict[str, list[str]]:
@@ -161,36 +161,43 @@ def _undecided(images: list[Image], changes: dict[str, Any]) -> dict[str, list[s
             if v == value:
                 continue
             s = _score(images, {**changes, name: v})
-            if s is not None and s[0] == base[0] and abs(s[1] - base[1]) <= evidence.EQUAL_LEVELS * n + 1:
+            if s is not None and evidence.fits_equally((base[0] - s[0], base[1] - s[1]), n):
                 vals = out.setdefault(name, [rules_mod.format_rule_value(name, value)])
                 vals.append(rules_mod.format_rule_value(name, v))
     return out
 
 
-def diagnose_joint(items: list[tuple[Scene, Rules, Target]], cache: VariantCache | None = None) -> JointDiagnosis:
+def diagnose_joint(
+    items: list[tuple[Scene, Rules, Target]], cache: VariantCache | None = None, answers: list[Rules] | None = None
+) -> JointDiagnosis:
     """The diagnosis of several images of one tracer, weighed on all of them at once (see the module's
-    docstring). ``items``: (scene, the rules it is graded against, its image)."""
+    docstring). ``items``: (scene, the rules it is graded against, its image); ``answers``: each image's own
+    diagnosis's rules where it was diagnosed already (a program's scenes are, one by one), else each image
+    is searched here."""
     cache = cache or VariantCache(share=False)
     images = []
     for scene, given, target in items:
         im = Image(scene, given, target)
         im.search = Search(scene, target, cache, True)
+        im.weigher = evidence.Weigher(im.search)
         images.append(im)
-    changes = _descend(images, _proposals(images))
+    if answers is None:
+        answers = [im.search.run(im.given) for im in images]
+    changes = _descend(images, _proposals(images, answers))
     changes, weighed, rejected = _confirm(images, changes)
     undecided = _undecided(images, changes)
     explained = [
         {
             "rule": n,
             "value": rules_mod.format_rule_value(n, changes[n]),
-            "pixels": pixels,
-            "against": against,
-            "neither": neither,
+            "pixels": e.pixels,
+            "against": e.against,
+            "neither": e.neither,
             "per_scene": per,
             "decided": n not in undecided,
         }
-        for unit, pixels, against, neither, per in weighed
-        for n in unit
+        for e, per in weighed
+        for n in e.rules
     ]
     explained.sort(key=lambda e: (-e["pixels"], e["rule"]))
     unexplained, mismatch, broken = [], 0, 0

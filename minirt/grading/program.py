@@ -84,8 +84,10 @@ def diagnose_suite(graded: list[SceneGrade], cache: dg.VariantCache | None = Non
     """The program's one diagnosis: the images it drew, weighed together (minirt.diagnose.joint), so that a
     setting that fits one scene by accident and breaks another is never chosen. Scenes that failed take
     no part."""
-    items = [(g.scene, g.rules, g.target) for g in graded if g.target is not None]
-    return dg.diagnose_joint(items, cache)
+    drawn = [g for g in graded if g.target is not None]
+    # each scene's own search was run for its grade: its answer is what the scene proposes
+    answers = [g.diagnosis.searched for g in drawn]
+    return dg.diagnose_joint([(g.scene, g.rules, g.target) for g in drawn], cache, answers)
 
 
 @dataclass
