@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from minirt.diagnose import rest
 from minirt.diagnose.target import Target
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
@@ -127,42 +128,19 @@ def fit_groups(scene: Scene, rules: Rules, target: Target, groups: list) -> None
 
 def _geometry(scene: Scene, rules: Rules, at: np.ndarray, light: str, shadows: bool) -> dict[str, np.ndarray]:
     """The reference's primary-level facts at pixels ``at`` under ``rules`` with rule light and shadow_rays
-    set: shape id, s, the shading normal, the highlight's r, lit, and the colour its reflection adds."""
-    import drjit as dr
-
-    from minirt.reference.tracer import Tracer
-
-    r = replace(rules.traced(), light=light, shadow_rays=shadows)
-    tr = Tracer(scene, r, runtime=True)
-    o, d = tr.primary_rays(at.astype(np.uint32))
-    with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
-        color, levels = tr.trace(o, d, record=True)
-    lvl = levels[0]
+    set (``rest.primary``): shape id, s, the shading normal, the highlight's r, lit, and the colour its
+    reflection adds."""
+    f = rest.primary(scene, replace(rules.traced(), light=light, shadow_rays=shadows), at)
     n = at.size
-
-    def vec(a: Any) -> np.ndarray:
-        return np.stack([np.broadcast_to(np.asarray(a[k], dtype=np.float64), (n,)) for k in range(3)], -1)
-
-    sid = np.asarray(lvl.shape_id).astype(np.int32)
-    p, dd = vec(lvl.p), vec(lvl.d)
-    rec = lvl.record
-    ns = vec(rec["shading_normal"]) if "shading_normal" in rec else vec(lvl.n)
     if light == "direction":
         lp = np.asarray(scene.light.position, dtype=np.float64)
         s = np.broadcast_to(lp / (np.linalg.norm(lp) or 1.0), (n, 3))
     else:
-        to_light = np.asarray(scene.light.position, dtype=np.float64) - p
+        to_light = np.asarray(scene.light.position, dtype=np.float64) - f["p"]
         with np.errstate(invalid="ignore", divide="ignore"):
             s = np.nan_to_num(to_light / np.linalg.norm(to_light, axis=-1, keepdims=True))
-    refl = vec(rec["reflected"]) if "reflected" in rec else dd - 2 * (dd * ns).sum(-1, keepdims=True) * ns
-    lit = sid >= 0
-    if shadows and "shadow_ts" in rec:
-        limit = math.inf if rules.shadow_range == "any" else np.asarray(rec["light_dist"], dtype=np.float64)
-        for ts in rec["shadow_ts"]:
-            lit &= ~(np.broadcast_to(np.asarray(ts, dtype=np.float64), (n,)) < limit)
-    total = vec(color)
-    back = total - vec(lvl.local) - vec(lvl.bg)  # what the reflected ray adds (the scene's weight times it)
-    return {"shape": sid, "s": s, "n": ns, "r": refl, "lit": lit, "reflection": back}
+    back = f["color"] - f["local"] - f["bg"]  # what the reflected ray adds (the scene's weight times it)
+    return {"shape": f["shape"], "s": s, "n": f["ns"], "r": f["r"], "lit": f["lit"], "reflection": back}
 
 
 def _terms(rules: Rules, s: np.ndarray, n: np.ndarray, r: np.ndarray, lit: np.ndarray) -> tuple[np.ndarray, ...]:

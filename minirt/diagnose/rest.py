@@ -77,40 +77,62 @@ class Group:
 BOOLEAN = ("lit", "n_dot_s_positive", "r_dot_s_positive", "inside")
 
 
-def features(scene: Scene, rules: Rules, idx: np.ndarray) -> dict[str, np.ndarray]:
-    """The reference's facts about the primary rays of pixels ``idx`` under ``rules`` (see the module's
-    docstring), each an (N,) array: shape, t, lit, n_dot_s_positive, r_dot_s_positive, inside,
-    reflects (a bit per shape its reflections show, at any depth). Traced with recording on, by the
-    tracer itself: the same decisions as its image."""
+def primary(scene: Scene, rules: Rules, idx: np.ndarray) -> dict[str, Any]:
+    """The reference's primary level at pixels ``idx`` under ``rules``, traced with recording on by the tracer
+    itself (the same decisions as its image), as NumPy arrays of N rows: ``shape``, ``hit``, ``t`` (inf on
+    a miss), ``p``, ``d``, ``n`` (the shape's own normal), ``ns`` (the shading normal), ``r`` (the
+    highlight's reflected direction), ``lit``, the pixel's ``color`` and the level's ``local`` and ``bg``
+    terms; and ``levels``, the recorded levels themselves."""
     import drjit as dr
 
     from minirt.reference.tracer import Tracer
 
-    tr = Tracer(scene, rules.traced(), runtime=True)
+    tr = Tracer(scene, rules, runtime=True)
     o, d = tr.primary_rays(idx.astype(np.uint32))
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
-        _, levels = tr.trace(o, d, record=True)
+        color, levels = tr.trace(o, d, record=True)
     lvl = levels[0]
     n = idx.size
     sid = np.asarray(lvl.shape_id).astype(np.int32)
     hit = sid >= 0
-    t = np.where(hit, np.asarray(lvl.t, dtype=np.float64), math.inf)
 
     def vec(a: Any) -> np.ndarray:
         return np.stack([np.broadcast_to(np.asarray(a[k], dtype=np.float64), (n,)) for k in range(3)], -1)
 
-    p, dd = vec(lvl.p), vec(lvl.d)
-    rec = lvl.record
+    dd, rec = vec(lvl.d), lvl.record
     ns = vec(rec["shading_normal"]) if "shading_normal" in rec else vec(lvl.n)
-    to_light = np.asarray(scene.light.position, dtype=np.float64) - p
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = to_light / np.linalg.norm(to_light, axis=-1, keepdims=True)
-    r = vec(rec["reflected"]) if "reflected" in rec else dd - 2 * (dd * ns).sum(-1, keepdims=True) * ns
     lit = hit.copy()
     if "shadow_ts" in rec:
         limit = math.inf if rules.shadow_range == "any" else np.asarray(rec["light_dist"], dtype=np.float64)
         for ts in rec["shadow_ts"]:
             lit &= ~(np.broadcast_to(np.asarray(ts, dtype=np.float64), (n,)) < limit)
+    return {
+        "levels": levels,
+        "shape": sid,
+        "hit": hit,
+        "t": np.where(hit, np.asarray(lvl.t, dtype=np.float64), math.inf),
+        "p": vec(lvl.p),
+        "d": dd,
+        "n": vec(lvl.n),
+        "ns": ns,
+        "r": vec(rec["reflected"]) if "reflected" in rec else dd - 2 * (dd * ns).sum(-1, keepdims=True) * ns,
+        "lit": lit,
+        "color": vec(color),
+        "local": vec(lvl.local),
+        "bg": vec(lvl.bg),
+    }
+
+
+def features(scene: Scene, rules: Rules, idx: np.ndarray) -> dict[str, np.ndarray]:
+    """The reference's facts about the primary rays of pixels ``idx`` under ``rules`` (see the module's
+    docstring), each an (N,) array: shape, t, lit, n_dot_s_positive, r_dot_s_positive, inside,
+    reflects (a bit per shape its reflections show, at any depth), from ``primary``."""
+    f = primary(scene, rules.traced(), idx)
+    levels, sid, hit, t, p, dd, ns, r, lit = (f[k] for k in ("levels", "shape", "hit", "t", "p", "d", "ns", "r", "lit"))
+    n = idx.size
+    to_light = np.asarray(scene.light.position, dtype=np.float64) - p
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = to_light / np.linalg.norm(to_light, axis=-1, keepdims=True)
     # the shapes the pixel's reflections show, at any depth: a bit per shape (scenes of up to 63 shapes)
     reflected = np.zeros(n, dtype=np.int64)
     root = np.arange(n)
@@ -126,7 +148,7 @@ def features(scene: Scene, rules: Rules, idx: np.ndarray) -> dict[str, np.ndarra
         "lit": lit,
         "n_dot_s_positive": hit & ((s * ns).sum(-1) > 0),
         "r_dot_s_positive": hit & ((s * r).sum(-1) > 0),
-        "inside": hit & ((dd * vec(lvl.n)).sum(-1) > 0),
+        "inside": hit & ((dd * f["n"]).sum(-1) > 0),
         "reflects": np.where(hit, reflected, 0),
     }
 
