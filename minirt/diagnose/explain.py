@@ -277,21 +277,32 @@ def shows(name: str, a: Any, b: Any) -> str | None:
     its planes are written of unit length, ...): the first bundled grading scene where it is not so, found
     without a render. The answer is the rendered one (``tells_apart``) for every pair of every such rule:
     tests/diagnose/test_diagnose.py checks it."""
-    from minirt.errors import SceneError
-    from minirt.model.bundled import bundled_scene
-
     if (name, frozenset({a, b})) in SAME_UNDER_EXERCISE:
         return None
     for stem in GRADING_SET:
-        try:
-            sc = bundled_scene(stem).with_overrides(samples=1)
-        except SceneError:
-            continue
-        base = rules_mod.resolve(sc)
-        ra, rb = _make_valid(replace(base, **{name: a})), _make_valid(replace(base, **{name: b}))
-        if name not in moot_rules(sc, ra) or name not in moot_rules(sc, rb):
+        pair = _grading_pair(stem, name, a, b)
+        if pair is not None and not _moot_in(name, *pair):
             return stem
     return None
+
+
+def _grading_pair(stem: str, name: str, a: Any, b: Any, profile: str | None = None):
+    """(bundled scene ``stem`` at one ray a pixel, its rules -- or ``profile``'s -- with ``name`` = a, and
+    with ``name`` = b), each a valid rule set; None when the scene is not installed."""
+    from minirt.errors import SceneError
+    from minirt.model.bundled import bundled_scene
+
+    try:
+        sc = bundled_scene(stem).with_overrides(samples=1)
+    except SceneError:  # a bundled scene missing from this install: ask the others
+        return None
+    base = rules_mod.resolve(sc, profile)
+    return sc, _make_valid(replace(base, **{name: a})), _make_valid(replace(base, **{name: b}))
+
+
+def _moot_in(name: str, sc: Scene, ra: Rules, rb: Rules) -> bool:
+    """Is rule ``name`` provably unable to change the scene under either rule set (``moot_rules``)?"""
+    return name in moot_rules(sc, ra) and name in moot_rules(sc, rb)
 
 
 def why_same(name: str, a: Any, b: Any) -> str:
@@ -311,18 +322,11 @@ def distinct_pixels(
 ) -> int:
     """Pixels of bundled scene ``stem`` (its own rules, or ``profile``'s; one ray per pixel) whose 8-bit
     image differs between rule ``name`` = a and = b (0 when the scene is not installed)."""
-    from minirt.errors import SceneError
-    from minirt.model.bundled import bundled_scene
-
     cache = cache or VariantCache()
-    try:
-        sc = bundled_scene(stem).with_overrides(samples=1)
-    except SceneError:  # a bundled scene missing from this install: ask the others
-        return 0
-    base = rules_mod.resolve(sc, profile)
-    ra, rb = _make_valid(replace(base, **{name: a})), _make_valid(replace(base, **{name: b}))
-    if name in moot_rules(sc, ra) and name in moot_rules(sc, rb):
-        return 0  # provably the same picture (no ball, no lit term, every normal of unit length ...)
+    pair = _grading_pair(stem, name, a, b, profile)
+    if pair is None or _moot_in(name, *pair):
+        return 0  # not installed, or provably the same picture (no ball, every normal of unit length ...)
+    sc, ra, rb = pair
     va, vb = cache.get(sc, ra), cache.get(sc, rb)
     ia, ib = bitmap.bitmap(va.color, ra), bitmap.bitmap(vb.color, rb)
     if ia.shape != ib.shape:
