@@ -190,7 +190,7 @@ def shade(
             terms["diffuse"] = dr.select(lit, lc * values.material(shape_id, "diffuse") * fac, zero)
             local = local + terms["diffuse"]
         if fx.specular:
-            terms["specular"] = _specular(tr, shape_id, r, s, sn, lit, lc)
+            terms["specular"] = _specular(tr, shape_id, r, s, sn, lit, lc, clamp_all)
             local = local + terms["specular"]
     bg = background(tr, hit)
     kr = values.material(shape_id, "reflection") if fx.reflection else zero
@@ -289,10 +289,11 @@ def _shadow_test(tr: TraceSettings, p, ns, err, s, outward, light_dist, hit, rec
     return lit
 
 
-def _specular(tr: TraceSettings, shape_id, r, s, sn, lit, lc) -> Any:
-    """The highlight (r·s)^e where the clamp rule lets it shine (rule specular_s: -s)."""
+def _specular(tr: TraceSettings, shape_id, r, s, sn, lit, lc, clamp_all) -> Any:
+    """The highlight (r·s)^e where the clamp rule lets it shine (``clamp_all``: shade's switch for clamp =
+    true; rule specular_s: -s)."""
     T, rules, values, zero = tr.T, tr.rules, tr.values, tr.T.zero3()
-    clamp_all, clamp_specular = values.rule(rules.clamp is True), values.rule(rules.clamp == "specular")
+    clamp_specular = values.rule(rules.clamp == "specular")
     rs = dr.dot(r, s)
     negated = values.rule(rules.specular_s == "-s")
     if negated is not False:  # rule specular_s "-s": (r·(-s))^e, the incoming light's direction
