@@ -55,8 +55,9 @@ def all_names() -> list[str]:
 
 
 def oracles_among(names: Sequence[str]) -> list[str]:
-    """The oracles in ``names``, in their order: what a comparison compares the reference with."""
-    return [n for n in names if n in ORACLES]
+    """The oracles in ``names``, in their order, and a student's program (``program:SPEC``): what a
+    comparison compares the reference with."""
+    return [n for n in names if n in ORACLES or is_program(n)]
 
 
 def display_name(name: str) -> str:
@@ -93,11 +94,12 @@ def parse_backends(spec: str) -> list[str]:
     return names
 
 
-def require_oracle(names: list[str], spelled: str = "--backend") -> None:
-    """A comparison needs something to compare with: the reference alone is bad input; a program gives a
-    colour image only, and a comparison needs every geometry buffer."""
+def require_oracle(names: list[str], spelled: str = "--backend", programs_too: bool = False) -> None:
+    """A comparison needs something to compare with: the reference alone is bad input. A program gives a
+    colour image only: ``programs_too`` where the comparison checks an image alone (a check, whose geometry
+    check then says SKIP: minirt.harness.image_only), else it is bad input (a campaign needs every buffer)."""
     programs = [n for n in names if is_program(n)]
-    if programs:
+    if programs and not programs_too:
         spec = programs[0].partition(":")[2]
         raise MinirtError(
             f"{spelled} {programs[0]}: a program gives a colour image, and a comparison needs its geometry "

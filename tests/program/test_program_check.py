@@ -1,0 +1,135 @@
+"""``minirt check --backend program:SPEC``: a program gives only an image, so its geometry check says
+SKIP (never PASS) with the reason, and its image is compared with the reference's level by level off the
+edges -- PASS for the exercise, FAIL for a program with a rule changed; a comparison that judges too
+little is inconclusive; a scene of several samples a pixel is not compared; the program's flags; bad
+input as one line with exit status 2."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from minirt.cli.check import program_backends
+from minirt.errors import MinirtError
+from minirt.harness.image_only import check_image_only
+from minirt.harness.references import ReferenceCache
+from minirt.model.bundled import find_scene
+from minirt.model.result import RenderResult
+from minirt.model.rules import resolve
+from minirt.model.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[2]
+TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
+MINIRT = [sys.executable, "-m", "minirt"]
+# the NumPy tracer draws rules and three_balls as the model at 48^2 (tests/program/test_program_page.py)
+SIZE = "48x48"
+
+
+def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {"MINIRT_PROGRAM_CACHE": str(cwd / "programs"), "PATH": "/usr/bin:/bin"}
+    return subprocess.run([*MINIRT, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=600)
+
+
+def program(*changes: str) -> str:
+    rules = " ".join(f"--rule {c}" for c in changes)
+    return f"program:{sys.executable} {TRACER} {rules} {{scene}} {{out}}"
+
+
+def backends_of(doc: dict) -> dict[str, dict]:
+    return {s["scene"]: next(iter(s["backends"].values())) for s in doc["scenes"]}
+
+
+def test_the_exercise_passes_shading_and_skips_geometry(tmp_path):
+    p = minirt("check", "rules", "three_balls", "soft", "-b", program(), "--size", SIZE, "-q", "--json", "c.json",
+               "--junit", "c.xml", cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    got = backends_of(json.loads((tmp_path / "c.json").read_text()))
+    for scene in ("rules", "three_balls"):
+        b = got[scene]
+        assert b["geometry"]["verdict"] == "skip" and "gives only an image" in b["geometry"]["reason"]
+        assert b["shading"]["verdict"] == "pass" and b["shading"]["color8_over_1"] == 0
+        assert b["shading"]["compared_pixels"] > 2304 // 2  # judged on most of the image: conclusive
+        assert b["verdict"] == "pass"
+    # soft takes 16 samples a pixel: nothing is compared, and the backend says so (not PASS)
+    assert got["soft"]["verdict"] == "skip" and "16 samples a pixel" in got["soft"]["reason"]
+    assert got["soft"]["geometry"]["verdict"] == "skip"
+    junit = ET.parse(tmp_path / "c.xml").getroot()
+    geometry = [c for c in junit.iter("testcase") if c.get("name") == "geometry"]
+    assert len(geometry) == 3 and all(c.find("skipped") is not None for c in geometry)
+
+
+def test_a_program_with_a_rule_changed_fails_shading_and_the_rule_is_named(tmp_path):
+    p = minirt("check", "rules", "-b", program("pixel_sample=center"), "--size", SIZE, "-q", "--json", "-",
+               cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 1, p.stderr
+    b = backends_of(json.loads(p.stdout))["rules"]
+    assert b["verdict"] == "fail" and b["shading"]["verdict"] == "fail" and b["shading"]["color8_over_1"] > 100
+    assert b["geometry"]["verdict"] == "skip"
+    assert b["rule_diagnosis"]["rules_explaining"] == {"pixel_sample": "center"}
+
+
+def test_a_program_beside_an_oracle_in_one_list(tmp_path):
+    p = minirt("check", "rules", "-b", f"embree,{program()}", "--size", SIZE, "-q", "--json", "-", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    (scene,) = json.loads(p.stdout)["scenes"]
+    embree, prog = scene["backends"].values()
+    assert next(iter(scene["backends"])) == "embree" and embree["geometry"]["verdict"] == "pass"
+    assert prog["geometry"]["verdict"] == "skip" and prog["shading"]["verdict"] == "pass"
+
+
+def test_too_small_an_image_to_judge_is_inconclusive_not_pass(tmp_path):
+    p = minirt("check", "rules", "-b", program(), "--size", "6x6", "-q", "--json", "-", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    b = backends_of(json.loads(p.stdout))["rules"]
+    assert b["shading"]["verdict"] == "warn" and b["shading"]["reason"].startswith("inconclusive: ")
+    assert b["verdict"] == "warn" and b["inconclusive"] is True
+
+
+def test_a_nonfinite_colour_off_the_edges_fails():
+    scene = load_scene(find_scene("rules")).with_overrides(width=32, height=32, samples=1)
+    rules = resolve(scene)
+    refs = ReferenceCache(scene)
+    color = refs.get(rules, samples=1).color.copy()
+    res = RenderResult("image", 32, 32, color=color)
+    assert check_image_only(scene, rules, "image", refs, res)["shading"].verdict == "pass"
+    color[::2] = np.nan  # every other row
+    shading = check_image_only(scene, rules, "image", refs, res)["shading"]
+    n = shading.figures["nonfinite_color"]
+    assert shading.verdict == "fail" and f"NaN or infinite colour at {n} pixel(s) off the edges" in shading.reason
+    assert 0 < n < 32 * 16  # those off the edges (an edge pixel's NaN is not judged)
+
+
+def test_the_program_flags_go_into_the_backends_name():
+    spec = "program:python3 t.py {scene} {out}"
+    assert program_backends(["embree", spec], timeout=5.0, no_sandbox=True) == [
+        "embree",
+        "program(timeout=5,sandbox=off):python3 t.py {scene} {out}",
+    ]
+    own = "program(timeout=9):python3 t.py {scene} {out}"
+    assert program_backends([own], no_sandbox=True) == ["program(timeout=9,sandbox=off):python3 t.py {scene} {out}"]
+    try:
+        program_backends(["embree"], edition="2013")
+    except MinirtError as e:
+        assert "--edition goes with a program backend" in str(e)
+    else:
+        raise AssertionError("--edition without a program was taken")
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path):
+    spec = program()
+    for args, words in (
+        (["check", "rules", "-b", "program:python3 t.py {scene}"], "needs {scene}"),
+        (["check", "rules", "-b", "program:missing.cpp"], "missing.cpp: no such file"),
+        (["check", "rules", "-b", "embree", "--no-sandbox"], "--no-sandbox goes with a program backend"),
+        (["check", "rules", "-b", spec, "--edition", "2013"], "--edition and --adapter go with a C++ source"),
+        (["check", "rules", "-b", "program(colour=red):x {scene} {out}"], "unknown option colour"),
+        (["fuzz", "-b", spec], "a program gives a colour image"),
+    ):
+        p = minirt(*args, cwd=tmp_path)
+        assert p.returncode == 2 and words in p.stderr, (args, p.stderr)
+        assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
