@@ -250,7 +250,7 @@ class ProgramOracle(Backend):
         shoot: a check compares its one image alone (minirt.harness.image_only)."""
         return "samples" not in options
 
-    def graded_scene(self, scene: Scene) -> Scene:
+    def scene_as_rendered(self, scene: Scene) -> Scene:
         """The scene as the program receives it (``edition_scene``): what its image is graded against."""
         return edition_scene(scene, self.spec.edition if self.spec.kind == "cpp" else None)
 
@@ -282,7 +282,7 @@ class ProgramOracle(Backend):
         b = self.build()
         if b is not None and b.binary is None:
             return Run(None, False, "the program does not compile: " + _first_error(b.message), 0.0)
-        scene = self.graded_scene(scene)
+        scene = self.scene_as_rendered(scene)
         limits = self.limits(scene, timeout)
         with processes.temporary_folder("minirt-program-") as tmp:
             folder = tmp / "run"

@@ -133,3 +133,20 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         p = minirt(*args, cwd=tmp_path)
         assert p.returncode == 2 and words in p.stderr, (args, p.stderr)
         assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_a_2014_source_is_compared_with_the_scene_it_was_given(tmp_path):
+    # the 2014 interface has no specular colour: the program weights its highlights with the reflection
+    # colour (minirt.oracles.program.edition_scene), and the reference it is compared with does the same --
+    # else three_balls' highlights are pixels no rule explains (63 at 48^2 when compared with the scene as written)
+    text = (ROOT / "scenes" / "samples" / "raytracer2014.cpp").read_text()
+    text = text.replace("#define PIXEL 0.0", "#define PIXEL 0.5").replace(
+        "#define FROM_PLANE 1", "#define FROM_PLANE 0"
+    )
+    (tmp_path / "raytracer.cpp").write_text(text)
+    p = minirt("check", "three_balls", "-b", "program:raytracer.cpp", "--size", SIZE, "-q", "--json", "-", cwd=tmp_path)
+    assert p.returncode == 1, p.stderr  # the scene's rules are the problem set's, not the 2014 edition's
+    b = backends_of(json.loads(p.stdout))["three_balls"]
+    assert b["geometry"]["verdict"] == "skip" and b["shading"]["verdict"] == "fail"
+    d = b["rule_diagnosis"]
+    assert d["mismatch_pixels"] == 0 and d["rules_explaining"]["pixel_sample"] == "center"
