@@ -148,6 +148,7 @@ def check(
     spec = backends if isinstance(backends, str) else ",".join(backends)
     names = backends_mod.parse_backends(spec)
     backends_mod.require_oracle(names, "backends", programs_too=True)
+    checks.refuse_cached_programs(names, cache, "cache")
     if size is not None and (len(size) != 2 or min(size) < 1):
         raise MinirtError(f"size {size!r}: expected (width, height), each >= 1")
     if scenes is None:

@@ -47,6 +47,7 @@ def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, sch
     files = checks.scene_files(paths)
     names = program_backends(backends.parse_backends(backend), **(program or {}))
     backends.require_oracle(names, programs_too=True)
+    checks.refuse_cached_programs(names, cache)
     wh = parse_size(size)
     scenes = checks.read_all(files)  # bad input first, before any long work; each file parsed once
     if cache is not None:

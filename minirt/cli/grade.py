@@ -134,7 +134,8 @@ def grade(
     command for one of its pixels.
 
     With --program SPEC: the student's program itself renders the grading suite's scenes (or SCENE),
-    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene.
+    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene; --out
+    FILE.html writes its page (every scene's pictures and the diagnosis, in one file).
 
     Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
     (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,

@@ -129,10 +129,25 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         (["check", "rules", "-b", spec, "--edition", "2013"], "--edition and --adapter go with a C++ source"),
         (["check", "rules", "-b", "program(colour=red):x {scene} {out}"], "unknown option colour"),
         (["fuzz", "-b", spec], "a program gives a colour image"),
+        # the cache knows a backend by its name: a script changed under the same SPEC would be answered from it
+        (["check", "rules", "-b", spec, "--cache", "cache"], "checked afresh every time"),
     ):
         p = minirt(*args, cwd=tmp_path)
         assert p.returncode == 2 and words in p.stderr, (args, p.stderr)
         assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    assert not (tmp_path / "cache").exists()
+
+
+def test_on_worker_processes_the_verdicts_are_the_same(tmp_path):
+    args = ["check", "rules", "-b", program("pixel_sample=center"), "--size", SIZE, "-q", "--json", "-"]
+    here, there = (minirt(*args, *more, cwd=tmp_path) for more in ((), ("--workers", "2")))
+    assert here.returncode == there.returncode == 1, there.stderr
+    a, b = (backends_of(json.loads(p.stdout))["rules"] for p in (here, there))
+    for key in ("verdict", "reason", "geometry", "shading"):
+        assert a[key] == b[key], key
+    assert (
+        a["rule_diagnosis"]["rules_explaining"] == b["rule_diagnosis"]["rules_explaining"] == {"pixel_sample": "center"}
+    )
 
 
 def test_a_2014_source_is_compared_with_the_scene_it_was_given(tmp_path):

@@ -103,6 +103,7 @@ def test_a_scene_the_program_fails_shows_its_reason_and_the_others_their_picture
     html = write_program_page(g, tmp_path / "page.html").read_text()
     assert "The program drew no image: the program failed with exit status 1: boom: &lt;b&gt;three&lt;/b&gt;" in html
     assert "<b>three</b>" not in html  # the program's words are text, never markup
+    assert html.endswith("</html>\n")  # written whole
     assert len(DATA_PNG.findall(html)) == 3 + 1  # rules: the image, the model, the difference (no "before"); the bar
 
 
