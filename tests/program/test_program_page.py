@@ -145,3 +145,42 @@ def test_a_refused_run_leaves_no_page_and_an_old_one_untouched(tmp_path):
         assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert not (tmp_path / "new.html").exists() and old.read_text() == "the page of an earlier run"
     assert [f.name for f in tmp_path.iterdir() if f.name.startswith(".")] == []  # no temporary file left
+
+
+def test_every_part_of_the_diagnosis_is_on_the_page(tmp_path):
+    from minirt.diagnose import JointDiagnosis
+    from minirt.diagnose.evidence import Rejected
+
+    ((_, scene, rules),) = suite(("rules",))
+    d = JointDiagnosis(
+        rules={"specular_exponent": "16"},
+        undetermined={"offset": ["0.0001", "0.001"]},
+        explained=[
+            {"rule": "specular_exponent", "value": "16", "pixels": 321, "against": 4, "neither": 5,
+             "per_scene": {"rules": 321}, "decided": True},
+            {"rule": "offset", "value": "0.0001", "pixels": 17, "against": 0, "neither": 0,
+             "per_scene": {"rules": 17}, "decided": False},
+        ],
+        rejected=[Rejected("two_sided", "true", 3, 9, 1)],
+        unexplained=[{"scene": "rules", "pixels": 12, "sentence": "on the ball, lit, near its silhouette"}],
+        indistinguishable=[{"rule": "specular_s", "value": "-s", "as": "s", "why": "an even exponent, unclamped"}],
+        mismatch_pixels=12,
+        broken_pixels=7,
+        changes={"specular_exponent": 16, "offset": 1e-4},
+    )  # fmt: skip
+    scene_grade = gp.SceneGrade(scene, "rules.toml", "", "error", reason="the program timed out after 20 s",
+                                rules=rules)  # fmt: skip
+    g = gp.ProgramGrade(make_spec("python3 t.py {scene} {out}"), [scene_grade], d)
+    html = write_program_page(g, tmp_path / "page.html").read_text()
+    for said in (
+        "specular_exponent=16</td><td>321</td><td>4</td><td>5</td>",
+        'offset=0.0001 <span class="muted small">(one of several)</span>',
+        "<b>One of:</b> the suite&#39;s images cannot decide offset: 0.0001 or 0.001",
+        "two_sided=true</td><td>3</td><td>9</td><td>1</td>",
+        "7 pixel(s) that the exercise's model draws right are wrong under these rules",
+        "12 pixel(s) over the suite remain unexplained",
+        "on the ball, lit, near its silhouette",
+        '<td class="mono">specular_s</td><td class="mono">-s</td><td class="mono">s</td><td>an even exponent',
+        "The program drew no image: the program timed out after 20 s",
+    ):
+        assert said in html, said
