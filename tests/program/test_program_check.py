@@ -165,3 +165,12 @@ def test_a_2014_source_is_compared_with_the_scene_it_was_given(tmp_path):
     assert b["geometry"]["verdict"] == "skip" and b["shading"]["verdict"] == "fail"
     d = b["rule_diagnosis"]
     assert d["mismatch_pixels"] == 0 and d["rules_explaining"]["pixel_sample"] == "center"
+
+
+def test_report_takes_a_program_too(tmp_path):
+    p = minirt("report", "rules", "-b", program("pixel_sample=center"), "--size", SIZE, "-q", "-o", "rep", cwd=tmp_path)
+    assert p.returncode == 1, p.stderr
+    html = (tmp_path / "rep" / "index.html").read_text()
+    assert "gives only an image" in html and "pixel_sample=center" in html
+    b = backends_of(json.loads((tmp_path / "rep" / "report.json").read_text()))["rules"]
+    assert b["geometry"]["verdict"] == "skip" and b["shading"]["verdict"] == "fail"

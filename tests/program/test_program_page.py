@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.browser import assert_all_images_loaded, console, loaded_page
 
 from minirt.grading import program as gp
 from minirt.grading.page import as8
@@ -93,6 +94,11 @@ def test_the_page_shows_every_scene_and_the_one_diagnosis(tmp_path):
         assert len(np.unique(diff.reshape(-1, diff.shape[-1]), axis=0)) == 1
         assert len(np.unique(before.reshape(-1, before.shape[-1]), axis=0)) > 1
     assert "http://" not in html.replace("http://www.w3.org", "") and "https://" not in html
+    # in a browser: every picture loads under the page's Content Security Policy, nothing is refused
+    dom, attrs = loaded_page(tmp_path, (tmp_path / "page.html").resolve().as_uri(), "data-verdict")
+    assert attrs.get("data-ready") == "1" and attrs["data-csp-violations"] == "0" and attrs["data-errors"] == "0"
+    assert_all_images_loaded(attrs, html)
+    assert not console(dom), console(dom)
 
 
 def test_a_scene_the_program_fails_shows_its_reason_and_the_others_their_pictures(tmp_path):
