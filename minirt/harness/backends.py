@@ -75,8 +75,9 @@ def shading_model(name: str, has_color: bool) -> str | None:
 
 
 def parse_backends(spec: str) -> list[str]:
-    """'all', 'reference', or a comma-separated list; unknown names are bad input. A student's program,
-    ``program:SPEC``, ends the list: its SPEC is the rest, commas and all."""
+    """'all', 'reference', or a comma-separated list (where 'all' stands for every registered backend);
+    unknown names are bad input. A student's program, ``program:SPEC``, ends the list: its SPEC is the rest,
+    commas and all."""
     if spec.strip() == "all":
         return all_names()
     at = next((k for k in range(len(spec)) if is_program(spec[k:]) and (k == 0 or spec[k - 1] == ",")), None)
@@ -84,7 +85,9 @@ def parse_backends(spec: str) -> list[str]:
     if program:
         get(program[0]).spec  # noqa: B018 -- parsed now: a bad SPEC is bad input before any work
         spec = spec[:at]
-    names = [s.strip() for s in spec.split(",") if s.strip()] + program
+    listed = [s.strip() for s in spec.split(",") if s.strip()]
+    # "all" in a list (all,program:SPEC): every registered backend in its place
+    names = list(dict.fromkeys(n for s in listed for n in (all_names() if s == "all" else [s]))) + program
     known = all_names()
     unknown = [n for n in names if n not in known and not is_program(n)]
     if unknown or not names:

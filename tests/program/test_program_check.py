@@ -174,3 +174,11 @@ def test_report_takes_a_program_too(tmp_path):
     assert "gives only an image" in html and "pixel_sample=center" in html
     b = backends_of(json.loads((tmp_path / "rep" / "report.json").read_text()))["rules"]
     assert b["geometry"]["verdict"] == "skip" and b["shading"]["verdict"] == "fail"
+
+
+def test_all_and_a_program_in_one_list():
+    from minirt.harness.backends import all_names, oracles_among, parse_backends
+
+    names = parse_backends("all,program:python3 t.py {scene},{out}")
+    assert names == [*all_names(), "program:python3 t.py {scene},{out}"]  # the program's SPEC keeps its commas
+    assert oracles_among(names)[-1] == names[-1] and "reference" not in oracles_among(names)
