@@ -182,3 +182,13 @@ def test_all_and_a_program_in_one_list():
     names = parse_backends("all,program:python3 t.py {scene},{out}")
     assert names == [*all_names(), "program:python3 t.py {scene},{out}"]  # the program's SPEC keeps its commas
     assert oracles_among(names)[-1] == names[-1] and "reference" not in oracles_among(names)
+
+
+def test_no_sandbox_here_is_said_in_one_line_before_any_work(tmp_path):
+    (tmp_path / "bin").mkdir()  # a PATH without bubblewrap
+    env = {"MINIRT_PROGRAM_CACHE": str(tmp_path / "programs"), "PATH": str(tmp_path / "bin")}
+    args = ["check", "rules", "-b", program(), "--json", "c.json"]
+    p = subprocess.run([*MINIRT, *args], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=600)
+    assert p.returncode == 2 and "bubblewrap (bwrap) is not installed" in p.stderr and "--no-sandbox" in p.stderr
+    assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    assert not (tmp_path / "c.json").exists()
