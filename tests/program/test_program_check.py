@@ -192,3 +192,22 @@ def test_no_sandbox_here_is_said_in_one_line_before_any_work(tmp_path):
     assert p.returncode == 2 and "bubblewrap (bwrap) is not installed" in p.stderr and "--no-sandbox" in p.stderr
     assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert not (tmp_path / "c.json").exists()
+
+
+NAN_IMAGE = """\
+import sys
+w, h = 48, 48
+with open(sys.argv[2] + ".pfm", "wb") as f:
+    f.write(b"PF\\n%d %d\\n-1.0\\n" % (w, h) + b"\\x00\\x00\\xc0\\x7f" * (3 * w * h))  # every channel NaN
+"""
+
+
+def test_a_nan_image_is_the_programs_error_in_the_same_words_every_run(tmp_path):
+    (tmp_path / "nan.py").write_text(NAN_IMAGE)
+    args = ["check", "rules", "-b", f"program:{sys.executable} nan.py {{scene}} {{out}}", "--size", SIZE, "-q"]
+    reasons = []
+    for _ in range(2):
+        p = minirt(*args, "--json", "-", cwd=tmp_path)
+        assert p.returncode == 2, p.stderr  # a backend's error
+        reasons.append(backends_of(json.loads(p.stdout))["rules"]["reason"])
+    assert reasons[0] == reasons[1] == "the program's image image.pfm: the image holds NaN or infinite values"
