@@ -151,6 +151,7 @@ def program_view(g: ProgramGrade, assets: InlineAssets) -> dict[str, Any]:
         "compile": compiled,
         "diagnosis": _diagnosis_view(g),
         "scenes": [scene_view(s, g.diagnosis.changes, per_scene.get(s.scene.name, 0), assets) for s in g.scenes],
+        "drawn": sum(s.target is not None for s in g.scenes),
         "colorbar": colorbar(assets),
         "clip": CLIP,
         "notes": list(g.notes),

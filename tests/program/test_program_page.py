@@ -121,6 +121,8 @@ def test_a_compile_error_is_on_the_page_with_the_compilers_message(tmp_path):
     html = write_program_page(g, tmp_path / "page.html").read_text()
     assert "does not compile" in html and "undeclared_name_in_student_code" in html
     assert '<pre class="compiler">' in html
+    assert "The program drew no image: nothing to diagnose." in html and "nothing to explain" not in html
+    assert "Cannot tell apart" not in html and len(DATA_PNG.findall(html)) == 0  # no picture, no colour bar
 
 
 def test_the_cli_writes_the_page_and_the_json_the_same_bytes_every_run(tmp_path):
