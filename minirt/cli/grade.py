@@ -50,7 +50,13 @@ def grade(
     ] = None,
     json_out: JsonOpt = None,
     out_dir: Annotated[
-        Path | None, typer.Option("--out", "-o", help="Write an HTML page with the pictures (DIR/index.html).")
+        Path | None,
+        typer.Option(
+            "--out",
+            "-o",
+            help="Write an HTML page with the pictures (DIR/index.html; with --program: one file, FILE.html, its "
+            "pictures inside it).",
+        ),
     ] = None,
     class_dir: Annotated[
         Path | None,
@@ -128,7 +134,8 @@ def grade(
     command for one of its pixels.
 
     With --program SPEC: the student's program itself renders the grading suite's scenes (or SCENE),
-    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene.
+    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene; --out
+    FILE.html writes its page (every scene's pictures and the diagnosis, in one file).
 
     Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
     (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,
@@ -140,12 +147,9 @@ def grade(
     if program is not None:
         from minirt.cli.program import grade_program_command
 
-        if out_dir is not None:
-            raise MinirtError("--out: a program's grade has no HTML page yet; use --json FILE")
-
         grade_program_command(
             program, scene_path, image, edition=edition, adapter=adapter, timeout=timeout, sandbox=not no_sandbox,
-            json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, class_dir=class_dir,
+            json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, class_dir=class_dir, page=out_dir,
         )  # fmt: skip
         return
     for given, option in ((edition, "--edition"), (adapter, "--adapter"), (timeout, "--timeout")):

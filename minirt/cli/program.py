@@ -15,7 +15,7 @@ from minirt.io.untrusted import terminal_text
 
 def grade_program_command(
     program: str, scene_path, image, *, edition, adapter, timeout, sandbox, json_out, size, profile, rule, quiet,
-    class_dir,
+    class_dir, page=None,
 ) -> None:  # fmt: skip
     from minirt import diagnose as dg
     from minirt.grading import program as grading
@@ -27,6 +27,7 @@ def grade_program_command(
     spec = make_spec(program, edition, adapter, timeout, sandbox)
     if json_out not in (None, "-"):
         output_file(Path(json_out), "--json")
+    output_file(page, "--out")
     wh = parse_size(size) or grading.SUITE_SIZE
     stems = [scene_path] if scene_path is not None else list(dg.GRADING_SET)
     suite = []
@@ -44,8 +45,14 @@ def grade_program_command(
         g = grading.grade_program(spec, suite, timeout, on_scene=done)
     if json_out is not None:
         emit_json(json_out, g.as_dict())
+    if page is not None:
+        from minirt.grading.program_page import write_program_page
+
+        write_program_page(g, page)
     if json_out != "-":
         _print(g)
+        if page is not None:
+            out.print(f"wrote {terminal_text(page)}")
     raise typer.Exit(g.exit_code)
 
 

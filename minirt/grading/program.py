@@ -155,7 +155,7 @@ def grade_scene(
     """One scene through the program, its image diagnosed (or its error)."""
     from minirt.harness import backends
 
-    scene = oracle.graded_scene(scene.with_overrides(samples=1))
+    scene = oracle.scene_as_rendered(scene.with_overrides(samples=1))
     if timeout is None:
         t0 = time.perf_counter()
         backends.render(backends.REFERENCE, scene, rules)

@@ -224,6 +224,9 @@ class ProgramOracle(Backend):
     shades: ClassVar[bool] = True
     shading_model: ClassVar[str | None] = "exercise"
     concurrent: ClassVar[bool] = True  # its work is in processes of its own
+    # Rendered as it is: a check compares it with the scene's own rules, bug rules included (what grading
+    # names is what it follows).
+    follows_bugs: ClassVar[bool] = True
 
     def __init__(self, spec: ProgramSpec | str) -> None:
         self.spec = parse_name(spec) if isinstance(spec, str) else spec
@@ -242,7 +245,12 @@ class ProgramOracle(Backend):
     def options(self, precision: str = "f64", samples: int | None = None, timeout: float | None = None) -> dict:
         return {"timeout": timeout} if timeout else {}
 
-    def graded_scene(self, scene: Scene) -> Scene:
+    def runs_apart(self, options: dict[str, Any]) -> bool:
+        """Started ahead in a check, except for the reference's own samples (``samples``), which it cannot
+        shoot: a check compares its one image alone (minirt.harness.image_only)."""
+        return "samples" not in options
+
+    def scene_as_rendered(self, scene: Scene) -> Scene:
         """The scene as the program receives it (``edition_scene``): what its image is graded against."""
         return edition_scene(scene, self.spec.edition if self.spec.kind == "cpp" else None)
 
@@ -274,7 +282,7 @@ class ProgramOracle(Backend):
         b = self.build()
         if b is not None and b.binary is None:
             return Run(None, False, "the program does not compile: " + _first_error(b.message), 0.0)
-        scene = self.graded_scene(scene)
+        scene = self.scene_as_rendered(scene)
         limits = self.limits(scene, timeout)
         with processes.temporary_folder("minirt-program-") as tmp:
             folder = tmp / "run"
@@ -311,11 +319,14 @@ class ProgramOracle(Backend):
         options = options or {}
         w, h = scene.camera.width, scene.camera.height
         run = self.run_scene(scene, options.get("timeout"))
-        meta = {"backend": NAME, "program": self.spec.describe(), "timings": {"program": run.seconds}}
+        meta = {"backend": NAME, "version": self.version(), "program": self.spec.describe(),
+                "timings": {"program": run.seconds}}  # fmt: skip
         if self._build is not None:
             meta["compile"] = self._build.as_dict()
-        if run.error:
-            return RenderResult.failed(NAME, w, h, "error", run.error, **meta)
+        if run.error:  # (failed() sets the backend itself)
+            return RenderResult.failed(
+                NAME, w, h, "error", run.error, **{k: v for k, v in meta.items() if k != "backend"}
+            )
         meta["image"] = run.image_name
         if run.is_float:
             color = run.pixels.astype(np.float64)

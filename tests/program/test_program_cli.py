@@ -48,7 +48,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         (["grade", "--program", "python3 tracer.py {scene}"], "needs {scene}"),
         (["grade", "--program", "missing.cpp"], "no such file"),
         (["grade", "--edition", "2014", "rules", "x.png"], "--edition goes with --program"),
-        (["check", "rules", "-b", "program:python3 t.py {scene} {out}"], "a program gives a colour image"),
+        (["fuzz", "-b", "program:python3 t.py {scene} {out}"], "a program gives a colour image"),
     ):
         p = minirt(*args, tmp_path=tmp_path)
         assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr, (args, p.stderr)
