@@ -53,7 +53,7 @@ BAND_SPLIT_RAYS = 1 << 16
 BATCH_RAYS = 1 << 21
 # Rules a batch's kernel compiles in (the others are read per ray): candidates that differ in them are traced
 # in separate batches. ``Divergent`` splits a batch on any other rule the kernel turns out to compile in.
-COMPILED_IN = ("shadow_rays", "shadow_range", "background")
+COMPILED_IN = ("shadow_range",)
 
 
 @dataclass

@@ -152,7 +152,7 @@ def shade(
 ) -> tuple[Level, Any]:
     """shade_level after the closest hit (shape_id, hit, t: inf on a miss). ``margins``: True, False, or
     a mask of the rays whose shadow margins are wanted (the others get 1e30, shadow_margin's none)."""
-    fx, T, rules, values = tr.effects, tr.T, tr.rules, tr.values
+    fx, T, values = tr.effects, tr.T, tr.values
     zero = T.zero3()
     p, n = interaction.hit_point_and_normal(tr, shape_id, o, d, dr.select(hit, t, 0))
     ns = n
@@ -176,8 +176,12 @@ def shade(
         s, light_dist, at_light = _to_light(tr, p)
         sn = dr.dot(s, ns)
         lit = hit & ~at_light
-        if fx.shadows and rules.shadow_rays:  # rule shadow_rays false: no shadow test at all
-            lit = _shadow_test(tr, p, ns, err, s, outward, light_dist, hit, record, margins, rec)
+        shadow_rays = values.switch("shadow_rays")  # rule shadow_rays false: no shadow test at all
+        if fx.shadows and shadow_rays is not False:
+            tested = _shadow_test(tr, p, ns, err, s, outward, light_dist, hit, record, margins, rec)
+            lit = tested if shadow_rays is True else dr.select(shadow_rays, tested, lit)
+            if shadow_rays is not True and "shadow_margin" in rec:  # a batch's rays without a test: none
+                rec["shadow_margin"] = dr.select(shadow_rays, rec["shadow_margin"], T.Float(1e30))
         if fx.diffuse:
             sd = sn  # s·n, or with raw_shading s·(the raw normal): the same sign
             if raw_shading is True:
@@ -339,13 +343,18 @@ def _per_kind(tr: TraceSettings, shape_id, use: str) -> Any:
 def has_margins(tr: TraceSettings) -> bool:
     """Whether shading records shadow margins when asked: only where shadow rays are cast (``shade``)."""
     fx = tr.effects
-    return fx.shadows and tr.rules.shadow_rays and (fx.diffuse or fx.specular)
+    return fx.shadows and tr.values.switch("shadow_rays") is not False and (fx.diffuse or fx.specular)
 
 
 def background(tr: TraceSettings, hit) -> Any:
     """The background term of a ray that hit (``hit``) or missed: rule background."""
     zero = tr.T.zero3()
-    if not tr.effects.background or tr.rules.background == "none":
+    none, on_hit = tr.values.switch("background_none"), tr.values.switch("background_on_hit")
+    if not tr.effects.background or none is True:
         return zero
     bgc = tr.values.vec("background")
-    return dr.select(hit, bgc, zero) if tr.rules.background == "on-hit" else dr.select(hit, zero, bgc)
+    if isinstance(on_hit, bool):
+        out = dr.select(hit, bgc, zero) if on_hit else dr.select(hit, zero, bgc)
+    else:  # a batch: each ray its candidate's
+        out = dr.select(on_hit, dr.select(hit, bgc, zero), dr.select(hit, zero, bgc))
+    return out if none is False else dr.select(none, zero, out)

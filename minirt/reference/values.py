@@ -105,13 +105,23 @@ PER_RAY: dict[str, tuple[Callable[[Rules], Any], str]] = {
 }
 
 
-_BIT = {name: k for k, name in enumerate(n for n, (_, own) in PER_RAY.items() if own == "bool")}
-_EXPONENT_SHIFT = len(_BIT)  # the exponent's bits above the yes/no rules' (exponents < 2^11: 15 + 11 bits)
+# Rules a single rule set's kernel compiles in, whatever ``runtime`` (they change which work is done), but a
+# batch reads per ray (``Values.switch``): candidates that differ only in them share one kernel -- a search
+# step's candidates fell into seven kernels by these and the offset's kind, each an LLVM compile (~0.2 s).
+SWITCHES: dict[str, Callable[[Rules], bool]] = {
+    "shadow_rays": lambda r: bool(r.shadow_rays),
+    "background_none": lambda r: r.background == "none",
+    "background_on_hit": lambda r: r.background == "on-hit",
+}
+
+_YES_NO = {n: fn for n, (fn, own) in PER_RAY.items() if own == "bool"} | SWITCHES
+_BIT = {name: k for k, name in enumerate(_YES_NO)}
+_EXPONENT_SHIFT = len(_BIT)  # the exponent's bits above the yes/no rules' (exponents < 2^11: 18 + 11 bits)
 
 
 def _packed(r: Rules) -> int:
     """A rule set's yes/no per-ray rules as bits, its exponent above them."""
-    bits = sum(1 << k for name, k in _BIT.items() if PER_RAY[name][0](r))
+    bits = sum(1 << k for name, k in _BIT.items() if _YES_NO[name](r))
     return bits | (int(r.specular_exponent) << _EXPONENT_SHIFT)
 
 
@@ -286,6 +296,13 @@ class Values(ABC):
         # another float type (a camera's rays in float64 for a float32 trace): gathered where asked, outside
         # the loops, and not kept
         return self._gather(name, kind) if v is None else v
+
+    def switch(self, name: str) -> Any:
+        """A rule a single rule set's kernel compiles in (``SWITCHES``): the Python bool -- or for a batch
+        each ray's candidate's (a mask), so that candidates differing in it share the kernel."""
+        if self.batch is None:
+            return bool(SWITCHES[name](self.rules))
+        return ((self._bits >> _BIT[name]) & 1) != 0
 
     def rule(self, name: str) -> Any:
         """A per-ray rule's yes/no (``PER_RAY``) as the kernel sees it: under ``runtime`` read at run time,

@@ -14,7 +14,7 @@ from minirt.cli.options import load
 from minirt.diagnose.variants import VariantCache
 from minirt.model.bundled import find_scene
 from minirt.reference.tracer import Tracer
-from minirt.reference.values import PER_RAY, Candidates, Divergent
+from minirt.reference.values import PER_RAY, SWITCHES, Candidates, Divergent
 
 W, H = 40, 30
 
@@ -51,6 +51,9 @@ def _moves(rules):
         replace(rules, raw_normals_ball="shading"),
         replace(rules, raw_normals_plane="both"),
         replace(rules, raw_normals_ball="reflection", pixel_sample="center"),
+        replace(rules, shadow_rays=False),
+        replace(rules, background="none"),
+        replace(rules, background="on-hit", clamp=True),
     ]
 
 
@@ -67,26 +70,29 @@ def test_a_batch_gives_each_candidate_its_own_bits(name):
 
 
 def test_every_per_ray_rule_is_moved_by_the_batch_test():
-    """The test above changes every rule the kernel reads per ray (a new one must join it)."""
+    """The test above changes every rule a batch reads per ray (a new one must join it)."""
     _, rules = load(find_scene("rules"), W, H, None, None, [])
-    moved = {n for n, (fn, _) in PER_RAY.items() if any(fn(c) != fn(rules) for c in _moves(rules))}
-    assert moved == set(PER_RAY)
+    each = {n: fn for n, (fn, _) in PER_RAY.items()} | SWITCHES
+    moved = {n for n, fn in each.items() if any(fn(c) != fn(rules) for c in _moves(rules))}
+    assert moved == set(each)
 
 
 def test_a_compiled_in_rule_splits_the_batch():
-    scene, rules = load(find_scene("three_balls"), W, H, None, None, [])
-    a, b = rules, replace(rules, shadow_rays=False)
+    scene, rules = load(find_scene("rules"), W, H, None, None, [])  # (it tells every pair of values apart)
+    a, b = rules, replace(rules, shadow_range="to-light")
     with pytest.raises(Divergent):
-        Candidates([a, b]).shadow_rays  # noqa: B018 (the read is the test)
-    assert Candidates([a, replace(a, two_sided=True)]).shadow_rays is True
+        Candidates([a, b]).shadow_range  # noqa: B018 (the read is the test)
+    assert Candidates([a, replace(a, two_sided=True)]).shadow_range == "any"
     idx = np.arange(W * H)
     vc = VariantCache(share=False)
-    vc.prefetch(scene, [a, b, replace(b, specular_exponent=4)], idx)
-    for r in (a, b, replace(b, specular_exponent=4)):
+    cands = [a, b, replace(b, specular_exponent=4), replace(a, shadow_rays=False)]
+    vc.prefetch(scene, cands, idx)
+    for r in cands:
         got = vc.subset(scene, r, idx)
         assert np.array_equal(got.color.view(np.uint64), _single(scene, r, idx).view(np.uint64))
-    # and the two rule sets differ here: a batch that took b's shadows from a would be caught
+    # and the rule sets differ here: a batch that took one's shadows from another would be caught
     assert not np.array_equal(_single(scene, a, idx), _single(scene, b, idx))
+    assert not np.array_equal(_single(scene, a, idx), _single(scene, cands[3], idx))
 
 
 def test_error_bound_and_numeric_offsets_are_traced_apart():
