@@ -17,8 +17,8 @@ def grade_program_command(
     program: str, scene_path, image, *, edition, adapter, timeout, sandbox, json_out, size, profile, rule, quiet,
     class_dir,
 ) -> None:  # fmt: skip
-    from minirt import diagnose as dg
     from minirt.grading import program as grading
+    from minirt.grading import suite as suite_mod
     from minirt.model.bundled import find_scene
     from minirt.oracles.program import make_spec
 
@@ -27,12 +27,14 @@ def grade_program_command(
     spec = make_spec(program, edition, adapter, timeout, sandbox)
     if json_out not in (None, "-"):
         output_file(Path(json_out), "--json")
-    wh = parse_size(size) or grading.SUITE_SIZE
-    stems = [scene_path] if scene_path is not None else list(dg.GRADING_SET)
+    wh = parse_size(size)
+    if scene_path is not None:
+        scenes = [(find_scene(scene_path), wh or suite_mod.SUITE_SIZE)]
+    else:  # the program suite (minirt.grading.suite), each scene at its own size unless --size
+        scenes = [(s.path, wh or s.size) for s in suite_mod.program_suite()]
     suite = []
-    for stem in stems:
-        path = find_scene(stem)
-        scene, rules = load(path, *wh, None, profile, rule)
+    for path, (w, h) in scenes:
+        scene, rules = load(path, w, h, None, profile, rule)
         suite.append((str(path), scene, grading.given_rules(rules, spec, profile is not None)))
     with progress_bar(not quiet) as bar:
         task = bar.add_task("grading the program", total=len(suite)) if bar else None

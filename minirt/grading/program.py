@@ -25,10 +25,6 @@ from minirt.model.rules import PROFILES, Rules
 from minirt.model.scene import Scene
 from minirt.oracles.program import ProgramOracle, ProgramSpec
 
-# The suite's scenes are rendered at this size unless --size says otherwise: every rule of the grading set
-# shows on hundreds of pixels at 96^2 (the bundled scenes are built so), and a NumPy or C++ program renders
-# it in well under a second.
-SUITE_SIZE = (96, 96)
 # A scene's time limit: the reference's time (vectorised float64, ~10-50 ms at 96^2) times this, at least
 # the floor. A C++ or NumPy program is within 10x of the reference; a pure-Python one (one Python call per
 # ray and shape, ~1000x) still fits 96^2 in the floor; a program beyond both is reported as timed out.
