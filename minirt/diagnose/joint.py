@@ -234,6 +234,21 @@ def _same_everywhere(images: list[Image], changes: dict[str, Any], cache: Varian
     out = []
     for _key, e in sorted((common or {}).items()):
         item = dict(e, scene_that_tells=None)
-        item["why"] = e.get("why") or "no scene of the suite tells them apart"
+        item["why"] = e.get("why") or _why_suite(e["rule"], changes)
         out.append(item)
     return out
+
+
+# Why a single change draws every image of a suite the same, where the rules make it so for any scene
+# (a rule moot under the answer: minirt.diagnose.search.moot_rules); else no scene of the suite shows it.
+MOOT_UNDER = {
+    ("shadow_range", "shadow_rays", False): "no shadow ray is traced (shadow_rays = false): where one would end "
+    "changes nothing",
+}
+
+
+def _why_suite(rule: str, changes: dict[str, Any]) -> str:
+    for (name, other, value), why in MOOT_UNDER.items():
+        if name == rule and changes.get(other) is value:
+            return why
+    return "no scene of the suite tells them apart"
