@@ -269,7 +269,11 @@ class VariantCache:
         n = scene.camera.width * scene.camera.height
         self.renders += 1 if idx is None else idx.size / n
         tr = Tracer(scene, rules, precision=precision, runtime=True)
-        o, d = tr.primary_rays(idx)  # full images and subsets alike: one kernel for both
+        # One ray is traced twice: Dr.Jit folds arrays of width 1 into literals, and the kernel of one such
+        # ray through two mirror planes (scenes/suite/offset_coarse.toml, one bounce) failed LLVM's verifier
+        # ("Instruction does not dominate all uses"), which aborts the process.
+        one = idx is not None and idx.size == 1
+        o, d = tr.primary_rays(np.repeat(idx, 2) if one else idx)  # full images and subsets: one kernel
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             color, levels = tr.trace(o, d, tree=True)
         m = levels[0].record.get("shadow_margin")
@@ -279,6 +283,8 @@ class VariantCache:
         # 0.25 -> 4.7 ms for the interleave of a 256^2 variant).
         c = tr.to_numpy3(color, also=() if m is None else (m,)).copy()
         sill = np.zeros(c.shape[0], dtype=bool) if m is None else np.asarray(m) < EPS_REL * _scale(scene)
+        if one:
+            c, sill = c[:1], sill[:1]
         if idx is None:
             h, w = scene.camera.height, scene.camera.width
             return Variant(rules, c.reshape(h, w, 3), sill.reshape(h, w))

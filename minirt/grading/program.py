@@ -171,15 +171,17 @@ def grade_program(
     suite: list[tuple[str, Scene, Rules]],
     timeout: float | None = None,
     on_scene=None,
+    cache: dg.VariantCache | None = None,
 ) -> ProgramGrade:
     """Render every (scene file, scene, rules) of ``suite`` through the program and grade it: one
     ``SceneGrade`` per scene and the program's diagnosis (``diagnose_suite``). ``timeout``: seconds per
     scene (None: ``timeout_for`` the reference's time). ``on_scene(SceneGrade)`` is called as each is done.
+    ``cache``: the reference's renders, which programs graded over the same suite may share.
     Raises MinirtError for bad input (no sandbox, no compiler)."""
     oracle = ProgramOracle(spec)
     oracle.require_sandbox()
     build = oracle.build()
-    cache = dg.VariantCache(share=False)
+    cache = cache or dg.VariantCache(share=False)
     graded = []
     for scene_file, scene, rules in suite:
         g = grade_scene(oracle, scene, scene_file, rules, cache, timeout or spec.timeout)
