@@ -31,7 +31,7 @@ def grade_program_command(
     if scene_path is not None:
         scenes = [(find_scene(scene_path), wh or suite_mod.SUITE_SIZE)]
     else:  # the program suite (minirt.grading.suite), each scene at its own size unless --size
-        scenes = [(s.path, wh or s.size) for s in suite_mod.program_suite()]
+        scenes = [(s.path, wh or s.size) for s in suite_mod.program_suite(spec.edition if spec.kind == "cpp" else None)]
     suite = []
     for path, (w, h) in scenes:
         scene, rules = load(path, w, h, None, profile, rule)
@@ -63,7 +63,9 @@ def _print(g) -> None:
         what = d["error"] or (", ".join(f"{k}={v}" for k, v in d["rules"].items()) or "as the model") + (
             f"; {d['mismatch_pixels']} pixels unexplained" if d["mismatch_pixels"] else ""
         )
-        out.print(terminal_text(f"  {d['scene']:<14} {d['verdict']:<8} {what}", MAX_MESSAGE))
+        if "course_grid" in d:  # one of the 2014 course's test scenes: its own test's verdict beside
+            what += f"; the course's 10x10-grid test: {d['course_grid'] or 'needs a float image'}"
+        out.print(terminal_text(f"  {d['scene']:<30} {d['verdict']:<8} {what}", MAX_MESSAGE))
     for e in g.as_dict()["diagnosis"]["explained"]:
         if not e["decided"]:
             continue

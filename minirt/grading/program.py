@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from minirt import diagnose as dg
+from minirt.grading import suite as suite_mod
 from minirt.grading.grade import DIFFERS, ERROR, EXIT, MATCH, Grade, sentence
 from minirt.model import rules as rules_mod
 from minirt.model.rules import PROFILES, Rules
@@ -53,6 +54,10 @@ class SceneGrade(Grade):
     rules: Rules | None = None
     seconds: float = 0.0  # the program's wall clock on it (not in the JSON)
     timeout: float = 0.0
+    # one of the 2014 course's test scenes: what the course's 10x10-grid comparison would have said ("pass",
+    # "fail"; None when the program drew no float image, which the course's in-memory colours were)
+    course_grid: str | None = None
+    course: bool = False
 
     @property
     def error(self) -> str:
@@ -73,6 +78,8 @@ class SceneGrade(Grade):
         }
         if self.target is not None:
             out["image_format"] = "float" if self.target.is_float else "8-bit"
+        if self.course:
+            out["course_grid"] = self.course_grid
         return out
 
 
@@ -157,13 +164,15 @@ def grade_scene(
         backends.render(backends.REFERENCE, scene, rules)
         timeout = timeout_for(time.perf_counter() - t0)
     run = oracle.run_scene(scene, timeout)
-    times = {"rules": rules, "seconds": run.seconds, "timeout": timeout}
+    course = scene.name in suite_mod.COURSE_2014
+    times = {"rules": rules, "seconds": run.seconds, "timeout": timeout, "course": course}
     if run.error:
         return SceneGrade(scene, scene_file, "", ERROR, reason=run.error, **times)
     target = dg.Target(run.pixels, run.is_float, run.image_name)
     d = dg.diagnose(scene, rules, target, cache)
     verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
-    return SceneGrade(scene, scene_file, run.image_name, verdict, diagnosis=d, target=target, **times)
+    grid = suite_mod.course_grid(target.in_layout(rules), d.given_color) if course and target.is_float else None
+    return SceneGrade(scene, scene_file, run.image_name, verdict, diagnosis=d, target=target, course_grid=grid, **times)
 
 
 def grade_program(

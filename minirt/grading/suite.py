@@ -17,6 +17,10 @@ the grading set leaves open at the suite's size:
   to a slanted horizon put every pixel's hit at a different distance, 120 to millions; t_max is read to
   within 1 % from ~150 to ~50000 (the grading set's hits all lie within ~100).
 
+A program of the 2014 edition also renders the course's own six test scenes (``COURSE_2014``), and each
+of those scenes says beside minirt's verdict what the course's test -- colours compared at a 10x10 grid
+-- would have said (``course_grid``).
+
 ``separation`` counts the pixels by which one scene tells two values of one rule apart; the test
 tests/program/test_suite_separates.py asserts a floor for every pair over the suite. The pairs no scene
 can tell apart under the suite's rules are ``minirt.diagnose.SAME_UNDER_EXERCISE`` (each with its reason,
@@ -44,6 +48,25 @@ SUITE_SIZE = (96, 96)
 
 GRADING = ("rules", "three_balls", "exercise")  # the bundled grading set (minirt.diagnose.GRADING_SET)
 DESIGNED = ("offset_coarse", "offset_middle", "offset_fine", "highlight", "horizon")  # scenes/suite/
+# The 2014 course's own test scenes (its test program for sub task e, "Raytracing"), transcribed as scene
+# files (scenes/suite/course2014_*.toml), in the suite of a 2014 program; at 100x100, where the course's
+# 10x10 grid falls on every 10th pixel (the course rendered 800x800 and sampled every 80th).
+COURSE_2014 = tuple(
+    f"course2014_{n}"
+    for n in (
+        "ambient_sphere",
+        "diffuse_plane",
+        "shadows",
+        "reflection_spheres",
+        "reflection_on_plane",
+        "reflect_large",
+    )
+)
+COURSE_SIZE = (100, 100)
+# The course's comparison: AdjustColor(bitmap(x, y)) (clamped to [0, 1]) at a 10x10 grid of pixels, each
+# channel equal to the course's colour within a relative 1e-4 of the smaller (a zero must be a zero).
+GRID = 10
+GRID_REL = 1e-4
 
 # A difference the suite counts: more than two 8-bit levels on some channel of the clamped colour, so that
 # an 8-bit image (one level of rounding allowed) and a float one (2^-10 allowed) both show it.
@@ -62,9 +85,26 @@ def suite_path(name: str) -> Path:
     return BUNDLED / f"{name}.toml" if name in GRADING else BUNDLED / "suite" / f"{name}.toml"
 
 
-def program_suite() -> list[SuiteScene]:
-    """The scenes ``minirt grade --program`` renders by default, in order, each with its size."""
-    return [SuiteScene(n, suite_path(n), SUITE_SIZE) for n in (*GRADING, *DESIGNED)]
+def program_suite(edition: str | None = None) -> list[SuiteScene]:
+    """The scenes ``minirt grade --program`` renders by default, in order, each with its size; a program of
+    the 2014 edition also renders the course's own test scenes (``COURSE_2014``)."""
+    out = [SuiteScene(n, suite_path(n), SUITE_SIZE) for n in (*GRADING, *DESIGNED)]
+    if edition == "2014":
+        out += [SuiteScene(n, suite_path(n), COURSE_SIZE) for n in COURSE_2014]
+    return out
+
+
+def course_grid(image: np.ndarray, reference: np.ndarray) -> str:
+    """What the 2014 course's test would have said of a program's float image (H, W, 3) of one of its
+    scenes: "pass" when every channel at its 10x10 grid (every W/10-th pixel, from 0) equals the reference's
+    colour, both clamped to [0, 1] and as float32 (the course's ``Color``), within ``GRID_REL`` of the
+    smaller; else "fail"."""
+    h, w = reference.shape[:2]
+    ys, xs = np.arange(0, h, max(1, h // GRID)), np.arange(0, w, max(1, w // GRID))
+    a = np.clip(image[np.ix_(ys, xs)], 0.0, 1.0).astype(np.float32)
+    b = np.clip(reference[np.ix_(ys, xs)], 0.0, 1.0).astype(np.float32)
+    ok = np.abs(a - b) <= np.minimum(np.abs(a), np.abs(b)) * np.float32(GRID_REL)
+    return "pass" if bool(ok.all()) else "fail"
 
 
 def with_rule(rules: Rules, name: str, value: Any) -> Rules:
