@@ -15,7 +15,7 @@ import pytest
 from minirt import diagnose as dg
 from minirt.grading import program as gp
 from minirt.grading import suite as sm
-from minirt.model.rules import resolve
+from minirt.model.rules import PROFILES, resolve
 from minirt.model.scene import load_scene
 from minirt.oracles.program import make_spec
 
@@ -126,3 +126,66 @@ def test_a_clamp_is_named_as_one_of_the_two_values_the_exercise_makes_the_same(f
     assert g.diagnosis.rules == {} and g.diagnosis.mismatch_pixels == 0
     assert g.diagnosis.undetermined == {"clamp": ["true", "specular"]}
     assert ("clamp", "specular") in [(i["rule"], i["value"]) for i in g.diagnosis.indistinguishable]
+
+
+# -- the 2014 edition: C++ sources compiled through minirt's driver, graded over the 2014 suite ----------------
+
+BUGS_2014 = ROOT / "tests" / "program" / "data" / "raytracer2014_bugs.cpp"
+SAMPLE_2014 = ROOT / "scenes" / "samples" / "raytracer2014.cpp"
+
+
+@pytest.fixture(scope="module")
+def suite_2014():
+    out = []
+    for s in sm.program_suite("2014"):
+        scene = load_scene(s.path).with_overrides(width=s.size[0], height=s.size[1], samples=1)
+        out.append((str(s.path), scene, PROFILES["eth2014"]))
+    return out
+
+
+def _sample(folder: Path, **defines: str) -> Path:
+    """The bundled 2014 sample with some of its bug switches (#define OFFSET, PIXEL, FROM_PLANE) set."""
+    text = SAMPLE_2014.read_text()
+    for name, value in defines.items():
+        start = text.index(f"#define {name} ")
+        text = text[:start] + f"#define {name} {value}" + text[text.index("\n", start) :]
+    path = folder / "_".join(f"{k}{v}" for k, v in defines.items()).replace(".", "p") / "raytracer.cpp"
+    path.parent.mkdir()
+    path.write_text(text)
+    return path
+
+
+def test_a_2014_solution_with_four_real_bugs_is_diagnosed_exactly(suite_2014, cache):
+    g = gp.grade_program(make_spec(str(BUGS_2014)), suite_2014, cache=cache)
+    assert g.compile["ok"], g.compile["message"]
+    d = g.diagnosis
+    assert d.rules == {
+        "offset": "0.0001",
+        "ray_origin": "image-plane",
+        "pixel_sample": "corner",
+        "near_root_only": "true",
+    }
+    assert d.undetermined == {} and d.mismatch_pixels == 0 and d.indistinguishable == []
+    doc = g.as_dict()
+    assert doc["program"]["edition"] == "2014"
+    course = [s for s in doc["scenes"] if s["scene"] in sm.COURSE_2014]
+    assert [s["scene"] for s in course] == list(sm.COURSE_2014)
+    # pixel corners move every grid point of a shaded surface: the course's own test fails it too
+    assert "fail" in {s["course_grid"] for s in course}
+    assert all("course_grid" not in s for s in doc["scenes"] if s["scene"] not in sm.COURSE_2014)
+
+
+def test_the_course_grid_passes_an_offset_of_1e_4_that_the_suite_names(folder, suite_2014, cache):
+    # secondary rays 1e-4 along the ray (the edition: 1e-3), primary rays as the edition says: the course's
+    # 10x10 grids see nothing wrong, the offset scenes read the offset
+    g = gp.grade_program(make_spec(str(_sample(folder, PIXEL="0.5", FROM_PLANE="0"))), suite_2014, cache=cache)
+    assert g.diagnosis.rules == {"offset": "0.0001"} and g.diagnosis.indistinguishable == []
+    assert [s.course_grid for s in g.scenes if s.course] == ["pass"] * len(sm.COURSE_2014)
+
+
+def test_a_correct_2014_solution_matches_every_scene_and_passes_the_course_grids(folder, suite_2014, cache):
+    path = _sample(folder, OFFSET="1e-3", PIXEL="0.5", FROM_PLANE="0")
+    g = gp.grade_program(make_spec(str(path)), suite_2014, cache=cache)
+    assert g.verdict == "match", [s.as_dict() for s in g.scenes]
+    assert g.diagnosis.indistinguishable == []
+    assert [s.course_grid for s in g.scenes if s.course] == ["pass"] * len(sm.COURSE_2014)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import itertools
 import math
 
+import numpy as np
 import pytest
 
 from minirt import diagnose as dg
@@ -106,3 +107,23 @@ def test_the_suite_is_the_grading_set_and_the_designed_scenes():
     for s in sm.program_suite():
         scene = load_scene(s.path)
         assert scene.name == s.name and s.size == sm.SUITE_SIZE
+
+
+def test_the_course_grid_compares_as_the_course_did():
+    ref = np.zeros((100, 100, 3))
+    ref[..., 1] = 0.5
+    ref[50:, :, 0] = 3.0  # over 1: AdjustColor clamps both sides
+    img = ref.astype(np.float32)
+    assert sm.course_grid(img, ref) == "pass"
+    off = img.copy()
+    off[10, 20, 1] *= 1 + 2e-4  # a grid point (every 10th pixel of 100), 2e-4 off: beyond the course's 1e-4
+    assert sm.course_grid(off, ref) == "fail"
+    between = img.copy()
+    between[11, 21] = 0.9  # no grid point: the course never looked there
+    assert sm.course_grid(between, ref) == "pass"
+    speck = img.copy()
+    speck[0, 0, 2] = 1e-9  # where the course's colour is 0, only 0 passes
+    assert sm.course_grid(speck, ref) == "fail"
+    clamped = img.copy()
+    clamped[60, 0, 0] = 1.5
+    assert sm.course_grid(clamped, ref) == "pass"
