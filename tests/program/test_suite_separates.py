@@ -66,7 +66,10 @@ def test_every_listed_pair_differs_on_enough_pixels(profile, suites, cache):
     base = rm.PROFILES[profile]
     weak, same = [], []
     for name, a, b in listed_pairs():
-        if profile == "exercise" and (name, frozenset({a, b})) in dg.SAME_UNDER_EXERCISE:
+        # a 2014 program receives every plane with a unit normal (minirt.oracles.program.edition_scene): an
+        # unnormalised plane normal cannot show, and the suite says so (tests/program/test_program_suite.py)
+        same_here = profile == "eth2014" and name == "raw_normals_plane"
+        if same_here or (profile == "exercise" and (name, frozenset({a, b})) in dg.SAME_UNDER_EXERCISE):
             same.append((name, a, b, _best(suites[profile], base, name, a, b, cache)[0]))
             continue
         pixels, scene = _best(suites[profile], base, name, a, b, cache)
@@ -76,8 +79,7 @@ def test_every_listed_pair_differs_on_enough_pixels(profile, suites, cache):
     # the pairs listed as the same under the exercise's rules are the same on every scene of the suite (at
     # most a handful of pixels just past a ball's lit edge, where a shadow ray slips past its own ball)
     assert all(p <= 10 for *_, p in same), same
-    if profile == "exercise":
-        assert len(same) == 2
+    assert len(same) == (2 if profile == "exercise" else 6)  # raw_normals_plane's four values: six pairs
 
 
 # Values 1 % apart, around the numbers real solutions use
