@@ -60,7 +60,9 @@ def _print(g) -> None:
             err.print(f"  {terminal_text(line, MAX_MESSAGE)}")
     for s in g.scenes:
         d = s.as_dict()
-        what = d["error"] or (", ".join(f"{k}={v}" for k, v in d["rules"].items()) or "as the model") + (
+        named = [f"{k}={v}" for k, v in d["rules"].items()] + [f"{k} undecided" for k in d["undetermined"]]
+        named = ", ".join(named)
+        what = d["error"] or (named or "as the model") + (
             f"; {d['mismatch_pixels']} pixels unexplained" if d["mismatch_pixels"] else ""
         )
         if "course_grid" in d:  # one of the 2014 course's test scenes: its own test's verdict beside

@@ -74,6 +74,7 @@ class SceneGrade(Grade):
             "mismatch_pixels": d.mismatch_pixels if d else None,
             "as_given_pixels": d.as_given_pixels if d else None,
             "rules": d.changed if d else {},
+            "undetermined": sorted(d.undetermined) if d else [],  # rules this image alone cannot decide
             "error": self.error,
         }
         if self.target is not None:
