@@ -94,8 +94,9 @@ def grade(
             metavar="SPEC",
             help="Grade a program, not one image: a command line with {scene} (or {scene_json}) and {out}, "
             "e.g. 'python3 tracer.py {scene} {out}' (it writes {out}.pfm, .exr, .png, .ppm ...), or a C++ "
-            "source, raytracer.cpp. It renders the grading suite (or SCENE alone) in a sandbox; each image is "
-            "diagnosed. Untrusted: see --no-sandbox.",
+            "source, raytracer.cpp. It renders the program suite -- the grading set, five scenes that read the "
+            "offset, t_max and the specular exponent, and for a 2014 source the course's own six test scenes "
+            "-- (or SCENE alone) in a sandbox; the images are diagnosed together. Untrusted: see --no-sandbox.",
         ),
     ] = None,
     edition: Annotated[
@@ -133,9 +134,11 @@ def grade(
     in shadow, what a reflection shows, ...), each group with a sentence and a `minirt probe ... --image`
     command for one of its pixels.
 
-    With --program SPEC: the student's program itself renders the grading suite's scenes (or SCENE),
-    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene; --out
-    FILE.html writes its page (every scene's pictures and the diagnosis, in one file).
+    With --program SPEC: the student's program itself renders the program suite (the grading set and
+    the scenes built to tell every rule apart, at 96x96; a 2014 source also the course's own test scenes,
+    each with the course's 10x10-grid verdict beside minirt's) or SCENE, in a sandbox; one diagnosis of
+    all its images, one verdict for the program, one line per scene; --out FILE.html writes its page
+    (every scene's pictures and the diagnosis, in one file).
 
     Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
     (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,

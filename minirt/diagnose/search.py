@@ -56,8 +56,8 @@ def moot_rules(scene: Scene, rules: Rules) -> set[str]:
     """Rules that provably change no pixel of this scene under ``rules`` (minirt.model.effects): the exponent
     and the clamp without lit terms, the background when it is black, offsets without secondary rays; the
     rules from real solutions' bugs where nothing they act on is there (no balls, no lit terms, every normal
-    of unit length as written), the sign of s under an even, unclamped highlight, and the normal's sign when
-    every normal is turned to face the ray."""
+    of unit length as written), the sign of s under an even, unclamped highlight, the normal's sign when
+    every normal is turned to face the ray, and the shadow rays' range when none is traced."""
     fx = effects(scene, rules)
     out = set()
     if not fx.specular:
@@ -66,6 +66,8 @@ def moot_rules(scene: Scene, rules: Rules) -> set[str]:
         out.add("specular_s")  # (r·(-s))^e = (r·s)^e: an even power, unclamped
     if rules.two_sided is True:
         out.add("ball_normal")  # every normal is turned to face the ray, whichever way it pointed
+    if rules.shadow_rays is False:
+        out.add("shadow_range")  # no shadow ray is traced: where one would end changes nothing
     if not (fx.diffuse or fx.specular):
         out |= {"clamp", "light", "shadow_rays"}
     if not any(scene.background):

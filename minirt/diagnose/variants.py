@@ -229,7 +229,11 @@ class VariantCache:
         n = scene.camera.width * scene.camera.height
         self.renders += len(group) * (1 if idx is None else idx.size / n)
         tr = Tracer(scene, group, precision=precision, runtime=True)
-        o, d = tr.primary_rays(idx)  # the candidates' rays one after the other
+        # One ray is traced twice: Dr.Jit folds arrays of width 1 into literals, and the kernel of one such
+        # ray through two mirror planes (scenes/suite/offset_coarse.toml, one bounce) failed LLVM's verifier
+        # ("Instruction does not dominate all uses"), which aborts the process.
+        one = idx is not None and idx.size == 1 and len(group) == 1
+        o, d = tr.primary_rays(np.repeat(idx, 2) if one else idx)  # the candidates' rays one after the other
         with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
             color, levels = tr.trace(o, d, tree=True, path="fused")
         m = levels[0].record.get("shadow_margin")
@@ -239,6 +243,8 @@ class VariantCache:
         # interleave of a 256^2 variant).
         c = tr.to_numpy3(color, also=() if m is None else (m,))
         sill = np.zeros(c.shape[0], dtype=bool) if m is None else np.asarray(m) < EPS_REL * _scale(scene)
+        if one:
+            c, sill = c[:1], sill[:1]
         if idx is None:
             h, w = scene.camera.height, scene.camera.width
             return [Variant(group[0], c.copy().reshape(h, w, 3), sill.copy().reshape(h, w))]
