@@ -27,6 +27,7 @@ from minirt.cli.options import (
     parse_size,
     pool,
 )
+from minirt.cli.program_options import FuzzDirOpt, FuzzOpt, ProgramCommandOpt, ProgramFileOpt
 from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
 
@@ -120,6 +121,10 @@ def grade(
             help="With --program: run it without bubblewrap (limits kept, isolation not): only for code you trust.",
         ),
     ] = False,
+    program_file: ProgramFileOpt = None,
+    program_command: ProgramCommandOpt = None,
+    fuzz: FuzzOpt = 0,
+    fuzz_dir: FuzzDirOpt = None,
 ) -> None:
     """Grade another tracer's image of a scene: is it the exercise's model, and if not, which rule
     settings explain it (searched over every rule; `minirt render SCENE --rule ...` with them reproduces
@@ -137,6 +142,21 @@ def grade(
     with its own render cache, pages written as images are graded) or on a Dask cluster (--scheduler);
     the files are the same bytes either way.
     """
+    if program_file is not None or program_command is not None:
+        from minirt.cli.program_class import grade_program_class_command
+
+        if class_dir is None or program is not None or image is not None or fuzz or fuzz_dir is not None:
+            raise MinirtError("--program-file and --program-command grade a class: --class DIR, no --program, "
+                              "IMAGE or --fuzz")  # fmt: skip
+        grade_program_class_command(
+            class_dir, program_file=program_file, program_command=program_command, edition=edition, adapter=adapter,
+            timeout=timeout, sandbox=not no_sandbox, scene_path=scene_path, out_dir=out_dir or Path("grades"),
+            json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, workers=workers,
+            scheduler=scheduler,
+        )  # fmt: skip
+        return
+    if (fuzz or fuzz_dir is not None) and program is None:
+        raise MinirtError("--fuzz and --fuzz-dir go with --program")
     if program is not None:
         from minirt.cli.program import grade_program_command
 
@@ -146,6 +166,7 @@ def grade(
         grade_program_command(
             program, scene_path, image, edition=edition, adapter=adapter, timeout=timeout, sandbox=not no_sandbox,
             json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, class_dir=class_dir,
+            fuzz=fuzz, fuzz_dir=fuzz_dir,
         )  # fmt: skip
         return
     for given, option in ((edition, "--edition"), (adapter, "--adapter"), (timeout, "--timeout")):

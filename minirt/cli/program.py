@@ -17,9 +17,7 @@ def grade_program_command(
     program: str, scene_path, image, *, edition, adapter, timeout, sandbox, json_out, size, profile, rule, quiet,
     class_dir,
 ) -> None:  # fmt: skip
-    from minirt import diagnose as dg
     from minirt.grading import program as grading
-    from minirt.model.bundled import find_scene
     from minirt.oracles.program import make_spec
 
     if image is not None or class_dir is not None:
@@ -27,13 +25,10 @@ def grade_program_command(
     spec = make_spec(program, edition, adapter, timeout, sandbox)
     if json_out not in (None, "-"):
         output_file(Path(json_out), "--json")
-    wh = parse_size(size) or grading.SUITE_SIZE
-    stems = [scene_path] if scene_path is not None else list(dg.GRADING_SET)
-    suite = []
-    for stem in stems:
-        path = find_scene(stem)
-        scene, rules = load(path, *wh, None, profile, rule)
-        suite.append((str(path), scene, grading.given_rules(rules, spec, profile is not None)))
+    suite = [
+        (f, sc, grading.given_rules(r, spec, profile is not None))
+        for f, sc, r in load_suite(scene_path, size, profile, rule)
+    ]
     with progress_bar(not quiet) as bar:
         task = bar.add_task("grading the program", total=len(suite)) if bar else None
 
@@ -47,6 +42,22 @@ def grade_program_command(
     if json_out != "-":
         _print(g)
     raise typer.Exit(g.exit_code)
+
+
+def load_suite(scene_path, size, profile, rule) -> list:
+    """The scenes a program is graded over: SCENE alone, or the grading suite, at --size (default the suite's
+    size), as (file, scene, rules) with the scene's rules (--profile and --rule applied)."""
+    from minirt import diagnose as dg
+    from minirt.grading import program as grading
+    from minirt.model.bundled import find_scene
+
+    wh = parse_size(size) or grading.SUITE_SIZE
+    stems = [scene_path] if scene_path is not None else list(dg.GRADING_SET)
+    suite = []
+    for stem in stems:
+        path = find_scene(stem)
+        suite.append((str(path), *load(path, *wh, None, profile, rule)))
+    return suite
 
 
 def _print(g) -> None:
