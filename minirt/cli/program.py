@@ -9,22 +9,27 @@ import typer
 
 from minirt.cli.console import MAX_MESSAGE, emit_json, err, out, progress_bar
 from minirt.cli.options import load, output_file, parse_size
+from minirt.cli.program_fuzz import fuzz_folder, print_fuzz, run_fuzz
 from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
 
 
 def grade_program_command(
     program: str, scene_path, image, *, edition, adapter, timeout, sandbox, json_out, size, profile, rule, quiet,
-    class_dir,
+    class_dir, fuzz=0, fuzz_dir=None,
 ) -> None:  # fmt: skip
     from minirt.grading import program as grading
     from minirt.oracles.program import make_spec
 
     if image is not None or class_dir is not None:
-        raise MinirtError("--program renders its own images: give no IMAGE or --class with it")
+        raise MinirtError(
+            "--program renders its own images: give no IMAGE or --class with it (a class of programs: --class DIR "
+            "--program-file NAME)"
+        )
     spec = make_spec(program, edition, adapter, timeout, sandbox)
     if json_out not in (None, "-"):
         output_file(Path(json_out), "--json")
+    folder = fuzz_folder(fuzz_dir, json_out) if fuzz else None
     suite = [
         (f, sc, grading.given_rules(r, spec, profile is not None))
         for f, sc, r in load_suite(scene_path, size, profile, rule)
@@ -37,11 +42,16 @@ def grade_program_command(
                 bar.advance(task)
 
         g = grading.grade_program(spec, suite, timeout, on_scene=done)
+        hard = run_fuzz(spec, g, fuzz, folder, size, bar) if fuzz else None
+    doc = g.as_dict() | ({"fuzz": hard} if hard is not None else {})
     if json_out is not None:
-        emit_json(json_out, g.as_dict())
+        emit_json(json_out, doc)
     if json_out != "-":
         _print(g)
-    raise typer.Exit(g.exit_code)
+        if hard is not None:
+            print_fuzz(hard, program)
+    # a numerical failure on a hard scene is a difference from the model, whatever the suite said
+    raise typer.Exit(max(g.exit_code, 1 if hard and hard["failed"] else 0))
 
 
 def load_suite(scene_path, size, profile, rule) -> list:
