@@ -111,7 +111,8 @@ def grade(
         typer.Option(
             "--timeout",
             min=0.001,
-            help="With --program: seconds one scene may take (default: 200x the reference's time, at least 20).",
+            help="With --program or --program-file: seconds one scene may take (default: 200x the reference's "
+            "time, at least 20).",
         ),
     ] = None,
     no_sandbox: Annotated[
@@ -133,7 +134,11 @@ def grade(
     command for one of its pixels.
 
     With --program SPEC: the student's program itself renders the grading suite's scenes (or SCENE),
-    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene.
+    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene. --fuzz N
+    adds N hard scenes of the fuzz campaign and reports the program's numerical failures there.
+
+    With --class DIR --program-file NAME (or --program-command): each student's program graded so, one
+    row per student in OUT/grades.csv, grades.json and index.html.
 
     Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
     (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,
@@ -148,6 +153,9 @@ def grade(
         if class_dir is None or program is not None or image is not None or fuzz or fuzz_dir is not None:
             raise MinirtError("--program-file and --program-command grade a class: --class DIR, no --program, "
                               "IMAGE or --fuzz")  # fmt: skip
+        for given, option in ((scenes_dir, "--scenes"), (cache, "--cache")):
+            if given is not None:
+                raise MinirtError(f"{option} goes with a class of images, not of programs (SCENE picks a scene)")
         grade_program_class_command(
             class_dir, program_file=program_file, program_command=program_command, edition=edition, adapter=adapter,
             timeout=timeout, sandbox=not no_sandbox, scene_path=scene_path, out_dir=out_dir or Path("grades"),
