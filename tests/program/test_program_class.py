@@ -62,6 +62,9 @@ def cpp_class(tmp_path_factory):
         (root / "class" / name).mkdir(parents=True)
         (root / "class" / name / "raytracer.cpp").write_text(source)
     (root / "class" / "eve").mkdir()  # handed in nothing
+    (root / "class" / "fay").symlink_to(root / "class" / "ann")  # another's folder, linked: not followed
+    (root / "class" / "gus").mkdir()
+    (root / "class" / "gus" / "raytracer.cpp").symlink_to(SAMPLE_2014)  # a link out of the class folder
     (root / "class" / ".git").mkdir()
     people = classroom.students(root / "class")
     skipped = classroom.skipped_entries(root / "class")
@@ -80,7 +83,7 @@ def rows_of(graded) -> dict[str, dict]:
 def test_each_student_is_one_row_with_the_diagnosis_or_the_reason(cpp_class):
     graded, _out = cpp_class
     rows = rows_of(graded)
-    assert list(rows) == ["ann", "ben", "cat", "dan", "eve"]
+    assert list(rows) == ["ann", "ben", "cat", "dan", "eve", "fay", "gus"]
     assert rows["ann"]["verdict"] == "differs"
     assert rows["ann"]["rules"] == {"pixel_sample": "corner", "ray_origin": "image-plane"}
     assert rows["ann"]["undetermined"] == {} and rows["ann"]["mismatch_pixels"] == 0
@@ -95,7 +98,9 @@ def test_each_student_is_one_row_with_the_diagnosis_or_the_reason(cpp_class):
     assert "did not finish in 1 s" in rows["dan"]["reason"]
     assert rows["eve"] == {**rows["eve"], "verdict": "error", "reason": "no raytracer.cpp in the student's folder"}
     assert rows["eve"]["grade"] is None and rows["eve"]["mismatch_pixels"] is None
-    assert graded.summary["verdicts"] == {"match": 1, "differs": 1, "error": 3}
+    assert rows["fay"]["verdict"] == "error" and "the student folder is a symbolic link" in rows["fay"]["reason"]
+    assert rows["gus"]["reason"].startswith("raytracer.cpp is a symbolic link; links are not followed")
+    assert graded.summary["verdicts"] == {"match": 1, "differs": 1, "error": 5}
     assert graded.summary["skipped"] == [{"folder": ".git", "reason": "hidden (its name starts with a dot)"}]
     assert graded.summary["program"]["edition"] == "2014"
 
@@ -104,7 +109,7 @@ def test_the_class_files_say_the_same(cpp_class):
     graded, out = cpp_class
     with open(out / "grades.csv", newline="") as f:
         table = list(csv.DictReader(f))
-    assert [r["student"] for r in table] == ["ann", "ben", "cat", "dan", "eve"]
+    assert [r["student"] for r in table] == ["ann", "ben", "cat", "dan", "eve", "fay", "gus"]
     assert table[0]["rules"] == "pixel_sample=corner ray_origin=image-plane" and table[0]["verdict"] == "differs"
     assert table[3]["scenes_failed"] == "3" and table[1]["scenes_failed"] == "0"
     assert json.loads((out / "grades.json").read_text())["grades"][0]["rules"] == rows_of(graded)["ann"]["rules"]
@@ -175,3 +180,14 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, args, words):
     p = minirt("grade", *args, cwd=tmp_path)
     assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr, p.stderr
     assert not (tmp_path / "grades").exists()  # nothing written before the input was found good
+
+
+def test_the_class_page_loads_clean_in_a_browser(cpp_class, tmp_path):
+    from support.browser import console, loaded_page
+
+    _, out = cpp_class
+    dom, attrs = loaded_page(tmp_path, (out / "index.html").resolve().as_uri(), "data-ready")
+    assert attrs["data-errors"] == "0" and attrs["data-csp-violations"] == "0", attrs
+    assert not console(dom), console(dom)
+    # the counts' header, cat, dan, eve, fay and gus, and each of cat's and dan's three scenes (the others drew none)
+    assert dom.stdout.count('class="badge v-fail"') == 1 + 5 + 2 * 3
