@@ -23,6 +23,7 @@ def grade_program_class_command(
     from minirt.grading import classroom, program_class
     from minirt.oracles.program import sandbox as jail
 
+    adapter = adapter.absolute() if adapter is not None else None  # read in the workers, wherever they run
     source = program_class.ProgramSource(program_file, program_command, edition, adapter, timeout, sandbox)
     source.check()
     people = classroom.students(class_dir)
@@ -57,9 +58,10 @@ def grade_program_class_command(
     if json_out is not None:
         emit_json(json_out, summary)
     v = summary["verdicts"]
+    n, m = len(people), len(suite)
     (err if json_out == "-" else out).print(
-        f"graded {len(people)} programs over {len(suite)} scenes: {v['match']} match, {v['differs']} differ, "
-        f"{v['error']} error; wrote {terminal_text(graded.index)}"
+        f"graded {n} program{'s' * (n != 1)} over {m} scene{'s' * (m != 1)}: {v['match']} match, "
+        f"{v['differs']} differ, {v['error']} error; wrote {terminal_text(graded.index)}"
     )
     for k in skipped[:10]:
         err.print(f"skipped {terminal_text(k.folder, 80)}: {terminal_text(k.reason)}")

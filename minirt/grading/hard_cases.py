@@ -235,7 +235,7 @@ def scene_with_rules(doc: dict[str, Any], rules: Rules) -> str:
 
     base = PROFILES["exercise"]
     doc = dict(doc)
-    doc["render"] = {**doc.get("render", {}), "profile": "exercise"}
+    doc["render"] = {**doc.get("render", {}), "profile": "exercise", "samples": 1}  # one ray a pixel, as graded
     doc["model"] = {n: list(v) if isinstance(v, tuple) else v for n in base.differs(rules) if (v := getattr(rules, n))
                     is not None}  # fmt: skip
     return dump_toml(doc)

@@ -242,7 +242,8 @@ def grade_programs(
     workers = workers or jobs.default_workers(len(people), per_worker=PER_WORKER)
     if on_start:
         on_start(len(people), workers)
-    todo = [ProgramJob(str(s), source, tuple(suite), profile_given) for s in people]
+    # absolute: a worker process (or a cluster's, with the same paths) need not share this one's folder
+    todo = [ProgramJob(str(s.absolute()), source, tuple(suite), profile_given) for s in people]
 
     def failed(job: ProgramJob, message: str) -> ProgramRow:
         return ProgramRow(Path(job.student).name, ERROR, reason=message)
