@@ -58,6 +58,10 @@ def run_fuzz(spec, g, n: int, folder: Path, size, bar=None) -> dict[str, Any]:
     from minirt.model import rules as rules_mod
 
     rules = hard_cases.hard_rules(g.scenes[0].rules, g.diagnosis.changes)
+    doc = {"seed": SEED, "families": list(FAMILIES), "rules": {k: rules_mod.format_rule_value(k, getattr(rules, k))
+           for k in sorted(rules.as_dict())}, "failed": 0, "scenes": [], "not_run": ""}  # fmt: skip
+    if g.verdict == "error":  # no rules found, and nothing the hard scenes could add to "it draws nothing"
+        return doc | {"not_run": "the program drew no image of the suite"}
     cases = hard_scenes(n, size, rules)
     task = bar.add_task("hard cases", total=len(cases)) if bar else None
 
@@ -67,13 +71,7 @@ def run_fuzz(spec, g, n: int, folder: Path, size, bar=None) -> dict[str, Any]:
 
     graded = hard_cases.grade_hard_cases(spec, cases, folder, spec.timeout, on_case=done)
     failed = [c for c in graded if c.verdict != hard_cases.OK]
-    return {
-        "seed": SEED,
-        "families": list(FAMILIES),
-        "rules": {k: rules_mod.format_rule_value(k, getattr(rules, k)) for k in sorted(rules.as_dict())},
-        "failed": len(failed),
-        "scenes": [c.as_dict() for c in graded],
-    }
+    return doc | {"failed": len(failed), "scenes": [c.as_dict() for c in graded]}
 
 
 def print_fuzz(doc: dict[str, Any], program: str) -> None:
@@ -90,4 +88,7 @@ def print_fuzz(doc: dict[str, Any], program: str) -> None:
                 MAX_MESSAGE,
             )
         )
+    if doc["not_run"]:
+        out.print(f"fuzz: not run: {doc['not_run']}")
+        return
     out.print(f"fuzz: {len(doc['scenes'])} hard scenes, {doc['failed']} with numerical failures or errors")

@@ -104,3 +104,13 @@ def test_a_hard_scene_reads_back_with_the_rules_it_is_compared_under(profile):
     rules = replace(PROFILES[profile], t_max=30000.0, raw_normals_ball="both", specular_exponent=16)
     for _, _, text, _scene, own in program_fuzz.hard_scenes(6, "24", rules):
         assert own == rules and 'profile = "exercise"' in text
+
+
+def test_a_program_that_draws_nothing_is_not_fuzzed(tmp_path):
+    script = tmp_path / "crash.py"
+    script.write_text("import sys\nsys.exit(3)\n")
+    p = minirt("grade", "--program", f"{sys.executable} {script} {{scene}} {{out}}", "--size", SIZE, "--fuzz", "4",
+               "--json", "-", "-q", cwd=tmp_path)  # fmt: skip
+    fuzz = json.loads(p.stdout)["fuzz"]
+    assert fuzz["not_run"] == "the program drew no image of the suite" and fuzz["scenes"] == []
+    assert not (tmp_path / "fuzz").exists()
