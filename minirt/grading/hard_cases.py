@@ -127,15 +127,18 @@ def _nonfinite(target: dg.Target, rules: Rules) -> np.ndarray:
     return bitmap.undo_layout(bad, **bitmap.layout_of(rules)).max(-1) > 0
 
 
-def classify(scene: Scene, rules: Rules, target: dg.Target, cache: dg.VariantCache) -> dict[str, Any]:
+def classify(scene: Scene, rules: Rules, target: dg.Target, cache: dg.VariantCache) -> dict[str, Any] | None:
     """The failing pixels of ``target`` against the reference under ``rules`` (the module's rule): per kind,
-    the ill-conditioned count, the float32 count and an example pixel."""
+    the ill-conditioned count, the float32 count and an example pixel; None when the image's layout under
+    ``rules`` does not fit the scene."""
     from minirt.diagnose.rest import primary
 
     h, w = scene.camera.height, scene.camera.width
     target.model_shape = (h, w)
     v = cache.get(scene, rules, f32=True)
     d = target.difference(v.color, rules)
+    if d is None:  # a transposed layout the suite found, on a scene that is not square
+        return None
     nonfinite = _nonfinite(target, rules).reshape(-1)
     beyond = target.beyond(np.nan_to_num(d, nan=0.0)).reshape(-1) & ~nonfinite
     at = np.flatnonzero(beyond)
@@ -179,6 +182,8 @@ def grade_hard_case(
     if run.error:
         return HardCase(name, family, ERROR, error=run.error)
     c = classify(scene, rules, dg.Target(run.pixels, run.is_float, run.image_name), cache)
+    if c is None:
+        return HardCase(name, family, ERROR, error="the image does not fit the layout the suite found (transposed)")
     verdict = FAILS if sum(c["pixels"].values()) else OK
     return HardCase(name, family, verdict, c["pixels"], c["ill"], c["f32"], c["example"])
 
