@@ -107,7 +107,7 @@ def file_problem(path: Path) -> str | None:
 
 def student_spec(source: ProgramSource, student: Path):
     """The ProgramSpec of one student's program, or the reason there is none (a str)."""
-    from minirt.oracles.program import make_spec
+    from minirt.oracles.program import ProgramSpec, make_spec
 
     problem = folder_problem(student)
     if problem is not None:
@@ -118,9 +118,11 @@ def student_spec(source: ProgramSource, student: Path):
         problem = file_problem(file)
         if problem is not None:
             return problem
+    if source.command is None:  # a source (make_spec would take a path with a space for a command line)
+        edition = source.edition or ("2013" if source.adapter else "2014")
+        return ProgramSpec(str(file), "cpp", source=file, edition=edition, adapter=source.adapter,
+                           timeout=source.timeout, sandbox=source.sandbox)  # fmt: skip
     try:
-        if source.command is None:
-            return make_spec(str(file), source.edition, source.adapter, source.timeout, source.sandbox)
         text = source.command.replace("{dir}", shlex.quote(str(folder)))
         if file is not None:
             text = text.replace("{file}", shlex.quote(str(file)))

@@ -62,6 +62,8 @@ def cpp_class(tmp_path_factory):
         (root / "class" / name).mkdir(parents=True)
         (root / "class" / name / "raytracer.cpp").write_text(source)
     (root / "class" / "eve").mkdir()  # handed in nothing
+    (root / "class" / "ida n").mkdir()  # a space in the folder's name; ben's source (its build is reused)
+    (root / "class" / "ida n" / "raytracer.cpp").write_text(sources["ben"])
     (root / "class" / "fay").symlink_to(root / "class" / "ann")  # another's folder, linked: not followed
     (root / "class" / "gus").mkdir()
     (root / "class" / "gus" / "raytracer.cpp").symlink_to(SAMPLE_2014)  # a link out of the class folder
@@ -83,7 +85,7 @@ def rows_of(graded) -> dict[str, dict]:
 def test_each_student_is_one_row_with_the_diagnosis_or_the_reason(cpp_class):
     graded, _out = cpp_class
     rows = rows_of(graded)
-    assert list(rows) == ["ann", "ben", "cat", "dan", "eve", "fay", "gus"]
+    assert list(rows) == ["ann", "ben", "cat", "dan", "eve", "fay", "gus", "ida n"]
     assert rows["ann"]["verdict"] == "differs"
     assert rows["ann"]["rules"] == {"pixel_sample": "corner", "ray_origin": "image-plane"}
     assert rows["ann"]["undetermined"] == {} and rows["ann"]["mismatch_pixels"] == 0
@@ -100,7 +102,8 @@ def test_each_student_is_one_row_with_the_diagnosis_or_the_reason(cpp_class):
     assert rows["eve"]["grade"] is None and rows["eve"]["mismatch_pixels"] is None
     assert rows["fay"]["verdict"] == "error" and "the student folder is a symbolic link" in rows["fay"]["reason"]
     assert rows["gus"]["reason"].startswith("raytracer.cpp is a symbolic link; links are not followed")
-    assert graded.summary["verdicts"] == {"match": 1, "differs": 1, "error": 5}
+    assert rows["ida n"]["verdict"] == "match"
+    assert graded.summary["verdicts"] == {"match": 2, "differs": 1, "error": 5}
     assert graded.summary["skipped"] == [{"folder": ".git", "reason": "hidden (its name starts with a dot)"}]
     assert graded.summary["program"]["edition"] == "2014"
 
@@ -109,7 +112,7 @@ def test_the_class_files_say_the_same(cpp_class):
     graded, out = cpp_class
     with open(out / "grades.csv", newline="") as f:
         table = list(csv.DictReader(f))
-    assert [r["student"] for r in table] == ["ann", "ben", "cat", "dan", "eve", "fay", "gus"]
+    assert [r["student"] for r in table] == ["ann", "ben", "cat", "dan", "eve", "fay", "gus", "ida n"]
     assert table[0]["rules"] == "pixel_sample=corner ray_origin=image-plane" and table[0]["verdict"] == "differs"
     assert table[3]["scenes_failed"] == "3" and table[1]["scenes_failed"] == "0"
     assert json.loads((out / "grades.json").read_text())["grades"][0]["rules"] == rows_of(graded)["ann"]["rules"]
