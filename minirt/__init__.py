@@ -128,7 +128,8 @@ def check(
     geometry pixel by pixel, shading, rules, one verdict per scene and backend.
 
     ``scenes``: a scene file, a bundled scene's name, a folder of scene files, or a list of them;
-    None checks every bundled scene. ``backends``: ``"all"``, a comma list or a list of names.
+    None checks every bundled scene. ``backends``: ``"all"``, a comma list or a list of names; a student's
+    program, ``"program:SPEC"`` (last), gives only an image: its geometry check is SKIP, its image compared.
     ``size``: (width, height) to render at instead of each scene's own. ``workers`` / ``scheduler``:
     each (scene, oracle) check as a Dask job on that many local processes or on a running cluster (give
     one; neither: every check in this process);
@@ -146,7 +147,8 @@ def check(
 
     spec = backends if isinstance(backends, str) else ",".join(backends)
     names = backends_mod.parse_backends(spec)
-    backends_mod.require_oracle(names, "backends")
+    backends_mod.require_oracle(names, "backends", programs_too=True)
+    checks.refuse_cached_programs(names, cache, "cache")
     if size is not None and (len(size) != 2 or min(size) < 1):
         raise MinirtError(f"size {size!r}: expected (width, height), each >= 1")
     if scenes is None:

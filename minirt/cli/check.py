@@ -35,17 +35,19 @@ from minirt.io.untrusted import terminal_text
 VERDICT_STYLE = {"pass": "green", "warn": "yellow", "fail": "bold red", "error": "bold magenta", "skip": "dim"}
 
 
-def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, scheduler, cache):
+def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, scheduler, cache, program=None):
     """Shared by `check` and `report`: the flags, each checked in the order bad input is told, then the
-    check (minirt.harness.checks) with a progress bar on a terminal. Returns the result, the backends' names
-    the size and the scenes (each file parsed once)."""
+    check (minirt.harness.checks) with a progress bar on a terminal. ``program``: check's flags for a
+    program backend (``program_backends``). Returns the result, the backends' names the size and the scenes
+    (each file parsed once)."""
     from minirt.harness import backends, checks
 
     workers = pool(workers, scheduler, default=1)
 
     files = checks.scene_files(paths)
-    names = backends.parse_backends(backend)
-    backends.require_oracle(names)
+    names = program_backends(backends.parse_backends(backend), **(program or {}))
+    backends.require_oracle(names, programs_too=True)
+    checks.refuse_cached_programs(names, cache)
     wh = parse_size(size)
     scenes = checks.read_all(files)  # bad input first, before any long work; each file parsed once
     if cache is not None:
@@ -66,6 +68,31 @@ def _run_checks(paths, backend: str, size: str | None, quiet: bool, workers, sch
     return result, names, wh, scenes
 
 
+def program_backends(names: list[str], edition=None, adapter=None, timeout=None, no_sandbox=False) -> list[str]:
+    """``names`` with check's program flags (--edition, --adapter, --timeout, --no-sandbox) written into each
+    program backend's name, ``program(key=value,...):SPEC`` (minirt.oracles.program), after its own options;
+    each program then parsed (a bad combination is bad input) and its sandbox found, before any work."""
+    from minirt.harness import backends
+
+    given = {"edition": edition, "adapter": adapter, "timeout": timeout, "sandbox": "off" if no_sandbox else None}
+    given = {k: v for k, v in given.items() if v is not None}
+    flag = {"edition": "--edition", "adapter": "--adapter", "timeout": "--timeout", "sandbox": "--no-sandbox"}
+    if given and not any(backends.is_program(n) for n in names):
+        raise MinirtError(f"{flag[next(iter(given))]} goes with a program backend: -b 'program:SPEC'")
+    out = []
+    for n in names:
+        if backends.is_program(n):
+            opts = ",".join(f"{k}={v:g}" if k == "timeout" else f"{k}={v}" for k, v in given.items())
+            if opts:
+                own, _, spec = n[len("program") :].partition(":")
+                n = f"program({own.strip('()') + ',' if own.strip('()') else ''}{opts}):{spec}"
+            ok, why = backends.get(n).available()
+            if not ok:
+                raise MinirtError(f"--backend {n}: {why}")
+        out.append(n)
+    return out
+
+
 def _print_warnings(result, names: list[str], size: tuple[int, int] | None, scenes) -> None:
     """The hazard warnings of every checked scene (minirt.harness.checks.hazard_warnings), one line each."""
     from minirt.harness import checks
@@ -82,13 +109,16 @@ def _print_check(result) -> None:
         for name, b in s.backends.items():
             g = b.checks.get("geometry")
             sh = b.checks.get("shading")
-            geo = (
-                f"mask {g.figures['mask_mismatch']} ({g.figures['mask_mismatch_outside_band']} off band), "
-                f"id {g.figures['id_mismatch']}, dt {g.figures['depth_rel_err_max']:.1e}, "
-                f"n {g.figures['normal_deg_max']:.1e} deg"
-                if g
-                else "-"
-            )
+            if g is not None and g.verdict == "skip":  # a backend that gives only an image: said why
+                geo = f"skip: {terminal_text(g.reason)}"
+            else:
+                geo = (
+                    f"mask {g.figures['mask_mismatch']} ({g.figures['mask_mismatch_outside_band']} off band), "
+                    f"id {g.figures['id_mismatch']}, dt {g.figures['depth_rel_err_max']:.1e}, "
+                    f"n {g.figures['normal_deg_max']:.1e} deg"
+                    if g
+                    else "-"
+                )
             if sh is None:
                 shade = "-"
             elif sh.verdict == "skip":
@@ -117,9 +147,21 @@ def _print_check(result) -> None:
     err.print(t)
 
 
+CheckBackendOpt = Annotated[
+    str,
+    typer.Option(
+        "--backend",
+        "-b",
+        help=OraclesOpt.__metadata__[0].help.rstrip(".")
+        + "; and a student's program, 'program:SPEC' (a command line with {scene} and {out}, or a C++ source), "
+        "last in the list: its image alone is compared (its geometry check says SKIP).",
+    ),
+]
+
+
 def check(
     scene_paths: ScenesArg = None,
-    backend: OraclesOpt = "all",
+    backend: CheckBackendOpt = "all",
     json_out: JsonOpt = None,
     junit: Annotated[Path | None, typer.Option("--junit", help="Write the results as JUnit XML.")] = None,
     size: SizeOpt = None,
@@ -127,8 +169,34 @@ def check(
     scheduler: SchedulerOpt = None,
     cache: CacheOpt = None,
     quiet: QuietOpt = False,
+    edition: Annotated[
+        str | None,
+        typer.Option("--edition", help="With a C++ program backend: the exercise's edition, 2014 (default) or 2013."),
+    ] = None,
+    adapter: Annotated[
+        Path | None,
+        typer.Option(
+            "--adapter", metavar="FILE", help="With a 2013 C++ program backend: the course's adapter (README)."
+        ),
+    ] = None,
+    timeout: Annotated[
+        float | None,
+        typer.Option("--timeout", min=0.001, help="With a program backend: seconds one scene may take (default 60)."),
+    ] = None,
+    no_sandbox: Annotated[
+        bool,
+        typer.Option(
+            "--no-sandbox",
+            help="With a program backend: run it without bubblewrap (limits kept, isolation not): only for code "
+            "you trust.",
+        ),
+    ] = False,
 ) -> None:
     """Compare the reference tracer with the oracles: geometry pixel by pixel, shading, rules.
+
+    A student's program is a backend too (-b 'program:python3 tracer.py {scene} {out}'): it gives only an
+    image, so its geometry check says SKIP and its image is compared with the reference's level by level,
+    off the edges (README: A program under test).
 
     Exit status: 0 all pass (or warn/skip), 1 a check failed, 2 bad input or a backend error.
     """
@@ -137,7 +205,8 @@ def check(
     if json_out != "-":
         output_file(Path(json_out) if json_out else None, "--json")
     output_file(junit, "--junit")
-    result, names, wh, scenes = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
+    program = {"edition": edition, "adapter": adapter, "timeout": timeout, "no_sandbox": no_sandbox}
+    result, names, wh, scenes = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache, program)
     _print_check(result)
     _print_warnings(result, names, wh, scenes)
     if json_out:
@@ -187,7 +256,7 @@ def report(
             raise MinirtError(f"{f}: not a readable sweep ({e})") from None
     from minirt.harness import backends
 
-    backends.require_oracle(backends.parse_backends(backend))  # before the folder is made
+    backends.require_oracle(backends.parse_backends(backend), programs_too=True)  # before the folder is made
     output_folder(out_dir)
     result, names, wh, scenes = _run_checks(scene_paths, backend, size, quiet, workers, scheduler, cache)
     _print_check(result)

@@ -51,7 +51,13 @@ def grade(
     ] = None,
     json_out: JsonOpt = None,
     out_dir: Annotated[
-        Path | None, typer.Option("--out", "-o", help="Write an HTML page with the pictures (DIR/index.html).")
+        Path | None,
+        typer.Option(
+            "--out",
+            "-o",
+            help="Write an HTML page with the pictures (DIR/index.html; with --program: one file, FILE.html, its "
+            "pictures inside it).",
+        ),
     ] = None,
     class_dir: Annotated[
         Path | None,
@@ -89,8 +95,9 @@ def grade(
             metavar="SPEC",
             help="Grade a program, not one image: a command line with {scene} (or {scene_json}) and {out}, "
             "e.g. 'python3 tracer.py {scene} {out}' (it writes {out}.pfm, .exr, .png, .ppm ...), or a C++ "
-            "source, raytracer.cpp. It renders the grading suite (or SCENE alone) in a sandbox; each image is "
-            "diagnosed. Untrusted: see --no-sandbox.",
+            "source, raytracer.cpp. It renders the program suite -- the grading set, five scenes that read the "
+            "offset, t_max and the specular exponent, and for a 2014 source the course's own six test scenes "
+            "-- (or SCENE alone) in a sandbox; the images are diagnosed together. Untrusted: see --no-sandbox.",
         ),
     ] = None,
     edition: Annotated[
@@ -133,9 +140,12 @@ def grade(
     in shadow, what a reflection shows, ...), each group with a sentence and a `minirt probe ... --image`
     command for one of its pixels.
 
-    With --program SPEC: the student's program itself renders the grading suite's scenes (or SCENE),
-    in a sandbox, and each image is diagnosed; one verdict for the program, one line per scene. --fuzz N
-    adds N hard scenes of the fuzz campaign and reports the program's numerical failures there.
+    With --program SPEC: the student's program itself renders the program suite (the grading set and
+    the scenes built to tell every rule apart, at 96x96; a 2014 source also the course's own test scenes,
+    each with the course's 10x10-grid verdict beside minirt's) or SCENE, in a sandbox; one diagnosis of
+    all its images, one verdict for the program, one line per scene; --out FILE.html writes its page
+    (every scene's pictures and the diagnosis, in one file). --fuzz N adds N hard scenes of the fuzz
+    campaign and reports the program's numerical failures there.
 
     With --class DIR --program-file NAME (or --program-command): each student's program graded so, one
     row per student in OUT/grades.csv, grades.json and index.html.
@@ -168,12 +178,9 @@ def grade(
     if program is not None:
         from minirt.cli.program import grade_program_command
 
-        if out_dir is not None:
-            raise MinirtError("--out: a program's grade has no HTML page yet; use --json FILE")
-
         grade_program_command(
             program, scene_path, image, edition=edition, adapter=adapter, timeout=timeout, sandbox=not no_sandbox,
-            json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, class_dir=class_dir,
+            json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, class_dir=class_dir, page=out_dir,
             fuzz=fuzz, fuzz_dir=fuzz_dir,
         )  # fmt: skip
         return

@@ -16,7 +16,7 @@ from minirt.io.untrusted import terminal_text
 
 def grade_program_command(
     program: str, scene_path, image, *, edition, adapter, timeout, sandbox, json_out, size, profile, rule, quiet,
-    class_dir, fuzz=0, fuzz_dir=None,
+    class_dir, page=None, fuzz=0, fuzz_dir=None,
 ) -> None:  # fmt: skip
     from minirt.grading import program as grading
     from minirt.oracles.program import make_spec
@@ -29,10 +29,12 @@ def grade_program_command(
     spec = make_spec(program, edition, adapter, timeout, sandbox)
     if json_out not in (None, "-"):
         output_file(Path(json_out), "--json")
+    output_file(page, "--out")
     folder = fuzz_folder(fuzz_dir, json_out) if fuzz else None
+    edition = spec.edition if spec.kind == "cpp" else None
     suite = [
         (f, sc, grading.given_rules(r, spec, profile is not None))
-        for f, sc, r in load_suite(scene_path, size, profile, rule)
+        for f, sc, r in load_suite(scene_path, size, profile, rule, edition)
     ]
     with progress_bar(not quiet) as bar:
         task = bar.add_task("grading the program", total=len(suite)) if bar else None
@@ -46,28 +48,34 @@ def grade_program_command(
     doc = g.as_dict() | ({"fuzz": hard} if hard is not None else {})
     if json_out is not None:
         emit_json(json_out, doc)
+    if page is not None:
+        from minirt.grading.program_page import write_program_page
+
+        write_program_page(g, page)
     if json_out != "-":
         _print(g)
         if hard is not None:
             print_fuzz(hard, program)
+        if page is not None:
+            out.print(f"wrote {terminal_text(page)}")
     # a numerical failure on a hard scene is a difference from the model, whatever the suite said
     raise typer.Exit(max(g.exit_code, 1 if hard and hard["failed"] else 0))
 
 
-def load_suite(scene_path, size, profile, rule) -> list:
-    """The scenes a program is graded over: SCENE alone, or the grading suite, at --size (default the suite's
-    size), as (file, scene, rules) with the scene's rules (--profile and --rule applied)."""
-    from minirt import diagnose as dg
-    from minirt.grading import program as grading
+def load_suite(scene_path, size, profile, rule, edition: str | None = None) -> list:
+    """The scenes a program is graded over: SCENE alone (at --size, default the suite's size), or the
+    program suite (minirt.grading.suite; a C++ source of ``edition`` 2014 also the course's test scenes),
+    each at its own size unless --size, as (file, scene, rules) with the scene's rules (--profile and
+    --rule applied)."""
+    from minirt.grading import suite as suite_mod
     from minirt.model.bundled import find_scene
 
-    wh = parse_size(size) or grading.SUITE_SIZE
-    stems = [scene_path] if scene_path is not None else list(dg.GRADING_SET)
-    suite = []
-    for stem in stems:
-        path = find_scene(stem)
-        suite.append((str(path), *load(path, *wh, None, profile, rule)))
-    return suite
+    wh = parse_size(size)
+    if scene_path is not None:
+        scenes = [(find_scene(scene_path), wh or suite_mod.SUITE_SIZE)]
+    else:
+        scenes = [(s.path, wh or s.size) for s in suite_mod.program_suite(edition)]
+    return [(str(path), *load(path, w, h, None, profile, rule)) for path, (w, h) in scenes]
 
 
 def _print(g) -> None:
@@ -79,10 +87,14 @@ def _print(g) -> None:
             err.print(f"  {terminal_text(line, MAX_MESSAGE)}")
     for s in g.scenes:
         d = s.as_dict()
-        what = d["error"] or (", ".join(f"{k}={v}" for k, v in d["rules"].items()) or "as the model") + (
+        named = [f"{k}={v}" for k, v in d["rules"].items()] + [f"{k} undecided" for k in d["undetermined"]]
+        named = ", ".join(named)
+        what = d["error"] or (named or "as the model") + (
             f"; {d['mismatch_pixels']} pixels unexplained" if d["mismatch_pixels"] else ""
         )
-        out.print(terminal_text(f"  {d['scene']:<14} {d['verdict']:<8} {what}", MAX_MESSAGE))
+        if "course_grid" in d:  # one of the 2014 course's test scenes: its own test's verdict beside
+            what += f"; the course's 10x10-grid test: {d['course_grid'] or 'needs a float image'}"
+        out.print(terminal_text(f"  {d['scene']:<30} {d['verdict']:<8} {what}", MAX_MESSAGE))
     for e in g.as_dict()["diagnosis"]["explained"]:
         if not e["decided"]:
             continue

@@ -36,11 +36,11 @@ def hard_scenes(n: int, size: str | None, rules) -> list[tuple]:
     from minirt.campaign import campaign
     from minirt.errors import MinirtError
     from minirt.grading import hard_cases
-    from minirt.grading import program as grading
+    from minirt.grading.suite import SUITE_SIZE
     from minirt.model.bundled import scene_and_rules
     from minirt.model.scene import parse_scene
 
-    wh = parse_size(size) or grading.SUITE_SIZE
+    wh = parse_size(size) or SUITE_SIZE
     out = []
     for name, family, drawn in campaign.scenes(n, SEED, FAMILIES, wh):
         text = hard_cases.scene_with_rules(tomllib.loads(drawn), rules)

@@ -308,10 +308,16 @@ def one_of(search: Search, given: Rules, best: Rules, undecided: list[tuple[str,
     with its scene value as the alternative."""
     named = set(given.differs(best))
     equals: list[Rules] = [put_back(given, best, u) for u in undecided]
-    for r in _candidates(search, given, best):
-        if not set(best.differs(r)) & named:
-            continue  # about a rule the answer does not name: ``indistinguishable`` says what the scene cannot show
-        if r in equals or same_tracer(best, r) or search.clearly_worse(best, r):
+    asked = [
+        r for r in _candidates(search, given, best)
+        # a rule the answer does not name: ``indistinguishable`` says what the scene cannot show
+        if set(best.differs(r)) & named and r not in equals and not same_tracer(best, r)
+        and not search.clearly_worse(best, r)
+    ]  # fmt: skip
+    traced = [r for r in asked if r.traced() != best.traced()]
+    search.cache.prefetch(search.scene, traced, search.quick_pixels(), probe=True)  # one trace for all
+    for r in asked:
+        if r in equals:
             continue
         if not search.quick_not_worse(best, r):
             continue

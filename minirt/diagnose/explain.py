@@ -190,7 +190,9 @@ def _indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: T
     coded = coded_levels(vb.color.reshape(-1, 3), best, target.is_float)
     out = []
     moot = moot_rules(scene, best)
-    for cand in single_moves(best, rules_mod.TRACE_RULES):
+    moves = single_moves(best, rules_mod.TRACE_RULES)
+    cache.prefetch(scene, [c for c in moves if best.differs(c)[0] not in moot], stride)  # one trace for all
+    for cand in moves:
         (name,) = best.differs(cand)
         if name in moot or _distinct(scene, best, cand, coded, stride, cache, target.is_float) == 0:
             value = getattr(cand, name)

@@ -29,7 +29,7 @@ from minirt.diagnose.target import Target
 from minirt.diagnose.variants import VariantCache
 from minirt.model import rules as rules_mod
 from minirt.model.rules import Rules
-from minirt.model.scene import Scene
+from minirt.model.scene import Ball, Scene
 
 
 @dataclass
@@ -234,6 +234,33 @@ def _same_everywhere(images: list[Image], changes: dict[str, Any], cache: Varian
     out = []
     for _key, e in sorted((common or {}).items()):
         item = dict(e, scene_that_tells=None)
-        item["why"] = e.get("why") or "no scene of the suite tells them apart"
+        item["why"] = e.get("why") or _why_suite(e["rule"], changes, images)
         out.append(item)
     return out
+
+
+# Why a single change draws every image of a suite the same, where the rules make it so for any scene
+# (a rule moot under the answer: minirt.diagnose.search.moot_rules); else no scene of the suite shows it.
+MOOT_UNDER = {
+    ("shadow_range", "shadow_rays", False): "no shadow ray is traced (shadow_rays = false): where one would end "
+    "changes nothing",
+    ("ball_normal", "two_sided", True): "every normal is turned to face the ray (two_sided = true), whichever way "
+    "it pointed",
+    # the offset scenes (minirt.grading.suite) read an offset that carries a start past a wall the ray came
+    # through from behind; facing the ray, the start moves back towards where the ray came from, and a surface
+    # within the offset on that side, off the ray's path, is a contact -- a ball resting on a floor
+    ("offset", "two_sided", True): "with every normal turned to face the ray (two_sided = true), an offset along "
+    "the normal moves a secondary ray's start back towards where the ray came from: only a surface nearer than "
+    "the offset on that side (a contact) shows it, and no scene of the suite has one",
+}
+
+
+def _why_suite(rule: str, changes: dict[str, Any], images: list[Image]) -> str:
+    for (name, other, value), why in MOOT_UNDER.items():
+        if name == rule and changes.get(other) is value:
+            return why
+    planes = [s for im in images for s in im.scene.shapes if not isinstance(s, Ball)]
+    if rule == "raw_normals_plane" and all(p.written == 1 for p in planes):
+        # a 2014 program receives every plane so (minirt.oracles.program.edition_scene)
+        return "every plane of the suite comes with a normal of unit length: normalised or not, it is the same"
+    return "no scene of the suite tells them apart"

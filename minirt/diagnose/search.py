@@ -28,6 +28,7 @@ unexplained.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from typing import Any
@@ -43,8 +44,11 @@ from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
 
 
+@functools.lru_cache(maxsize=4096)
 def valid_rules(r: Rules) -> bool:
-    """Whether the tracer accepts this rule set (the one cross-rule constraint: offset_along = "ray" needs a number)."""
+    """Whether the tracer accepts this rule set (the one cross-rule constraint: offset_along = "ray" needs a
+    number). Kept per rule set: a search asks about the same few hundred rule sets ~600 times (0.4 s of an
+    800² grade's validation)."""
     return not rules_mod.validate_model_table("exercise", r.as_dict())
 
 
@@ -52,8 +56,8 @@ def moot_rules(scene: Scene, rules: Rules) -> set[str]:
     """Rules that provably change no pixel of this scene under ``rules`` (minirt.model.effects): the exponent
     and the clamp without lit terms, the background when it is black, offsets without secondary rays; the
     rules from real solutions' bugs where nothing they act on is there (no balls, no lit terms, every normal
-    of unit length as written), the sign of s under an even, unclamped highlight, and the normal's sign when
-    every normal is turned to face the ray."""
+    of unit length as written), the sign of s under an even, unclamped highlight, the normal's sign when
+    every normal is turned to face the ray, and the shadow rays' range when none is traced."""
     fx = effects(scene, rules)
     out = set()
     if not fx.specular:
@@ -62,6 +66,8 @@ def moot_rules(scene: Scene, rules: Rules) -> set[str]:
         out.add("specular_s")  # (r·(-s))^e = (r·s)^e: an even power, unclamped
     if rules.two_sided is True:
         out.add("ball_normal")  # every normal is turned to face the ray, whichever way it pointed
+    if rules.shadow_rays is False:
+        out.add("shadow_range")  # no shadow ray is traced: where one would end changes nothing
     if not (fx.diffuse or fx.specular):
         out |= {"clamp", "light", "shadow_rays"}
     if not any(scene.background):
@@ -325,13 +331,17 @@ class Search:
                 return True
         return False
 
+    def quick_pixels(self) -> np.ndarray:
+        """The stride of pixels ``quick_not_worse`` traces a candidate on (``VariantCache.prefetch`` them)."""
+        h, w = self.target.model_shape
+        return np.arange(0, h * w, max(1, (h * w) // SAMPLE))
+
     def quick_not_worse(self, a: Rules, b: Rules) -> bool:
         """Could b fit the image as well as a? On a stride of SAMPLE pixels (b traced there only), b leaves at
         most two more pixels beyond tolerance than a (room for a pixel ill-conditioned in b): a rule set
         clearly worse there is not looked at on every pixel. (A rule set that fits as well leaves the same
         pixels beyond tolerance on every stride; one that breaks even 0.1 % of the pixels shows on ~4.)"""
-        h, w = self.target.model_shape
-        at = np.arange(0, h * w, max(1, (h * w) // SAMPLE))
+        at = self.quick_pixels()
         da, va = self.either(a)
         if da is None:
             return True
@@ -403,6 +413,14 @@ class Search:
         """The candidate that really gains most (with its best output rules, unless that refit lands on a
         rule set already ``seen``), or None (see ``_descend``)."""
         scored = []
+        # the candidates traced on the subset, traced together (``VariantCache.prefetch``); not those one
+        # step from the scene's rules that a shared cache renders in full (``_traced``)
+        keep = self.cache.share
+        self.cache.prefetch(self.scene, [
+            c for c in cands
+            if c.traced() != current.traced() and not (keep and len(start.differs(c)) == 1)
+            and self._estimate(start, current, vc, c, sub.idx) is None
+        ], sub.idx)  # fmt: skip
         for k, c in enumerate(cands):
             est = self._estimate(start, current, vc, c, sub.idx)
             traced = est is None
@@ -667,15 +685,27 @@ class Search:
             return memo[x]
 
         found = []
+        spans = []
         for parity in (0, 1):
             xs = [x for x in range(1, EXPONENT_SEARCH + 1) if x % 2 == parity]
-            lo, hi = 0, len(xs) - 1
-            while hi - lo > 2:
-                m1, m2 = lo + (hi - lo) // 3, hi - (hi - lo) // 3
-                if l1(xs[m1]) <= l1(xs[m2]):
-                    hi = m2
+            spans.append([xs, 0, len(xs) - 1])
+        while True:  # the two ternary searches side by side: each round's four exponents traced together
+            asks = []
+            for xs, lo, hi in spans:
+                if hi - lo > 2:
+                    asks += [xs[lo + (hi - lo) // 3], xs[hi - (hi - lo) // 3]]
                 else:
-                    lo = m1
+                    asks += xs[lo : hi + 1]
+            asks = [x for x in asks if x not in memo]
+            self.cache.prefetch(self.scene, [replace(rules, specular_exponent=x) for x in asks], at, probe=True)
+            if not any(hi - lo > 2 for _, lo, hi in spans):
+                break
+            for span in spans:
+                xs, lo, hi = span
+                if hi - lo > 2:
+                    m1, m2 = lo + (hi - lo) // 3, hi - (hi - lo) // 3
+                    span[1:] = [lo, m2] if l1(xs[m1]) <= l1(xs[m2]) else [m1, hi]
+        for xs, lo, hi in spans:
             found.append(min(xs[lo : hi + 1], key=lambda x: (l1(x), x)))
         best = min(found, key=lambda x: (l1(x), x))
         self._exponents[key] = best

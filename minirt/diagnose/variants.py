@@ -45,6 +45,16 @@ def full_render_pixels(scene: Scene) -> float:
 # asks are a few thousand rays, the final masks' hundreds of thousands.
 BAND_SPLIT_RAYS = 1 << 16
 
+# Candidates traced together (``VariantCache.prefetch``): one kernel launch for many rule sets, each ray its
+# candidate's rules (minirt.reference.values.Candidates). A trace's fixed cost is Python building Dr.Jit's
+# graph, ~8-11 ms for the bundled scenes whatever the rays: 19 candidates on 1,024 pixels of rules.toml took
+# 150 ms one by one and 13 ms as one batch, bit for bit the same colours (tests/diagnose/test_batch.py). A
+# batch holds at most this many rays (its colours ~48 MB), more candidates go to another batch.
+BATCH_RAYS = 1 << 21
+# Rules a batch's kernel compiles in (the others are read per ray): candidates that differ in them are traced
+# in separate batches. ``Divergent`` splits a batch on any other rule the kernel turns out to compile in.
+COMPILED_IN = ("shadow_range",)
+
 
 @dataclass
 class Variant:
@@ -97,6 +107,7 @@ class VariantCache:
         self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self._hits: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.alternatives: dict[tuple, tuple[list[dict[str, Any]], set]] = {}  # see explain.indistinguishable
+        self._batched: dict[tuple, Variant] = {}  # ``prefetch``'s subsets, until the next prefetch
         self.requested: set[tuple] = set()
         self.renders = 0  # rays traced, in units of whole images
         self.hits = 0
@@ -155,7 +166,91 @@ class VariantCache:
         if v is not None:
             self.hits += 1
             return Variant(v.rules, v.color.reshape(-1, 3)[idx], v.shadow_ill.reshape(-1)[idx], idx)
+        if self._batched:
+            v = self._batched.get((key, _digest(idx)))
+            if v is not None:
+                return v
         return self._trace(scene, rules.traced(), idx)
+
+    def prefetch(self, scene: Scene, candidates: list[Rules], idx: np.ndarray, probe: bool = False) -> None:
+        """Trace together the candidates that ``subset(scene, r, idx, probe=probe)`` would trace one by one
+        (not cached, not rendered in full): the next ``subset`` calls for them on these pixels read the
+        batch's colours. Kept until the next prefetch (a search step's, one_of's candidates)."""
+        self._batched = {}
+        n = scene.camera.width * scene.camera.height
+        whole = n <= full_render_pixels(scene) and (self.share or not probe)
+        todo, seen = [], set()
+        for r in candidates:
+            key = self.key(scene, r)
+            if key in self._items or whole or key in seen:
+                continue
+            seen.add(key)
+            todo.append(r.traced())
+        if len(todo) < 2:
+            return
+        token = _digest(idx)
+        for v in self._trace_batch(scene, todo, idx):
+            self._batched[(self.key(scene, v.rules), token)] = v
+
+    def _trace_batch(self, scene: Scene, todo: list[Rules], idx: np.ndarray) -> list[Variant]:
+        """``_trace`` of each candidate on ``idx``, as few batches as their compiled-in rules allow."""
+        from minirt.reference.values import Divergent
+
+        groups: dict[tuple, list[Rules]] = {}
+        for r in todo:
+            key = (*(getattr(r, n) for n in COMPILED_IN), r.offset == "error-bound")
+            groups.setdefault(key, []).append(r)
+        out: list[Variant] = []
+        per = max(1, BATCH_RAYS // max(1, idx.size))
+        stack = [g[i : i + per] for g in groups.values() for i in range(0, len(g), per)]
+        while stack:
+            group = stack.pop(0)
+            if len(group) == 1:
+                out.append(self._trace(scene, group[0], idx))
+                continue
+            try:
+                out += self._trace_many(scene, group, idx)
+            except Divergent as e:  # a rule the kernel compiles in: split on it
+                parts: dict[Any, list[Rules]] = {}
+                for r in group:
+                    parts.setdefault(repr(e.fn(r)), []).append(r)
+                stack += list(parts.values())
+        return out
+
+    def _trace_many(
+        self, scene: Scene, group: list[Rules], idx: np.ndarray | None, precision: str = "f64"
+    ) -> list[Variant]:
+        """The candidates traced in one kernel on the pixels ``idx`` (None: every pixel): a batch's kernel
+        (each ray its candidate's rules), one for any number of candidates -- a single render too."""
+        import drjit as dr
+
+        from minirt.reference.tracer import Tracer
+
+        n = scene.camera.width * scene.camera.height
+        self.renders += len(group) * (1 if idx is None else idx.size / n)
+        tr = Tracer(scene, group, precision=precision, runtime=True)
+        # One ray is traced twice: Dr.Jit folds arrays of width 1 into literals, and the kernel of one such
+        # ray through two mirror planes (scenes/suite/offset_coarse.toml, one bounce) failed LLVM's verifier
+        # ("Instruction does not dominate all uses"), which aborts the process.
+        one = idx is not None and idx.size == 1 and len(group) == 1
+        o, d = tr.primary_rays(np.repeat(idx, 2) if one else idx)  # the candidates' rays one after the other
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            color, levels = tr.trace(o, d, tree=True, path="fused")
+        m = levels[0].record.get("shadow_margin")
+        # The colour copied out of Dr.Jit's buffer, which then goes back to its allocation cache for the
+        # next variant: a cache of views would hold every buffer, and each render would write into fresh
+        # memory, page-faulting inside its kernels (in a check's process, 0.25 -> 4.7 ms for the
+        # interleave of a 256^2 variant).
+        c = tr.to_numpy3(color, also=() if m is None else (m,))
+        sill = np.zeros(c.shape[0], dtype=bool) if m is None else np.asarray(m) < EPS_REL * _scale(scene)
+        if one:
+            c, sill = c[:1], sill[:1]
+        if idx is None:
+            h, w = scene.camera.height, scene.camera.width
+            return [Variant(group[0], c.copy().reshape(h, w, 3), sill.copy().reshape(h, w))]
+        k = idx.size
+        part = [slice(i * k, (i + 1) * k) for i in range(len(group))]
+        return [Variant(r, c[s].copy(), sill[s].copy(), idx) for r, s in zip(group, part, strict=True)]
 
     def band(self, scene: Scene, rules: Rules, idx: np.ndarray) -> np.ndarray:
         """(N,) bool: primary rays of pixels ``idx`` whose hit/miss, closest-shape or inside/outside
@@ -262,27 +357,8 @@ class VariantCache:
             return None
 
     def _trace(self, scene: Scene, rules: Rules, idx: np.ndarray | None, precision: str = "f64") -> Variant:
-        import drjit as dr
-
-        from minirt.reference.tracer import Tracer
-
-        n = scene.camera.width * scene.camera.height
-        self.renders += 1 if idx is None else idx.size / n
-        tr = Tracer(scene, rules, precision=precision, runtime=True)
-        o, d = tr.primary_rays(idx)  # full images and subsets alike: one kernel for both
-        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
-            color, levels = tr.trace(o, d, tree=True)
-        m = levels[0].record.get("shadow_margin")
-        # One trace kernel for both; the colour copied out of Dr.Jit's buffer, which then goes back to its
-        # allocation cache for the next variant: a cache of views would hold every buffer, and each
-        # render would write into fresh memory, page-faulting inside its kernels (in a check's process,
-        # 0.25 -> 4.7 ms for the interleave of a 256^2 variant).
-        c = tr.to_numpy3(color, also=() if m is None else (m,)).copy()
-        sill = np.zeros(c.shape[0], dtype=bool) if m is None else np.asarray(m) < EPS_REL * _scale(scene)
-        if idx is None:
-            h, w = scene.camera.height, scene.camera.width
-            return Variant(rules, c.reshape(h, w, 3), sill.reshape(h, w))
-        return Variant(rules, c, sill, idx)
+        """One candidate on the pixels ``idx`` (None: every pixel), in the batches' kernel."""
+        return self._trace_many(scene, [rules], idx, precision)[0]
 
     def _trim(self) -> None:
         if self._bytes <= self.max_bytes:
@@ -308,6 +384,13 @@ def _threads() -> int:
     except AttributeError:  # not on Linux
         n = os.cpu_count() or 1
     return max(1, min(4, n))
+
+
+def _digest(idx: np.ndarray) -> tuple:
+    """Which pixels: a prefetched subset is found again by its pixel indices' bytes."""
+    import hashlib
+
+    return (idx.size, hashlib.blake2b(np.ascontiguousarray(idx).tobytes(), digest_size=16).digest())
 
 
 def _ray_key(rules: Rules) -> tuple:

@@ -77,8 +77,8 @@ def _unique(stem: str, used: set[str]) -> str:
 # Images
 
 
-def _colorbar(assets: Assets) -> str:
-    """The colour bar, under its fixed name (the same pixels on every page)."""
+def colorbar(assets: Assets) -> str:
+    """The heat maps' colour bar, under its fixed name (the same pixels on every page)."""
     return assets.shared(COLORBAR, _lut()[None, :, :])
 
 
@@ -91,7 +91,8 @@ def _lut() -> np.ndarray:
     return np.floor(rgba[:, :3] * 255.0 + 0.5).astype(np.uint8)
 
 
-def _heat(levels: np.ndarray, ill: np.ndarray | None) -> np.ndarray:
+def heat_map(levels: np.ndarray, ill: np.ndarray | None) -> np.ndarray:
+    """A difference picture: per pixel its level (0..CLIP, larger drawn as CLIP) in magma, ``ill`` in SKY."""
     idx = np.clip(np.rint(np.nan_to_num(levels, nan=CLIP, posinf=CLIP)), 0, CLIP).astype(np.intp)
     img = _lut()[idx]
     if ill is not None and ill.shape == levels.shape:
@@ -99,7 +100,8 @@ def _heat(levels: np.ndarray, ill: np.ndarray | None) -> np.ndarray:
     return img
 
 
-def _as8(pixels: np.ndarray, is_float: bool) -> np.ndarray:
+def as8(pixels: np.ndarray, is_float: bool) -> np.ndarray:
+    """An image as a page shows it: 8-bit (a float image written as the exercise's bitmap would)."""
     return to8(pixels) if is_float else np.asarray(pixels, dtype=np.uint8)
 
 
@@ -115,7 +117,8 @@ def _tolerance(g: Grade) -> str:
     return f"{dg.FLOAT_TOL:g} per channel (float image)" if g.target.is_float else "1 level per channel (8-bit image)"
 
 
-def _rule_sentence(rule: str, yours: Any, given: Any) -> str:
+def rule_sentence(rule: str, yours: Any, given: Any) -> str:
+    """grading.sentence for a rule's value (yours) against the given one; "" where it has none to say."""
     try:
         return grading.sentence(rule, yours, given)
     except (KeyError, TypeError, ValueError, IndexError):
@@ -165,7 +168,7 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
             _picture(
                 assets,
                 f"{stem}-{name}.png",
-                _heat(lv, d.ill),
+                heat_map(lv, d.ill),
                 disp,
                 title=title,
                 mismatch=count,
@@ -174,7 +177,7 @@ def _grade_view(g: Grade, stem: str, assets: Assets) -> dict[str, Any]:
             )
         )
     v["heatmaps"] = heat
-    v["colorbar"] = _colorbar(assets)
+    v["colorbar"] = colorbar(assets)
     v["clip"] = CLIP
     v["explained"], v["groups"] = _explained_and_groups(g, stem, assets, disp)
     v["mask_rgb"] = "#{:02x}{:02x}{:02x}".format(*MASK_RGB)
@@ -204,7 +207,7 @@ def _pictures(g: Grade, stem: str, assets: Assets, disp: dict[str, Any]) -> list
     """The image as stored, the exercise's model of the scene, and the best-matching variant, side by side."""
     d = g.diagnosis
     fmt = "float" if g.target.is_float else "8-bit"
-    student8 = _as8(g.target.pixels, g.target.is_float)
+    student8 = as8(g.target.pixels, g.target.is_float)
     given8 = bitmap.bitmap(d.given_color, d.given)
     best8 = bitmap.bitmap(d.best_color, d.best)
     return [
@@ -242,7 +245,7 @@ def _explained_and_groups(g: Grade, stem: str, assets: Assets, disp: dict[str, A
     w, h = g.scene.camera.width, g.scene.camera.height
     explained = []
     base = g.target.in_layout(d.best)
-    base8 = _as8(base, g.target.is_float) if base is not None and base.shape[:2] == (h, w) else None
+    base8 = as8(base, g.target.is_float) if base is not None and base.shape[:2] == (h, w) else None
     for k, e in enumerate(d.explained):
         yours, given = getattr(d.best, e.rule), getattr(d.given, e.rule)
         item = {
@@ -253,7 +256,7 @@ def _explained_and_groups(g: Grade, stem: str, assets: Assets, disp: dict[str, A
             "against": e.against,
             "neither": e.neither,
             "decided": e.rule not in d.undetermined,
-            "sentence": _rule_sentence(e.rule, yours, given),
+            "sentence": rule_sentence(e.rule, yours, given),
             "picture": None,
         }
         if base8 is not None and e.mask is not None and e.mask.shape == (h, w):
@@ -284,7 +287,7 @@ def _peak(levels: np.ndarray) -> str:
 # Pages
 
 
-def _parts() -> dict[str, Any]:
+def grade_parts() -> dict[str, Any]:
     """The grade pages' style (the report's, and their own) and their only script, a self-check for the
     browser test (and anyone who opens the console)."""
     return page_parts("grade.js", "report.css", "grade.css")
@@ -298,7 +301,7 @@ def _write_page(g: Grade, out_dir: Path, stem: str, assets: str, by_content: boo
     folder.mkdir(parents=True, exist_ok=True)
     view = _grade_view(g, stem, Assets(folder, href, by_content))
     page = out_dir / f"{stem}.html"
-    write_page(page, "grade.html", _parts(), g=view, back=back)
+    write_page(page, "grade.html", grade_parts(), g=view, back=back)
     return page
 
 
@@ -334,7 +337,7 @@ def _mistake_views(rows: list[ClassRow], mistakes: Iterable[dict[str, Any]]) -> 
     for g in graded:
         d = g.diagnosis
         for k, value in d.changed.items():
-            said.setdefault((k, value), _rule_sentence(k, getattr(d.best, k), getattr(d.given, k)))
+            said.setdefault((k, value), rule_sentence(k, getattr(d.best, k), getattr(d.given, k)))
     out = []
     for m in mistakes:
         rule, value = str(m.get("rule")), str(m.get("value"))
@@ -343,7 +346,7 @@ def _mistake_views(rows: list[ClassRow], mistakes: Iterable[dict[str, Any]]) -> 
             given = getattr(graded[0].diagnosis.given, rule)
             typed = [x for x in rules_mod.values(rule) if rules_mod.format_rule_value(rule, x) == value]
             if typed:
-                s = _rule_sentence(rule, typed[0], given)
+                s = rule_sentence(rule, typed[0], given)
         out.append({"rule": rule, "value": value, "students": m.get("students", 0), "images": m.get("images", 0),
                     "differing": m.get("differing_images", 0), "sentence": s})  # fmt: skip
     return out
@@ -414,7 +417,7 @@ def write_class_page(rows: list[ClassRow], summary: dict, out_dir: Path, quiet: 
     write_page(
         index,
         "grade_class.html",
-        _parts(),
+        grade_parts(),
         table=table,
         counts=counts,
         per_scene=per_scene,

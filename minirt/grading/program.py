@@ -19,16 +19,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from minirt import diagnose as dg
+from minirt.grading import suite as suite_mod
 from minirt.grading.grade import DIFFERS, ERROR, EXIT, MATCH, Grade, sentence
 from minirt.model import rules as rules_mod
 from minirt.model.rules import PROFILES, Rules
 from minirt.model.scene import Scene
 from minirt.oracles.program import ProgramOracle, ProgramSpec
 
-# The suite's scenes are rendered at this size unless --size says otherwise: every rule of the grading set
-# shows on hundreds of pixels at 96^2 (the bundled scenes are built so), and a NumPy or C++ program renders
-# it in well under a second.
-SUITE_SIZE = (96, 96)
 # A scene's time limit: the reference's time (vectorised float64, ~10-50 ms at 96^2) times this, at least
 # the floor. A C++ or NumPy program is within 10x of the reference; a pure-Python one (one Python call per
 # ray and shape, ~1000x) still fits 96^2 in the floor; a program beyond both is reported as timed out.
@@ -57,6 +54,10 @@ class SceneGrade(Grade):
     rules: Rules | None = None
     seconds: float = 0.0  # the program's wall clock on it (not in the JSON)
     timeout: float = 0.0
+    # one of the 2014 course's test scenes: what the course's 10x10-grid comparison would have said ("pass",
+    # "fail"; None when the program drew no float image, which the course's in-memory colours were)
+    course_grid: str | None = None
+    course: bool = False
 
     @property
     def error(self) -> str:
@@ -73,10 +74,13 @@ class SceneGrade(Grade):
             "mismatch_pixels": d.mismatch_pixels if d else None,
             "as_given_pixels": d.as_given_pixels if d else None,
             "rules": d.changed if d else {},
+            "undetermined": sorted(d.undetermined) if d else [],  # rules this image alone cannot decide
             "error": self.error,
         }
         if self.target is not None:
             out["image_format"] = "float" if self.target.is_float else "8-bit"
+        if self.course:
+            out["course_grid"] = self.course_grid
         return out
 
 
@@ -155,19 +159,21 @@ def grade_scene(
     """One scene through the program, its image diagnosed (or its error)."""
     from minirt.harness import backends
 
-    scene = oracle.graded_scene(scene.with_overrides(samples=1))
+    scene = oracle.scene_as_rendered(scene.with_overrides(samples=1))
     if timeout is None:
         t0 = time.perf_counter()
         backends.render(backends.REFERENCE, scene, rules)
         timeout = timeout_for(time.perf_counter() - t0)
     run = oracle.run_scene(scene, timeout)
-    times = {"rules": rules, "seconds": run.seconds, "timeout": timeout}
+    course = scene.name in suite_mod.COURSE_2014
+    times = {"rules": rules, "seconds": run.seconds, "timeout": timeout, "course": course}
     if run.error:
         return SceneGrade(scene, scene_file, "", ERROR, reason=run.error, **times)
     target = dg.Target(run.pixels, run.is_float, run.image_name)
     d = dg.diagnose(scene, rules, target, cache)
     verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
-    return SceneGrade(scene, scene_file, run.image_name, verdict, diagnosis=d, target=target, **times)
+    grid = suite_mod.course_grid(target.in_layout(rules), d.given_color) if course and target.is_float else None
+    return SceneGrade(scene, scene_file, run.image_name, verdict, diagnosis=d, target=target, course_grid=grid, **times)
 
 
 def grade_program(
@@ -175,15 +181,17 @@ def grade_program(
     suite: list[tuple[str, Scene, Rules]],
     timeout: float | None = None,
     on_scene=None,
+    cache: dg.VariantCache | None = None,
 ) -> ProgramGrade:
     """Render every (scene file, scene, rules) of ``suite`` through the program and grade it: one
     ``SceneGrade`` per scene and the program's diagnosis (``diagnose_suite``). ``timeout``: seconds per
     scene (None: ``timeout_for`` the reference's time). ``on_scene(SceneGrade)`` is called as each is done.
+    ``cache``: the reference's renders, which programs graded over the same suite may share.
     Raises MinirtError for bad input (no sandbox, no compiler)."""
     oracle = ProgramOracle(spec)
     oracle.require_sandbox()
     build = oracle.build()
-    cache = dg.VariantCache(share=False)
+    cache = cache or dg.VariantCache(share=False)
     graded = []
     for scene_file, scene, rules in suite:
         g = grade_scene(oracle, scene, scene_file, rules, cache, timeout or spec.timeout)

@@ -55,8 +55,9 @@ def all_names() -> list[str]:
 
 
 def oracles_among(names: Sequence[str]) -> list[str]:
-    """The oracles in ``names``, in their order: what a comparison compares the reference with."""
-    return [n for n in names if n in ORACLES]
+    """The oracles in ``names``, in their order, and a student's program (``program:SPEC``): what a
+    comparison compares the reference with."""
+    return [n for n in names if n in ORACLES or is_program(n)]
 
 
 def display_name(name: str) -> str:
@@ -74,8 +75,9 @@ def shading_model(name: str, has_color: bool) -> str | None:
 
 
 def parse_backends(spec: str) -> list[str]:
-    """'all', 'reference', or a comma-separated list; unknown names are bad input. A student's program,
-    ``program:SPEC``, ends the list: its SPEC is the rest, commas and all."""
+    """'all', 'reference', or a comma-separated list (where 'all' stands for every registered backend);
+    unknown names are bad input. A student's program, ``program:SPEC``, ends the list: its SPEC is the rest,
+    commas and all."""
     if spec.strip() == "all":
         return all_names()
     at = next((k for k in range(len(spec)) if is_program(spec[k:]) and (k == 0 or spec[k - 1] == ",")), None)
@@ -83,7 +85,9 @@ def parse_backends(spec: str) -> list[str]:
     if program:
         get(program[0]).spec  # noqa: B018 -- parsed now: a bad SPEC is bad input before any work
         spec = spec[:at]
-    names = [s.strip() for s in spec.split(",") if s.strip()] + program
+    listed = [s.strip() for s in spec.split(",") if s.strip()]
+    # "all" in a list (all,program:SPEC): every registered backend in its place
+    names = list(dict.fromkeys(n for s in listed for n in (all_names() if s == "all" else [s]))) + program
     known = all_names()
     unknown = [n for n in names if n not in known and not is_program(n)]
     if unknown or not names:
@@ -93,11 +97,12 @@ def parse_backends(spec: str) -> list[str]:
     return names
 
 
-def require_oracle(names: list[str], spelled: str = "--backend") -> None:
-    """A comparison needs something to compare with: the reference alone is bad input; a program gives a
-    colour image only, and a comparison needs every geometry buffer."""
+def require_oracle(names: list[str], spelled: str = "--backend", programs_too: bool = False) -> None:
+    """A comparison needs something to compare with: the reference alone is bad input. A program gives a
+    colour image only: ``programs_too`` where the comparison checks an image alone (a check, whose geometry
+    check then says SKIP: minirt.harness.image_only), else it is bad input (a campaign needs every buffer)."""
     programs = [n for n in names if is_program(n)]
-    if programs:
+    if programs and not programs_too:
         spec = programs[0].partition(":")[2]
         raise MinirtError(
             f"{spelled} {programs[0]}: a program gives a colour image, and a comparison needs its geometry "

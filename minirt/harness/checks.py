@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from os import PathLike
 from pathlib import Path
 
+from minirt.errors import MinirtError
 from minirt.harness import backends
 from minirt.harness import run as harness
 from minirt.harness.results import CheckResult
@@ -39,6 +40,15 @@ def read_all(paths: Sequence[Path]) -> list[Scene]:
     from minirt.model.scene import load_scene
 
     return [load_scene(p) for p in paths]
+
+
+def refuse_cached_programs(names: Sequence[str], cache: object, spelled: str = "--cache") -> None:
+    """A student's program is never checked through the cache (MinirtError): the cache knows a backend by its
+    name and version, and a program's are its SPEC, not its files -- a source or script changed under the
+    same SPEC would be answered from the cache."""
+    programs = [n for n in names if backends.is_program(n)]
+    if cache is not None and programs:
+        raise MinirtError(f"{spelled}: a program ({programs[0]}) is checked afresh every time; give no cache with it")
 
 
 def job_count(paths: Sequence[Path], names: Sequence[str]) -> int:

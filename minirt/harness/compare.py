@@ -29,6 +29,7 @@ from minirt.errors import MinirtError
 from minirt.harness import backends
 from minirt.harness.attribution import attribute_rules, diagnose_oracle
 from minirt.harness.geometry import check_geometry, preflight
+from minirt.harness.image_only import check_image_only, gives_only_an_image
 from minirt.harness.references import ReferenceCache
 from minirt.harness.results import ORDER, BackendCheck, Check, RuleDiagnosis, worst
 from minirt.harness.shading import check_shading, edge_classes, edge_pixels, shading_exercise
@@ -79,12 +80,21 @@ def check_backend(
         bc.verdict, bc.reason = res.status, res.reason
         bc.seconds = time.perf_counter() - t0
         return bc
+    only_image = gives_only_an_image(res)  # a program's: minirt.harness.image_only
+    if only_image and known is not None and known.scene_as_rendered(scene) != scene:
+        scene = known.scene_as_rendered(scene)  # compared with what it was given (a 2014 program's materials)
+        refs = ReferenceCache(scene)
     ref = refs.get(followed, samples=1)  # deterministic checks: the one-ray-per-pixel rays the oracle cast
     bc.reference = ref
-    pre = preflight(ref, res, need_color=False)
+    bc.checks = check_image_only(scene, followed, name, refs, res) if only_image else {}
+    pre = bc.checks.get("preflight") or preflight(ref, res, need_color=False)
     bc.checks["preflight"] = pre
     if pre.verdict == "fail":
         bc.verdict, bc.reason = "fail", f"pre-flight: {pre.reason}"
+    elif only_image:
+        _verdict(bc)
+        if all(c.verdict == "skip" for k, c in bc.checks.items() if k != "preflight"):  # nothing compared
+            bc.verdict, bc.reason = "skip", bc.checks["shading"].reason
     else:
         # the primary rays' margins, shared by the scene's oracles (a stand-in cache, the campaign's defective
         # reference, has none: check_geometry makes them)
@@ -97,11 +107,7 @@ def check_backend(
             bc.checks["stochastic"] = _stochastic_run(scene, followed, name, refs, geom, samples_rendered)
         if scene.samples > 1 and model == "exercise":
             bc.checks["samples"] = _samples_run(scene, followed, name, refs, samples_rendered)
-        bc.verdict = worst([c.verdict for c in bc.checks.values()])
-        # worst first; an inconclusive check's reason as it is ("inconclusive: ..."), ahead of other warnings
-        said = [(k, c) for k, c in bc.checks.items() if c.verdict in ("fail", "warn", "error")]
-        said.sort(key=lambda kc: (-ORDER.index(kc[1].verdict), not kc[1].inconclusive))
-        bc.reason = "; ".join(c.reason if c.inconclusive else f"{k}: {c.reason}" for k, c in said)
+        _verdict(bc)
     if not explain:
         bc.rule_diagnosis = RuleDiagnosis(reason="not asked for")
         bc.seconds = time.perf_counter() - t0
@@ -110,6 +116,15 @@ def check_backend(
     bc.rule_diagnosis = _rule_diagnosis(scene, rules, followed, name, res, pre, variants, busy)
     bc.seconds = time.perf_counter() - t0
     return bc
+
+
+def _verdict(bc: BackendCheck) -> None:
+    """The backend's verdict from its checks, and its reason: worst first; an inconclusive check's reason as
+    it is ("inconclusive: ..."), ahead of other warnings."""
+    bc.verdict = worst([c.verdict for c in bc.checks.values()])
+    said = [(k, c) for k, c in bc.checks.items() if c.verdict in ("fail", "warn", "error")]
+    said.sort(key=lambda kc: (-ORDER.index(kc[1].verdict), not kc[1].inconclusive))
+    bc.reason = "; ".join(c.reason if c.inconclusive else f"{k}: {c.reason}" for k, c in said)
 
 
 def _rule_diagnosis(scene: Scene, rules: Rules, followed: Rules, name: str, res, pre, variants, busy) -> RuleDiagnosis:

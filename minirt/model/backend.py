@@ -117,6 +117,12 @@ class Backend:
         beside the others' work (minirt.harness.compare.start_ahead): ``concurrent``, by default."""
         return self.concurrent
 
+    def scene_as_rendered(self, scene: Scene) -> Scene:
+        """The scene as this backend renders it, where its input cannot say all of it (a 2014 program's
+        interface has no specular colour: minirt.oracles.program.edition_scene): what its image is compared
+        with. The scene itself, by default."""
+        return scene
+
     def render(self, scene: Scene, rules: Rules, options: dict[str, Any] | None = None) -> RenderResult:
         """Render under `rules` (already adapted by the caller); options are backend-specific, and a
         backend that ``reports_progress`` is given ``options["progress"]``, called as ``progress(done, total)``."""

@@ -89,6 +89,30 @@ class Assets:
                 p.unlink()
 
 
+class InlineAssets:
+    """Pictures inside the page itself, as ``data:`` URIs (the Content Security Policy allows them): a page
+    that is one file. The PNGs are the bytes ``Assets`` would write (minirt.io.images.write_image, into a
+    temporary folder and read back); identical pixels are encoded once."""
+
+    def __init__(self) -> None:
+        self._uris: dict[str, str] = {}
+
+    def image8(self, name: str, pixels: np.ndarray) -> str:
+        from minirt.jobs.processes import temporary_folder
+
+        pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
+        key = hashlib.sha256(pixels.tobytes() + str(pixels.shape).encode()).hexdigest()
+        if key not in self._uris:
+            with temporary_folder("minirt-page-") as tmp:
+                write_image(tmp / "picture.png", pixels)
+                data = (tmp / "picture.png").read_bytes()
+            self._uris[key] = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+        return self._uris[key]
+
+    def shared(self, name: str, pixels: np.ndarray) -> str:
+        return self.image8(name, pixels)
+
+
 def _mine(path: Path) -> bool:
     """Is ``path`` a file of its own (not a symlink planted under its name, which is replaced)?"""
     return path.is_file() and not path.is_symlink()

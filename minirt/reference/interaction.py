@@ -32,7 +32,7 @@ def hit_point_and_normal(tr: TraceSettings, shape_id, o, d, t) -> tuple[Any, Any
     re-projection, which needs the outward one.
     """
     p = t * d
-    origin = tr.values.rule(tr.rules.hit_point == "origin")
+    origin = tr.values.rule("hit_point_origin")
     if origin is not True:
         p = o + p if origin is False else dr.select(origin, p, o + p)
     n, ball = tr.values.frame(shape_id)
@@ -40,7 +40,7 @@ def hit_point_and_normal(tr: TraceSettings, shape_id, o, d, t) -> tuple[Any, Any
         return p, n
     c, r, inv_r, is_ball = ball
     p, n = ball_normal(tr, p, d, c, r, inv_r, is_ball, n)
-    inward = tr.values.rule(tr.rules.ball_normal == "inward")
+    inward = tr.values.rule("ball_normal_inward")
     if inward is not False:
         n = dr.select(is_ball if inward is True else is_ball & inward, -n, n)
     return p, n
@@ -49,7 +49,7 @@ def hit_point_and_normal(tr: TraceSettings, shape_id, o, d, t) -> tuple[Any, Any
 def ball_normal(tr: TraceSettings, p, d, c, r, inv_r, is_ball, n) -> tuple[Any, Any]:
     """Where is_ball: the normal (p - C) / r of the ball (C, r) hit at p, and under error-bound p put
     back on it; elsewhere p and n as given."""
-    reproject = tr.rules.offset == "error-bound"
+    reproject = tr.values.agree(lambda r: r.offset == "error-bound")
     # pbrt-style under error-bound: put the point back on the sphere, normal from it. Otherwise
     # (p - C) times the radius's reciprocal: one division instead of three (the normal moves by at
     # most an ulp more; it is not of unit length to within rounding either way), and that one made
@@ -84,11 +84,12 @@ def offset_origin(tr: TraceSettings, p, n, err, direction, outward=None) -> Any:
     """Start of a secondary ray leaving p in `direction` (n: the shading normal). ``outward`` (error-bound
     only): where true, offset to n's side whatever the direction (see ``outward``)."""
     T, rules = tr.T, tr.rules
-    off = rules.offset
-    if off != "error-bound" and tr.runtime:
-        along = dr.select(dr.opaque(T.Bool, rules.offset_along == "ray"), direction, n)
-        return p + dr.opaque(T.Float, float(off)) * along
-    if off != "error-bound":
+    numeric = not tr.values.agree(lambda r: r.offset == "error-bound")
+    if numeric and tr.runtime:  # read at run time (a batch's rays each their candidate's)
+        along = dr.select(tr.values.rule("offset_along_ray"), direction, n)
+        return p + tr.values.number("offset") * along
+    if numeric:
+        off = rules.offset
         if rules.offset_along == "ray":
             return p + T.Float(off) * direction  # rule offset_along "ray": along the new ray
         return p + T.Float(off) * n  # the exercise's hint: "add a small fraction of normal"
@@ -112,9 +113,9 @@ def outward(tr: TraceSettings, shape_id) -> Any:
     offset along the normal, and as without near_root_only (the far root from inside). Under
     near_root_only a ball is only hit from outside, so its shading normal is the outward one.
     None when the rule does not apply (the offset's side is then that of the new ray)."""
-    nro = tr.values.rule(tr.rules.near_root_only)
+    nro = tr.values.rule("near_root_only")
     balls = any(isinstance(s, Ball) for s in tr.scene.shapes)
-    if tr.rules.offset != "error-bound" or nro is False or not balls:
+    if not tr.values.agree(lambda r: r.offset == "error-bound") or nro is False or not balls:
         return None
     is_ball = tr.values.is_ball(shape_id)
     return is_ball if nro is True else is_ball & nro

@@ -33,9 +33,7 @@ def primary_rays(tr: TraceSettings, pixels: np.ndarray | None = None) -> tuple[A
     the same bits (tested), without a round trip through NumPy. ``pixels``: row-major indices of
     the pixels wanted (default every pixel)."""
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):  # FastMath turns / w into * (1 / w)
-        uv = 0.0 if tr.rules.pixel_sample == "corner" else 0.5
-        if tr.runtime:
-            uv = dr.opaque(tr.T.Float, uv)
+        uv = tr.values.number("pixel_uv") if tr.runtime else 0.0 if tr.rules.pixel_sample == "corner" else 0.5
         return rays(tr, tr.T.Float, tr.T.Array3, uv, uv, pixels)
 
 
@@ -72,11 +70,12 @@ def rays(tr: TraceSettings, F, A3, u, v, pixels: np.ndarray | None = None) -> tu
         wi = w
         yi = idx // w
     xi = idx - yi * wi
-    sx, sy = tr.rules.pixel_shift
     fx, fy = F(xi) + u, F(yi) + v
     if tr.runtime:
-        fx, fy = fx + dr.opaque(F, float(sx)), fy + dr.opaque(F, float(sy))
+        fx = fx + tr.values.number("shift_x", F)
+        fy = fy + tr.values.number("shift_y", F)
     else:
+        sx, sy = tr.rules.pixel_shift
         if sx != 0:  # rule pixel_shift: added only when non-zero, so (0, 0) is the unshifted arithmetic
             fx = fx + float(sx)
         if sy != 0:
@@ -90,7 +89,7 @@ def rays(tr: TraceSettings, F, A3, u, v, pixels: np.ndarray | None = None) -> tu
     d = A3(dx * inv, dy * inv, dz * inv)
     at_camera = A3(0.0, 0.0, cz) + dr.zeros(A3, n)
     if tr.runtime:
-        o = dr.select(dr.opaque(dr.llvm.Bool, tr.rules.ray_origin == "camera"), at_camera, A3(px, py, pz))
+        o = dr.select(tr.values.rule("camera_origin"), at_camera, A3(px, py, pz))
     else:
         o = at_camera if tr.rules.ray_origin == "camera" else A3(px, py, pz)
     return o, d

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from minirt.model.effects import Effects
 from minirt.model.rules import Rules
 from minirt.model.scene import Scene
-from minirt.reference.values import Types, Values
+from minirt.reference.values import Candidates, Types, Values
 
 
 @dataclass(eq=False, repr=False)
@@ -31,7 +31,7 @@ class TraceSettings:
     """
 
     scene: Scene
-    rules: Rules
+    rules: Rules | Candidates  # Candidates: several rule sets in one kernel (Tracer's batch)
     T: Types
     values: Values
     effects: Effects

@@ -152,11 +152,11 @@ def shade(
 ) -> tuple[Level, Any]:
     """shade_level after the closest hit (shape_id, hit, t: inf on a miss). ``margins``: True, False, or
     a mask of the rays whose shadow margins are wanted (the others get 1e30, shadow_margin's none)."""
-    fx, T, rules, values = tr.effects, tr.T, tr.rules, tr.values
+    fx, T, values = tr.effects, tr.T, tr.values
     zero = T.zero3()
     p, n = interaction.hit_point_and_normal(tr, shape_id, o, d, dr.select(hit, t, 0))
     ns = n
-    two_sided = values.rule(rules.two_sided)
+    two_sided = values.rule("two_sided")
     if two_sided is not False:
         flip = dr.dot(d, n) > 0  # shading normal faces the incoming ray
         ns = dr.select(flip if two_sided is True else flip & two_sided, -n, n)
@@ -167,16 +167,21 @@ def shade(
         terms["ambient"] = dr.select(hit, values.material(shape_id, "ambient"), zero)
         local = local + terms["ambient"]
     r, r_dir, nr, raw_shading = _reflected(tr, shape_id, d, ns)
-    err = interaction.error_bound(tr, shape_id, p, o) if rules.offset == "error-bound" else None
+    bound = values.agree(lambda r: r.offset == "error-bound")
+    err = interaction.error_bound(tr, shape_id, p, o) if bound else None
     outward = interaction.outward(tr, shape_id)
-    clamp_all = values.rule(rules.clamp is True)
+    clamp_all = values.rule("clamp_all")
     if fx.diffuse or fx.specular:
         lc = values.vec("light_color")
         s, light_dist, at_light = _to_light(tr, p)
         sn = dr.dot(s, ns)
         lit = hit & ~at_light
-        if fx.shadows and rules.shadow_rays:  # rule shadow_rays false: no shadow test at all
-            lit = _shadow_test(tr, p, ns, err, s, outward, light_dist, hit, record, margins, rec)
+        shadow_rays = values.switch("shadow_rays")  # rule shadow_rays false: no shadow test at all
+        if fx.shadows and shadow_rays is not False:
+            tested = _shadow_test(tr, p, ns, err, s, outward, light_dist, hit, record, margins, rec)
+            lit = tested if shadow_rays is True else dr.select(shadow_rays, tested, lit)
+            if shadow_rays is not True and "shadow_margin" in rec:  # a batch's rays without a test: none
+                rec["shadow_margin"] = dr.select(shadow_rays, rec["shadow_margin"], T.Float(1e30))
         if fx.diffuse:
             sd = sn  # s·n, or with raw_shading s·(the raw normal): the same sign
             if raw_shading is True:
@@ -250,14 +255,14 @@ def _reflected(tr: TraceSettings, shape_id, d, ns) -> tuple[Any, Any, Any, Any]:
 
 def _to_light(tr: TraceSettings, p) -> tuple[Any, Any, Any]:
     """(s, the light's distance, unlit because the light is at the point) at hit points p (rule light)."""
-    rules, values, zero = tr.rules, tr.values, tr.T.zero3()
+    values, zero = tr.values, tr.T.zero3()
     lpos = values.vec("light")
     to_light = lpos - p
     light_dist = dr.norm(to_light)
     # The light exactly at the hit point has no direction: that point is unlit (not 0/0).
     at_light = ~(light_dist > 0)
     s = dr.select(at_light, zero, to_light * (1.0 / dr.select(at_light, 1, light_dist)))
-    as_direction = values.rule(rules.light == "direction")
+    as_direction = values.rule("light_direction")
     if as_direction is not False:
         # rule light "direction": the light's position used as the direction towards it, the same s at
         # every point (a light at the origin has none: unlit, as above)
@@ -292,16 +297,18 @@ def _shadow_test(tr: TraceSettings, p, ns, err, s, outward, light_dist, hit, rec
 def _specular(tr: TraceSettings, shape_id, r, s, sn, lit, lc, clamp_all) -> Any:
     """The highlight (r·s)^e where the clamp rule lets it shine (``clamp_all``: shade's switch for clamp =
     true; rule specular_s: -s)."""
-    T, rules, values, zero = tr.T, tr.rules, tr.values, tr.T.zero3()
-    clamp_specular = values.rule(rules.clamp == "specular")
+    rules, values, zero = tr.rules, tr.values, tr.T.zero3()
+    clamp_specular = values.rule("clamp_specular")
     rs = dr.dot(r, s)
-    negated = values.rule(rules.specular_s == "-s")
+    negated = values.rule("specular_negated")
     if negated is not False:  # rule specular_s "-s": (r·(-s))^e, the incoming light's direction
         rs = -rs if negated is True else dr.select(negated, -rs, rs)
-    e = rules.specular_exponent
     bits = SPECULAR_EXPONENT_MAX.bit_length()
     # (r·s)^e: for e = 8 rs2, rs4, rs4 * rs4
-    pw = _power_runtime(rs, dr.opaque(T.UInt, e), bits) if tr.runtime else _power(rs, e)
+    if tr.runtime:
+        pw = _power_runtime(rs, values.number("specular_exponent"), bits)
+    else:
+        pw = _power(rs, rules.specular_exponent)
     on = lit
     if tr.runtime:
         on = lit & dr.select(clamp_all, (sn > 0) & (rs > 0), ~clamp_specular | (rs > 0))
@@ -316,9 +323,9 @@ def _per_kind(tr: TraceSettings, shape_id, use: str) -> Any:
     """Where the hit shape's normal is used unnormalised for ``use`` ("shading" or "reflection"): rules
     raw_normals_ball and raw_normals_plane, per shape kind. A Python bool where the answer is the same for
     every ray (compiled in), else a Dr.Jit mask (is the hit shape a ball, and the rules read at run time)."""
-    rules, values = tr.rules, tr.values
-    ball = values.rule(rules.raw_normals_ball in (use, "both"))
-    plane = values.rule(rules.raw_normals_plane in (use, "both"))
+    values = tr.values
+    ball = values.rule(f"raw_ball_{use}")
+    plane = values.rule(f"raw_plane_{use}")
     kinds = {isinstance(s, Ball) for s in tr.scene.shapes}
     if kinds == {True}:
         return ball
@@ -336,13 +343,18 @@ def _per_kind(tr: TraceSettings, shape_id, use: str) -> Any:
 def has_margins(tr: TraceSettings) -> bool:
     """Whether shading records shadow margins when asked: only where shadow rays are cast (``shade``)."""
     fx = tr.effects
-    return fx.shadows and tr.rules.shadow_rays and (fx.diffuse or fx.specular)
+    return fx.shadows and tr.values.switch("shadow_rays") is not False and (fx.diffuse or fx.specular)
 
 
 def background(tr: TraceSettings, hit) -> Any:
     """The background term of a ray that hit (``hit``) or missed: rule background."""
     zero = tr.T.zero3()
-    if not tr.effects.background or tr.rules.background == "none":
+    none, on_hit = tr.values.switch("background_none"), tr.values.switch("background_on_hit")
+    if not tr.effects.background or none is True:
         return zero
     bgc = tr.values.vec("background")
-    return dr.select(hit, bgc, zero) if tr.rules.background == "on-hit" else dr.select(hit, zero, bgc)
+    if isinstance(on_hit, bool):
+        out = dr.select(hit, bgc, zero) if on_hit else dr.select(hit, zero, bgc)
+    else:  # a batch: each ray its candidate's
+        out = dr.select(on_hit, dr.select(hit, bgc, zero), dr.select(hit, zero, bgc))
+    return out if none is False else dr.select(none, zero, out)

@@ -80,7 +80,7 @@ def _ball_roots(v, r, f, b, disc, hit) -> Any:
     t1 = dr.select(q_ok, q, 0)
     tn, tf = dr.minimum(t0, t1), dr.maximum(t0, t1)
     inf = F(math.inf)
-    nro = v.rule(v.rules.near_root_only)
+    nro = v.rule("near_root_only")
     if nro is True:
         # "we are only interested in the smaller of the two intersection points, provided it is
         # not negative": from inside a ball the near root is behind the ray, so no hit at all.
@@ -114,7 +114,7 @@ def ball_occludes(v, center, radius, o, d, bounds: tuple[Any, Any] | None = None
         c_zero = (ff >= lo) & (ff <= hi)
     hit = ball_disc(r, gg) >= 0
     both = c_pos & (b < 0)
-    nro = v.rule(v.rules.near_root_only)
+    nro = v.rule("near_root_only")
     if nro is True:
         return hit & both
     other = c_neg | (c_zero & (b < 0))

@@ -20,7 +20,7 @@ and the stable intersection forms rely on IEEE semantics.
 from __future__ import annotations
 
 import time
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from typing import Any
 
 import drjit as dr
@@ -36,7 +36,7 @@ from minirt.reference import film, integrator, sampling
 from minirt.reference.accel import ShapeTable
 from minirt.reference.settings import TraceSettings
 from minirt.reference.shading import Level
-from minirt.reference.values import Tabled, Types, Unrolled, Values
+from minirt.reference.values import Candidates, Tabled, Types, Unrolled, Values
 
 
 class Tracer(TraceSettings):
@@ -50,7 +50,7 @@ class Tracer(TraceSettings):
     def __init__(
         self,
         scene: Scene,
-        rules: Rules,
+        rules: Rules | Sequence[Rules],
         precision: str = "f64",
         prune: bool = True,
         runtime: bool | None = None,
@@ -68,6 +68,12 @@ class Tracer(TraceSettings):
         under another rule (``--rule``, a profile, a test's sweep) then reuses the compiled kernels --
         and compiled in from there, where the selects would cost every ray and a compile is amortised.
 
+        ``rules`` a list: the rule sets traced together in one kernel (runtime only), ray k·n + i the k-th
+        rule set's ray i of ``primary_rays(pixels)`` -- each ray reads the per-ray rules
+        (``values.PER_RAY``) of its own rule set, every other rule must be the same for all
+        (``values.Candidates``), and each rule set's rays come out bit for bit as traced alone: a search's
+        candidates in one launch instead of one each (minirt.diagnose.variants).
+
         ``accel``: how rays find their shapes. "unrolled" tests every shape in code generated for this
         scene (constants compiled in: fastest for a few shapes, one kernel per layout); "bvh" gathers
         from the shape table and walks a BVH over the balls (``minirt.reference.accel``: kernels independent
@@ -75,6 +81,14 @@ class Tracer(TraceSettings):
         brute force, with kernels independent of the layout: what the tree is tested against); "auto"
         picks "bvh" from ``ACCEL_MIN_SHAPES`` shapes on. The same bits every way (tested)."""
         require_llvm()
+        batch = None if isinstance(rules, Rules) else list(rules)
+        if batch is not None:
+            # Several rule sets in one kernel, ray k * n + i the k-th's ray i (``primary_rays``): the rules
+            # that are read at run time come per ray from the candidate's own values, any other rule must
+            # be the same for all (``values.Candidates``; ``Divergent`` otherwise).
+            if not runtime:
+                raise ValueError("a batch of rule sets is traced with runtime=True")
+            rules = Candidates(batch)
         self.scene, self.rules, self.precision, self.prune = scene, rules, precision, prune
         if runtime is None:
             runtime = scene.camera.width * scene.camera.height < integrator.LOOP_FIRST_LEVEL_BELOW
@@ -94,7 +108,11 @@ class Tracer(TraceSettings):
             self.values = Tabled(scene, rules, self.T, runtime, table)
         if precision == "f32":
             _check_float32_range(scene)
-        if prune:
+        if prune and batch is not None:
+            # the union of the candidates' effects: pruning changes no bit (tested), so each candidate's
+            # rays come out as they would traced alone
+            self.effects = union_of_effects([effects(scene, r) for r in batch])
+        elif prune:
             self.effects = effects(scene, rules)
         else:
             self.effects = Effects(True, True, True, True, scene.max_depth > 0, scene.max_depth, True)
@@ -134,6 +152,11 @@ class Tracer(TraceSettings):
     def primary_rays(self, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
         """camera.primary_rays computed in Dr.Jit, the same bits (``sampling.primary_rays``); ``pixels``:
         row-major indices of the pixels wanted (default every pixel)."""
+        if self.values.batch is not None:
+            if pixels is None:
+                pixels = np.arange(self.scene.camera.width * self.scene.camera.height)
+            self.values.set_lanes(pixels.size)
+            pixels = np.tile(pixels, len(self.values.batch.all))
         return sampling.primary_rays(self, pixels)
 
     def sample_rays(self, u, v, pixels: np.ndarray | None = None) -> tuple[Any, Any]:
@@ -296,6 +319,16 @@ DIAGNOSTICS = {
 ACCEL_MIN_SHAPES = 16
 ACCELS = ("unrolled", "bvh", "loop")
 F32_LIMIT = 1e18  # squares stay below float32's max (3.4e38); reciprocals above its min normal
+
+
+def union_of_effects(each: list[Effects]) -> Effects:
+    """The effects a kernel simulates for several rule sets at once: every part any of them needs, the
+    deepest reflection any reaches."""
+    return Effects(
+        *(any(getattr(e, n) for e in each) for n in ("ambient", "diffuse", "specular", "shadows", "reflection")),
+        max(e.reflection_depth for e in each),
+        any(e.background for e in each),
+    )
 
 
 def _check_float32_range(scene: Scene) -> None:

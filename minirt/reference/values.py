@@ -15,13 +15,16 @@ Tracer (its ``accel``):
 Both have the same methods, and each method does the same operations on the same values either way, so
 the same bits (tested: tests/reference/test_accel.py and test_values.py). The tracer's code calls these
 methods and never asks which representation it has. A representation also says how the kernel sees the
-rules' yes/no switches (``rule``): compiled in, or under ``runtime`` read at run time like the values.
+rules' yes/no switches (``rule``) and numbers (``number``): compiled in, or under ``runtime`` read at run
+time like the values -- or, for a batch of rule sets traced in one kernel (``Candidates``), gathered per ray
+from a table of the candidates' values by the ray's lane (``Values.lane``).
 """
 
 from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -72,6 +75,96 @@ class Types:
         return float(dt(1.0) / dt(x))
 
 
+def _numeric_offset(r: Rules) -> float:
+    return float(r.offset) if not isinstance(r.offset, str) else 0.0  # error-bound: no number (not read)
+
+
+# The rules a kernel reads per ray under ``runtime`` (``Values.rule``, ``Values.number``): name -> (the value
+# for one rule set, its type). Every other rule is compiled in (``Candidates``: a batch must agree on it).
+PER_RAY: dict[str, tuple[Callable[[Rules], Any], str]] = {
+    "hit_point_origin": (lambda r: r.hit_point == "origin", "bool"),
+    "ball_normal_inward": (lambda r: r.ball_normal == "inward", "bool"),
+    "offset_along_ray": (lambda r: r.offset_along == "ray", "bool"),
+    "offset": (_numeric_offset, "float"),
+    "near_root_only": (lambda r: bool(r.near_root_only), "bool"),
+    "two_sided": (lambda r: bool(r.two_sided), "bool"),
+    "clamp_all": (lambda r: r.clamp is True, "bool"),
+    "clamp_specular": (lambda r: r.clamp == "specular", "bool"),
+    "light_direction": (lambda r: r.light == "direction", "bool"),
+    "specular_negated": (lambda r: r.specular_s == "-s", "bool"),
+    "specular_exponent": (lambda r: int(r.specular_exponent), "uint"),
+    "raw_ball_shading": (lambda r: r.raw_normals_ball in ("shading", "both"), "bool"),
+    "raw_ball_reflection": (lambda r: r.raw_normals_ball in ("reflection", "both"), "bool"),
+    "raw_plane_shading": (lambda r: r.raw_normals_plane in ("shading", "both"), "bool"),
+    "raw_plane_reflection": (lambda r: r.raw_normals_plane in ("reflection", "both"), "bool"),
+    "pixel_uv": (lambda r: 0.0 if r.pixel_sample == "corner" else 0.5, "float"),
+    "shift_x": (lambda r: float(r.pixel_shift[0]), "float"),
+    "shift_y": (lambda r: float(r.pixel_shift[1]), "float"),
+    "camera_origin": (lambda r: r.ray_origin == "camera", "bool"),
+    "t_max": (lambda r: float(r.t_max), "float"),
+}
+
+
+# Rules a single rule set's kernel compiles in, whatever ``runtime`` (they change which work is done), but a
+# batch reads per ray (``Values.switch``): candidates that differ only in them share one kernel -- a search
+# step's candidates fell into seven kernels by these and the offset's kind, each an LLVM compile (~0.2 s).
+SWITCHES: dict[str, Callable[[Rules], bool]] = {
+    "shadow_rays": lambda r: bool(r.shadow_rays),
+    "background_none": lambda r: r.background == "none",
+    "background_on_hit": lambda r: r.background == "on-hit",
+}
+
+_YES_NO = {n: fn for n, (fn, own) in PER_RAY.items() if own == "bool"} | SWITCHES
+_BIT = {name: k for k, name in enumerate(_YES_NO)}
+_EXPONENT_SHIFT = len(_BIT)  # the exponent's bits above the yes/no rules' (exponents < 2^11: 18 + 11 bits)
+
+
+def _packed(r: Rules) -> int:
+    """A rule set's yes/no per-ray rules as bits, its exponent above them."""
+    bits = sum(1 << k for name, k in _BIT.items() if _YES_NO[name](r))
+    return bits | (int(r.specular_exponent) << _EXPONENT_SHIFT)
+
+
+class Divergent(Exception):
+    """A batch's rule sets disagree on a rule its kernel compiles in (``fn`` of the rules): they cannot
+    share one kernel."""
+
+    def __init__(self, fn: Callable[[Rules], Any]):
+        super().__init__(getattr(fn, "__name__", "rule"))
+        self.fn = fn
+
+
+class Candidates:
+    """Several rule sets traced in one kernel (``Tracer(scene, [rules, ...])``), as the kernel's code reads
+    them: a rule they all agree on reads as that value (``candidates.two_sided``, compiled in or read at run
+    time as for one rule set); one they differ on raises ``Divergent``, except where the code reads it per
+    ray (``Values.rule``, ``Values.number``: each ray its own candidate's value). So a rule the kernel
+    compiles in can never be taken from the wrong candidate: the batch is split instead
+    (minirt.diagnose.variants). Lane k of the batch is the k-th rule set."""
+
+    def __init__(self, rules: Sequence[Rules]):
+        self.all = tuple(rules)
+
+    def agree(self, fn: Callable[[Rules], Any]) -> Any:
+        """fn's answer, the same for every candidate (else ``Divergent``)."""
+        first = fn(self.all[0])
+        for r in self.all[1:]:
+            other = fn(r)
+            if type(other) is not type(first) or other != first:
+                raise Divergent(fn)
+        return first
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or not hasattr(self.all[0], name) or callable(getattr(self.all[0], name)):
+            raise AttributeError(name)  # a rule, not a method: methods answer for one rule set
+
+        def rule(r: Rules, _n=name) -> Any:
+            return getattr(r, _n)
+
+        rule.__name__ = name
+        return self.agree(rule)
+
+
 class Values(ABC):
     """The protocol both representations follow, and what they share.
 
@@ -83,10 +176,39 @@ class Values(ABC):
 
     tabled_balls = 0  # the balls rays find through a shape table (0: none); the integrator's choice of path
 
-    def __init__(self, scene: Scene, rules: Rules, T: Types, runtime: bool):
+    def __init__(self, scene: Scene, rules: Rules | Candidates, T: Types, runtime: bool):
         self.scene, self.rules, self.T, self.runtime = scene, rules, T, runtime
         self._consts: dict[Any, Any] = {}  # ``k``'s opaque values
         self._index = {id(s): k for k, s in enumerate(scene.shapes)}
+        # a batch: each ray's candidate (``set_lanes``), and the tables its per-ray rules are gathered from
+        self.batch: Candidates | None = rules if isinstance(rules, Candidates) else None
+        self.lane: Any = None
+        self._tables: dict[Any, Any] = {}  # the opaque per-ray rules of one rule set
+        self._per_ray: dict[Any, Any] = {}  # a batch's, gathered
+
+    def set_lanes(self, rays_each: int) -> None:
+        """A batch's rays: ``rays_each`` of the first candidate, then as many of the second ... (an input
+        array, as a subset's pixel indices are: one kernel whatever the count)."""
+        if self.batch is not None:
+            from minirt.jit.arrays import aligned  # (an unaligned input array compiles another kernel)
+
+            lane = np.repeat(np.arange(len(self.batch.all), dtype=np.uint32), rays_each)
+            self.lane = dr.llvm.UInt32(aligned(lane, np.uint32))
+            # the per-ray rules gathered here, before any loop of the kernel: a gather at each reading site
+            # (a ball's test reads near_root_only for every ball at every level) tripled the kernels' LLVM
+            # compile, and twenty gathered values live through the loops still cost ~40 %. So the yes/no
+            # rules and the exponent (< 2^11) travel as the bits of one integer per ray, which each reading
+            # site takes its bit from (``number``); the numbers are gathered where first read.
+            table = [_packed(r) for r in self.batch.all] * (2 if len(self.batch.all) == 1 else 1)
+            self._bits = dr.gather(dr.llvm.UInt32, dr.llvm.UInt32(table), self.lane)
+            # the numbers too, here: one gathered inside a loop or a conditional may not be used outside it
+            F = self.T.Float
+            self._per_ray = {(n, F): self._gather(n, F) for n, (_, own) in PER_RAY.items() if own == "float"}
+
+    def agree(self, fn: Callable[[Rules], Any]) -> Any:
+        """fn of the rules, where the kernel compiles the answer in: for a batch, the candidates' common
+        answer (``Candidates.agree``)."""
+        return self.rules.agree(fn) if self.batch is not None else fn(self.rules)
 
     @abstractmethod
     def vec(self, name: str) -> Any:
@@ -145,18 +267,60 @@ class Values(ABC):
         ties keep the lower shape id."""
         # Full width from the start: with no shapes at all these are the results, one per ray.
         t_best = dr.full(self.T.Float, math.inf, dr.width(d))
-        if self.rules.t_max != math.inf or self.runtime:
+        if self.runtime or self.rules.t_max != math.inf:
             # rule t_max: the search starts at a finite "infinity", so hits beyond it are ignored (and a
             # ray that finds none is a miss: shade_level gives it inf). Under ``runtime`` read at run time
-            # (``k``), inf included (min(inf, inf) is inf): one kernel for every t_max a diagnosis tries.
-            t_best = dr.minimum(t_best, self.k("t_max", self.rules.t_max))
+            # (``number``), inf included (min(inf, inf) is inf): one kernel for every t_max a diagnosis tries.
+            t_max = self.number("t_max") if self.runtime else self.k("t_max", self.rules.t_max)
+            t_best = dr.minimum(t_best, t_max)
         id_best = dr.full(self.T.Int, -1, dr.width(d))
         return self._closest(o, d, t_best, id_best)
 
-    def rule(self, cond: bool) -> Any:
-        """A rule's yes/no as the kernel sees it: under ``runtime`` an opaque Dr.Jit Bool (read at run
-        time, one kernel for both answers), else the Python bool itself (compiled in)."""
-        return dr.opaque(self.T.Bool, bool(cond)) if self.runtime else bool(cond)
+    def number(self, name: str, kind: Any = None) -> Any:
+        """A per-ray rule's number (``PER_RAY``) as the kernel reads it at run time (``runtime`` only), in
+        Dr.Jit type ``kind`` (default its own): an opaque value -- or for a batch each ray's candidate's,
+        gathered once per kernel from a table of the candidates' values by the ray's lane (``set_lanes``;
+        the same value in the same operations: the same bits as the candidate traced alone)."""
+        fn, own = PER_RAY[name]
+        kind = kind or self._kind(own)
+        if self.batch is None:
+            v = self._tables.get((name, kind))
+            if v is None:
+                v = self._tables[(name, kind)] = dr.opaque(kind, fn(self.rules))
+            return v
+        if own == "bool":
+            return ((self._bits >> _BIT[name]) & 1) != 0
+        if own == "uint":
+            return self._bits >> _EXPONENT_SHIFT
+        v = self._per_ray.get((name, kind))
+        # another float type (a camera's rays in float64 for a float32 trace): gathered where asked, outside
+        # the loops, and not kept
+        return self._gather(name, kind) if v is None else v
+
+    def switch(self, name: str) -> Any:
+        """A rule a single rule set's kernel compiles in (``SWITCHES``): the Python bool -- or for a batch
+        each ray's candidate's (a mask), so that candidates differing in it share the kernel."""
+        if self.batch is None:
+            return bool(SWITCHES[name](self.rules))
+        return ((self._bits >> _BIT[name]) & 1) != 0
+
+    def rule(self, name: str) -> Any:
+        """A per-ray rule's yes/no (``PER_RAY``) as the kernel sees it: under ``runtime`` read at run time,
+        one kernel for both answers (``number``), else the Python bool itself (compiled in)."""
+        if not self.runtime:
+            return bool(PER_RAY[name][0](self.rules))
+        return self.number(name)
+
+    def _kind(self, own: str) -> Any:
+        return {"bool": self.T.Bool, "float": self.T.Float, "uint": self.T.UInt}[own]
+
+    def _gather(self, name: str, kind: Any) -> Any:
+        """Each ray's candidate's value of ``name``: a table of the candidates' values (at least two
+        entries: a batch of one then gathers as a batch of many does, where Dr.Jit would fold a gather from
+        one value into that value -- one kernel for both), gathered by the ray's lane."""
+        fn = PER_RAY[name][0]
+        vals = [fn(r) for r in self.batch.all] * (2 if len(self.batch.all) == 1 else 1)
+        return dr.gather(kind, kind(vals), self.lane)
 
     def k(self, key, value, F=None) -> Any:
         """A value of the scene (a shape's, a material's, the light's, the camera's) as the unrolled path's

@@ -47,7 +47,7 @@ from minirt.jobs import processes
 from minirt.model.backend import Backend
 from minirt.model.result import RenderResult
 from minirt.model.rules import Rules
-from minirt.model.scene import Material, Scene
+from minirt.model.scene import Ball, Scene
 from minirt.oracles.program import cpp, protocol, sandbox
 
 NAME = "program"
@@ -207,15 +207,20 @@ def edition_scene(scene: Scene, edition: str | None) -> Scene:
     reflection colours and no specular one: each material's specular colour is replaced by its reflection
     colour, the only colour a 2014 program has to weight a highlight with (minirt's own 2014 solution
     does). A program that weights it otherwise differs from the model in the highlights, and grading says
-    so. Other editions: the scene as it is."""
+    so. A plane is handed over with its normal of unit length (``written`` = 1): the course's own test
+    scenes show that its ``Shape`` reads a plane's distance along the normal made of unit length (it drew
+    (0.1, 0.9, -0.1), -5 five from the origin), where a scene here reads n·p = d with n as written -- with a
+    unit normal both read the same plane. The scene's digest says it is the edition's (renders are cached
+    by digest). Other editions: the scene as it is."""
     if edition != "2014":
         return scene
     from dataclasses import replace
 
-    def fix(m: Material) -> Material:
-        return replace(m, specular=m.reflection)
+    def fix(s):
+        s = replace(s, material=replace(s.material, specular=s.material.reflection))
+        return s if isinstance(s, Ball) else replace(s, written=1.0)
 
-    return replace(scene, shapes=tuple(replace(s, material=fix(s.material)) for s in scene.shapes))
+    return replace(scene, shapes=tuple(fix(s) for s in scene.shapes), digest=f"{scene.digest}+2014")
 
 
 class ProgramOracle(Backend):
@@ -224,6 +229,9 @@ class ProgramOracle(Backend):
     shades: ClassVar[bool] = True
     shading_model: ClassVar[str | None] = "exercise"
     concurrent: ClassVar[bool] = True  # its work is in processes of its own
+    # Rendered as it is: a check compares it with the scene's own rules, bug rules included (what grading
+    # names is what it follows).
+    follows_bugs: ClassVar[bool] = True
 
     def __init__(self, spec: ProgramSpec | str) -> None:
         self.spec = parse_name(spec) if isinstance(spec, str) else spec
@@ -242,7 +250,12 @@ class ProgramOracle(Backend):
     def options(self, precision: str = "f64", samples: int | None = None, timeout: float | None = None) -> dict:
         return {"timeout": timeout} if timeout else {}
 
-    def graded_scene(self, scene: Scene) -> Scene:
+    def runs_apart(self, options: dict[str, Any]) -> bool:
+        """Started ahead in a check, except for the reference's own samples (``samples``), which it cannot
+        shoot: a check compares its one image alone (minirt.harness.image_only)."""
+        return "samples" not in options
+
+    def scene_as_rendered(self, scene: Scene) -> Scene:
         """The scene as the program receives it (``edition_scene``): what its image is graded against."""
         return edition_scene(scene, self.spec.edition if self.spec.kind == "cpp" else None)
 
@@ -275,7 +288,7 @@ class ProgramOracle(Backend):
         b = self.build()
         if b is not None and b.binary is None:
             return Run(None, False, "the program does not compile: " + _first_error(b.message), 0.0)
-        scene = self.graded_scene(scene)
+        scene = self.scene_as_rendered(scene)
         limits = self.limits(scene, timeout)
         with processes.temporary_folder("minirt-program-") as tmp:
             folder = tmp / "run"
@@ -312,11 +325,14 @@ class ProgramOracle(Backend):
         options = options or {}
         w, h = scene.camera.width, scene.camera.height
         run = self.run_scene(scene, options.get("timeout"))
-        meta = {"backend": NAME, "program": self.spec.describe(), "timings": {"program": run.seconds}}
+        meta = {"backend": NAME, "version": self.version(), "program": self.spec.describe(),
+                "timings": {"program": run.seconds}}  # fmt: skip
         if self._build is not None:
             meta["compile"] = self._build.as_dict()
-        if run.error:
-            return RenderResult.failed(NAME, w, h, "error", run.error, **meta)
+        if run.error:  # (failed() sets the backend itself)
+            return RenderResult.failed(
+                NAME, w, h, "error", run.error, **{k: v for k, v in meta.items() if k != "backend"}
+            )
         meta["image"] = run.image_name
         if run.is_float:
             color = run.pixels.astype(np.float64)

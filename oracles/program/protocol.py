@@ -95,7 +95,10 @@ def read_output(out: Path, width: int, height: int, nonfinite: bool = False) -> 
     path = find_image(out)
     if path.stat().st_size == 0:
         raise MinirtError(f"the program's image {path.name} is empty")
-    pixels, is_float = read_student_image(path, nonfinite=nonfinite)
+    try:
+        pixels, is_float = read_student_image(path, nonfinite=nonfinite)
+    except MinirtError as e:  # named by the run's temporary folder: the file's name says it, the same every run
+        raise MinirtError(str(e).replace(str(path), f"the program's image {path.name}")) from None
     if pixels.shape[:2] != (height, width):
         rows, cols = pixels.shape[:2]
         raise MinirtError(f"the program's image {path.name} is {cols}x{rows}, the scene {width}x{height}")

@@ -25,6 +25,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = sorted(p.name for p in (ROOT / "scenes").glob("*.toml"))
+# every scene file, the program suite's (scenes/suite/) included, as a path under scenes/
+SCENE_FILES = sorted(p.relative_to(ROOT / "scenes").as_posix() for p in (ROOT / "scenes").rglob("*.toml"))
 # every module of the oracles, subpackages included, as a path under oracles/ ("povray/oracle.py")
 # the oracles' modules, and the course-side C++ files the program oracle hands a student's source
 ORACLES = sorted(
@@ -74,9 +76,8 @@ def check_contents(dist: Path) -> None:
     assert len(top) == 2 and "minirt" in top and all(t == "minirt" or t.endswith(".dist-info") for t in top), top
     assert not any(n.startswith("oracles/") for n in names)
     assert {n.removeprefix("minirt/oracles/") for n in names if n.startswith("minirt/oracles/")} == set(ORACLES)
-    assert sorted(n.split("/")[-1] for n in names if n.startswith("minirt/scene_files/") and n.endswith(".toml")) == (
-        SCENES
-    )
+    in_wheel = [n.removeprefix("minirt/scene_files/") for n in names if n.startswith("minirt/scene_files/")]
+    assert sorted(n for n in in_wheel if n.endswith(".toml")) == SCENE_FILES
     assert "minirt/scene_files/samples/rules.student.png" in names
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)
     assert "minirt = minirt.cli.app:main" in text and "[pytest11]" in text

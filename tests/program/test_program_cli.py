@@ -48,7 +48,21 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         (["grade", "--program", "python3 tracer.py {scene}"], "needs {scene}"),
         (["grade", "--program", "missing.cpp"], "no such file"),
         (["grade", "--edition", "2014", "rules", "x.png"], "--edition goes with --program"),
-        (["check", "rules", "-b", "program:python3 t.py {scene} {out}"], "a program gives a colour image"),
+        (["fuzz", "-b", "program:python3 t.py {scene} {out}"], "a program gives a colour image"),
     ):
         p = minirt(*args, tmp_path=tmp_path)
         assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr, (args, p.stderr)
+
+
+def test_grade_program_renders_the_whole_suite_by_default(tmp_path):
+    from minirt.grading.suite import program_suite
+
+    spec = f"{sys.executable} {TRACER} --rule offset=1e-4 {{scene}} {{out}}"
+    p = minirt("grade", "--program", spec, "--json", "-", "-q", tmp_path=tmp_path)
+    assert p.returncode == 1, p.stderr
+    doc = json.loads(p.stdout)
+    assert [s["scene"] for s in doc["scenes"]] == [s.name for s in program_suite()]
+    assert all(s["size"] == [96, 96] for s in doc["scenes"])
+    # the grading set alone could not tell 1e-4 from 1e-6; the offset scenes read it
+    assert doc["diagnosis"]["rules"] == {"offset": "0.0001"}
+    assert all("course_grid" not in s for s in doc["scenes"])  # a command is no 2014 source

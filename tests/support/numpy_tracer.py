@@ -8,7 +8,10 @@ unclamped) or OUT.ppm (8-bit, floor(c·255 + 0.5) of the clamped colour). Its ru
 unless --rule changes one, with the names and values of minirt's rule table: offset (a number),
 offset_along (normal|ray), ray_origin (image-plane|camera), pixel_sample (corner|center), specular_exponent,
 clamp (false|true|specular), background (on-hit|on-miss|none), shadow_range (any|to-light), near_root_only,
-two_sided. The tests run it with a few of them changed and ask minirt to name exactly those.
+two_sided, and the bugs of real solutions: t_max (the closest-hit search starts there), shadow_rays (false: no
+shadow test), ball_normal (inward: c - p), light (direction: the light's position taken as the direction to
+it), hit_point (origin: the hit point computed as t·d). The tests run it with a few of them changed and ask
+minirt to name exactly those.
 """
 
 import sys
@@ -19,7 +22,8 @@ import numpy as np
 DEFAULTS = {
     "offset": 1e-6, "offset_along": "normal", "ray_origin": "image-plane", "pixel_sample": "corner",
     "specular_exponent": 8, "clamp": "false", "background": "on-hit", "shadow_range": "any",
-    "near_root_only": "true", "two_sided": "false",
+    "near_root_only": "true", "two_sided": "false", "t_max": "inf", "shadow_rays": "true", "ball_normal": "outward",
+    "light": "position", "hit_point": "ray",
 }  # fmt: skip
 
 
@@ -73,7 +77,7 @@ class Tracer:
 
     def closest(self, o, d):
         best = np.full(len(o), -1)
-        t_best = np.full(len(o), np.inf)
+        t_best = np.full(len(o), float(self.rules["t_max"]))
         for k, s in enumerate(self.shapes):
             t = self.hit(s, o, d)
             closer = t < t_best
@@ -97,18 +101,22 @@ class Tracer:
 
     def shade(self, kind, a, b, m, o, d, t, depth):
         ru = self.rules
-        p = o + t[:, None] * d
+        p = t[:, None] * d if ru["hit_point"] == "origin" else o + t[:, None] * d
         n = (p - a) / b if kind == "ball" else np.broadcast_to(a, p.shape)
+        if kind == "ball" and ru["ball_normal"] == "inward":
+            n = -n
         if ru["two_sided"] == "true":
             n = np.where((dot(d, n) > 0)[:, None], -n, n)
         color = np.broadcast_to(m["ambient"], p.shape).copy()
         to_light = self.light - p
         dist = np.linalg.norm(to_light, axis=-1)
         s = to_light / dist[:, None]
+        if ru["light"] == "direction":
+            s = np.broadcast_to(self.light / np.linalg.norm(self.light), p.shape)
         r = d - 2 * dot(d, n)[:, None] * n
         so = self.start(p, n, s)
         blocked = np.zeros(len(p), bool)
-        for shape in self.shapes:
+        for shape in self.shapes if ru["shadow_rays"] == "true" else ():
             ts = self.hit(shape, so, s)
             blocked |= ts < (np.inf if ru["shadow_range"] == "any" else dist)
         sn, rs = dot(s, n), dot(r, s)

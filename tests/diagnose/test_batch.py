@@ -1,0 +1,106 @@
+"""Candidates traced together (minirt.reference.values.Candidates, VariantCache.prefetch): each ray follows its
+own candidate's rules, so a batch gives every candidate the same bits as tracing it alone -- and a rule the
+kernel compiles in is never taken from the wrong candidate."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import drjit as dr
+import numpy as np
+import pytest
+
+from minirt.cli.options import load
+from minirt.diagnose.variants import VariantCache
+from minirt.model.bundled import find_scene
+from minirt.reference.tracer import Tracer
+from minirt.reference.values import PER_RAY, SWITCHES, Candidates, Divergent
+
+W, H = 40, 30
+
+
+def _single(scene, rules, idx) -> np.ndarray:
+    """The candidate alone, one rule set in the tracer (opaque run-time values, not a batch's tables)."""
+    tr = Tracer(scene, rules, runtime=True)
+    o, d = tr.primary_rays(idx)
+    with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+        color, _ = tr.trace(o, d, tree=True)
+    return tr.to_numpy3(color).copy()
+
+
+def _moves(rules):
+    """One change of every per-ray rule, and some pairs."""
+    return [
+        rules,
+        replace(rules, specular_exponent=16),
+        replace(rules, specular_exponent=3),
+        replace(rules, two_sided=True),
+        replace(rules, clamp=True),
+        replace(rules, clamp="specular", specular_exponent=5),
+        replace(rules, pixel_sample="center"),
+        replace(rules, pixel_shift=(0.5, -1.0)),
+        replace(rules, ray_origin="camera"),
+        replace(rules, near_root_only=False),
+        replace(rules, offset=1e-4, offset_along="ray"),
+        replace(rules, offset=0.0),
+        replace(rules, t_max=7.5),
+        replace(rules, hit_point="origin"),
+        replace(rules, ball_normal="inward", two_sided=False),
+        replace(rules, light="direction"),
+        replace(rules, specular_s="-s", specular_exponent=7),
+        replace(rules, raw_normals_ball="shading"),
+        replace(rules, raw_normals_plane="both"),
+        replace(rules, raw_normals_ball="reflection", pixel_sample="center"),
+        replace(rules, shadow_rays=False),
+        replace(rules, background="none"),
+        replace(rules, background="on-hit", clamp=True),
+    ]
+
+
+@pytest.mark.parametrize("name", ["rules", "three_balls", "exercise"])
+def test_a_batch_gives_each_candidate_its_own_bits(name):
+    scene, rules = load(find_scene(name), W, H, None, None, [])
+    idx = np.arange(0, W * H, 3)
+    cands = _moves(rules)
+    vc = VariantCache(share=False)
+    batch = vc._trace_many(scene, cands, idx)
+    for c, v in zip(cands, batch, strict=True):
+        alone = _single(scene, c, idx)
+        assert np.array_equal(v.color.view(np.uint64), alone.view(np.uint64)), c.differs(rules)
+
+
+def test_every_per_ray_rule_is_moved_by_the_batch_test():
+    """The test above changes every rule a batch reads per ray (a new one must join it)."""
+    _, rules = load(find_scene("rules"), W, H, None, None, [])
+    each = {n: fn for n, (fn, _) in PER_RAY.items()} | SWITCHES
+    moved = {n for n, fn in each.items() if any(fn(c) != fn(rules) for c in _moves(rules))}
+    assert moved == set(each)
+
+
+def test_a_compiled_in_rule_splits_the_batch():
+    scene, rules = load(find_scene("rules"), W, H, None, None, [])  # (it tells every pair of values apart)
+    a, b = rules, replace(rules, shadow_range="to-light")
+    with pytest.raises(Divergent):
+        Candidates([a, b]).shadow_range  # noqa: B018 (the read is the test)
+    assert Candidates([a, replace(a, two_sided=True)]).shadow_range == "any"
+    idx = np.arange(W * H)
+    vc = VariantCache(share=False)
+    cands = [a, b, replace(b, specular_exponent=4), replace(a, shadow_rays=False)]
+    vc.prefetch(scene, cands, idx)
+    for r in cands:
+        got = vc.subset(scene, r, idx)
+        assert np.array_equal(got.color.view(np.uint64), _single(scene, r, idx).view(np.uint64))
+    # and the rule sets differ here: a batch that took one's shadows from another would be caught
+    assert not np.array_equal(_single(scene, a, idx), _single(scene, b, idx))
+    assert not np.array_equal(_single(scene, a, idx), _single(scene, cands[3], idx))
+
+
+def test_error_bound_and_numeric_offsets_are_traced_apart():
+    scene, rules = load(find_scene("three_balls"), W, H, None, None, [])
+    cands = [replace(rules, offset="error-bound"), replace(rules, offset=1e-3), replace(rules, offset=1e-6)]
+    idx = np.arange(0, W * H, 2)
+    vc = VariantCache(share=False)
+    got = vc._trace_batch(scene, [c.traced() for c in cands], idx)
+    by_rules = {v.rules: v for v in got}
+    for c in cands:
+        assert np.array_equal(by_rules[c.traced()].color.view(np.uint64), _single(scene, c, idx).view(np.uint64))
