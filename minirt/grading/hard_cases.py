@@ -173,7 +173,7 @@ def grade_hard_case(
     from minirt.grading.program import timeout_for
     from minirt.harness import backends
 
-    scene = oracle.graded_scene(scene.with_overrides(samples=1))
+    scene = oracle.scene_as_rendered(scene.with_overrides(samples=1))
     if timeout is None:
         t0 = time.perf_counter()
         backends.render(backends.REFERENCE, scene, rules)

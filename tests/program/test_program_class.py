@@ -153,7 +153,7 @@ def test_a_class_of_python_programs_from_the_command_line_same_bytes_on_dask(tmp
         out = tmp_path / f"out{workers}"
         p = minirt(*common, "--workers", workers, "-o", str(out), "--json", str(out / "class.json"), cwd=tmp_path)
         assert p.returncode == 0, p.stderr
-        assert "graded 4 programs over 3 scenes: 1 match, 2 differ, 1 error" in p.stdout
+        assert "graded 4 programs over 8 scenes: 1 match, 2 differ, 1 error" in p.stdout
         files[workers] = {n: (out / n).read_bytes() for n in ("grades.csv", "grades.json", "index.html")}
     assert files["1"] == files["2"]
     doc = json.loads(files["1"]["grades.json"])
