@@ -27,6 +27,7 @@ from minirt.cli.options import (
     parse_size,
     pool,
 )
+from minirt.cli.program_options import FuzzDirOpt, FuzzOpt, ProgramCommandOpt, ProgramFileOpt
 from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
 
@@ -117,7 +118,8 @@ def grade(
         typer.Option(
             "--timeout",
             min=0.001,
-            help="With --program: seconds one scene may take (default: 200x the reference's time, at least 20).",
+            help="With --program or --program-file: seconds one scene may take (default: 200x the reference's "
+            "time, at least 20).",
         ),
     ] = None,
     no_sandbox: Annotated[
@@ -127,6 +129,10 @@ def grade(
             help="With --program: run it without bubblewrap (limits kept, isolation not): only for code you trust.",
         ),
     ] = False,
+    program_file: ProgramFileOpt = None,
+    program_command: ProgramCommandOpt = None,
+    fuzz: FuzzOpt = 0,
+    fuzz_dir: FuzzDirOpt = None,
 ) -> None:
     """Grade another tracer's image of a scene: is it the exercise's model, and if not, which rule
     settings explain it (searched over every rule; `minirt render SCENE --rule ...` with them reproduces
@@ -138,7 +144,11 @@ def grade(
     the scenes built to tell every rule apart, at 96x96; a 2014 source also the course's own test scenes,
     each with the course's 10x10-grid verdict beside minirt's) or SCENE, in a sandbox; one diagnosis of
     all its images, one verdict for the program, one line per scene; --out FILE.html writes its page
-    (every scene's pictures and the diagnosis, in one file).
+    (every scene's pictures and the diagnosis, in one file). --fuzz N adds N hard scenes of the fuzz
+    campaign and reports the program's numerical failures there.
+
+    With --class DIR --program-file NAME (or --program-command): each student's program graded so, one
+    row per student in OUT/grades.csv, grades.json and index.html.
 
     Exit status: 0 match (every pixel within one 8-bit level, ill-conditioned pixels aside), 1 differs
     (the diagnosis says how), 2 bad input. With --class: OUT/grades.csv, grades.json and index.html,
@@ -147,12 +157,31 @@ def grade(
     with its own render cache, pages written as images are graded) or on a Dask cluster (--scheduler);
     the files are the same bytes either way.
     """
+    if program_file is not None or program_command is not None:
+        from minirt.cli.program_class import grade_program_class_command
+
+        if class_dir is None or program is not None or image is not None or fuzz or fuzz_dir is not None:
+            raise MinirtError("--program-file and --program-command grade a class: --class DIR, no --program, "
+                              "IMAGE or --fuzz")  # fmt: skip
+        for given, option in ((scenes_dir, "--scenes"), (cache, "--cache")):
+            if given is not None:
+                raise MinirtError(f"{option} goes with a class of images, not of programs (SCENE picks a scene)")
+        grade_program_class_command(
+            class_dir, program_file=program_file, program_command=program_command, edition=edition, adapter=adapter,
+            timeout=timeout, sandbox=not no_sandbox, scene_path=scene_path, out_dir=out_dir or Path("grades"),
+            json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, workers=workers,
+            scheduler=scheduler,
+        )  # fmt: skip
+        return
+    if (fuzz or fuzz_dir is not None) and program is None:
+        raise MinirtError("--fuzz and --fuzz-dir go with --program")
     if program is not None:
         from minirt.cli.program import grade_program_command
 
         grade_program_command(
             program, scene_path, image, edition=edition, adapter=adapter, timeout=timeout, sandbox=not no_sandbox,
             json_out=json_out, size=size, profile=profile, rule=rule, quiet=quiet, class_dir=class_dir, page=out_dir,
+            fuzz=fuzz, fuzz_dir=fuzz_dir,
         )  # fmt: skip
         return
     for given, option in ((edition, "--edition"), (adapter, "--adapter"), (timeout, "--timeout")):

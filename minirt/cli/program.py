@@ -9,34 +9,33 @@ import typer
 
 from minirt.cli.console import MAX_MESSAGE, emit_json, err, out, progress_bar
 from minirt.cli.options import load, output_file, parse_size
+from minirt.cli.program_fuzz import fuzz_folder, print_fuzz, run_fuzz
 from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
 
 
 def grade_program_command(
     program: str, scene_path, image, *, edition, adapter, timeout, sandbox, json_out, size, profile, rule, quiet,
-    class_dir, page=None,
+    class_dir, page=None, fuzz=0, fuzz_dir=None,
 ) -> None:  # fmt: skip
     from minirt.grading import program as grading
-    from minirt.grading import suite as suite_mod
-    from minirt.model.bundled import find_scene
     from minirt.oracles.program import make_spec
 
     if image is not None or class_dir is not None:
-        raise MinirtError("--program renders its own images: give no IMAGE or --class with it")
+        raise MinirtError(
+            "--program renders its own images: give no IMAGE or --class with it (a class of programs: --class DIR "
+            "--program-file NAME)"
+        )
     spec = make_spec(program, edition, adapter, timeout, sandbox)
     if json_out not in (None, "-"):
         output_file(Path(json_out), "--json")
     output_file(page, "--out")
-    wh = parse_size(size)
-    if scene_path is not None:
-        scenes = [(find_scene(scene_path), wh or suite_mod.SUITE_SIZE)]
-    else:  # the program suite (minirt.grading.suite), each scene at its own size unless --size
-        scenes = [(s.path, wh or s.size) for s in suite_mod.program_suite(spec.edition if spec.kind == "cpp" else None)]
-    suite = []
-    for path, (w, h) in scenes:
-        scene, rules = load(path, w, h, None, profile, rule)
-        suite.append((str(path), scene, grading.given_rules(rules, spec, profile is not None)))
+    folder = fuzz_folder(fuzz_dir, json_out) if fuzz else None
+    edition = spec.edition if spec.kind == "cpp" else None
+    suite = [
+        (f, sc, grading.given_rules(r, spec, profile is not None))
+        for f, sc, r in load_suite(scene_path, size, profile, rule, edition)
+    ]
     with progress_bar(not quiet) as bar:
         task = bar.add_task("grading the program", total=len(suite)) if bar else None
 
@@ -45,17 +44,38 @@ def grade_program_command(
                 bar.advance(task)
 
         g = grading.grade_program(spec, suite, timeout, on_scene=done)
+        hard = run_fuzz(spec, g, fuzz, folder, size, bar) if fuzz else None
+    doc = g.as_dict() | ({"fuzz": hard} if hard is not None else {})
     if json_out is not None:
-        emit_json(json_out, g.as_dict())
+        emit_json(json_out, doc)
     if page is not None:
         from minirt.grading.program_page import write_program_page
 
         write_program_page(g, page)
     if json_out != "-":
         _print(g)
+        if hard is not None:
+            print_fuzz(hard, program)
         if page is not None:
             out.print(f"wrote {terminal_text(page)}")
-    raise typer.Exit(g.exit_code)
+    # a numerical failure on a hard scene is a difference from the model, whatever the suite said
+    raise typer.Exit(max(g.exit_code, 1 if hard and hard["failed"] else 0))
+
+
+def load_suite(scene_path, size, profile, rule, edition: str | None = None) -> list:
+    """The scenes a program is graded over: SCENE alone (at --size, default the suite's size), or the
+    program suite (minirt.grading.suite; a C++ source of ``edition`` 2014 also the course's test scenes),
+    each at its own size unless --size, as (file, scene, rules) with the scene's rules (--profile and
+    --rule applied)."""
+    from minirt.grading import suite as suite_mod
+    from minirt.model.bundled import find_scene
+
+    wh = parse_size(size)
+    if scene_path is not None:
+        scenes = [(find_scene(scene_path), wh or suite_mod.SUITE_SIZE)]
+    else:
+        scenes = [(s.path, wh or s.size) for s in suite_mod.program_suite(edition)]
+    return [(str(path), *load(path, w, h, None, profile, rule)) for path, (w, h) in scenes]
 
 
 def _print(g) -> None:

@@ -233,6 +233,38 @@ class ClassDocument(_Document):
     )
 
 
+class ProgramRow(_Open):
+    student: str
+    verdict: GradeVerdict
+    rules: dict[str, str] = Field(
+        description="The rules the suite's images name together, values as --rule takes them."
+    )
+    undetermined: dict[str, list[str]] = Field(description="Rules the images cannot decide -> the values that fit.")
+    mismatch_pixels: int | None = Field(description="Pixels no rule setting explains; null when no image was drawn.")
+    reason: str = Field(description="Why it failed: no program, the compiler's first error, the scenes' errors.")
+    scenes: list[dict[str, Any]] = Field(description="Per suite scene: scene, verdict, mismatch_pixels, error.")
+    grade: dict[str, Any] | None = Field(description="The program's whole grade, as grade --program --json writes it.")
+
+
+class ProgramMistake(_Open):
+    rule: str
+    value: str
+    students: int
+
+
+class ProgramClassDocument(_Document):
+    """``minirt grade --class DIR --program-file NAME``'s grades.json (and its --json): one row per student."""
+
+    kind: Literal["programs"]
+    program: dict[str, Any] = Field(description="The program's file, command, edition, adapter and sandbox.")
+    students: list[str]
+    scenes: list[str]
+    verdicts: dict[GradeVerdict, int]
+    common_mistakes: list[ProgramMistake]
+    grades: list[ProgramRow]
+    skipped: list[SkippedEntry] = Field(default_factory=list)
+
+
 # ---------------------------------------------------------------------------------------------
 # sweep.json
 
@@ -373,6 +405,7 @@ DOCUMENTS: dict[str, type[_Document]] = {
     "report": ReportDocument,
     "grade": GradeDocument,
     "grades": ClassDocument,
+    "program_grades": ProgramClassDocument,
     "sweep": SweepDocument,
     "render": RenderSidecar,
     "probe": ProbeDocument,

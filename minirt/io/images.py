@@ -452,7 +452,10 @@ class ImageHeader:
 
 
 def read_student_image(
-    path: str | Path, before_decoding: Callable[[ImageHeader], None] | None = None, notes: list[str] | None = None
+    path: str | Path,
+    before_decoding: Callable[[ImageHeader], None] | None = None,
+    notes: list[str] | None = None,
+    nonfinite: bool = False,
 ) -> tuple[np.ndarray, bool]:
     """An image another tracer wrote, as (rows, columns, 3): uint8 levels for 8-bit files, float32
     for float and 16-bit files (the bool says which). Grey images are repeated into R, G and B; an
@@ -465,7 +468,8 @@ def read_student_image(
     being opened, so nothing blocks), it is opened once, without blocking, and decoded from that open
     file; its header's size is checked against the largest scene (``minirt.model.scene.LIMITS``) and
     ``MAX_CHANNELS``, then by ``before_decoding`` (the grader's check against the scene and the memory),
-    before a pixel is decoded. Any problem is one MinirtError line naming the file."""
+    before a pixel is decoded. Any problem is one MinirtError line naming the file; so is a float image
+    holding NaN or infinite values, unless ``nonfinite`` (a program's hard case counts such pixels)."""
     path = Path(path)
     fd = _open_regular(path)
     try:
@@ -474,7 +478,7 @@ def read_student_image(
                 f"{path}: unsupported image type {path.suffix or '(none)'} (use {', '.join(STUDENT_EXTENSIONS)})"
             )
         with _opened_name(fd, path.suffix) as opened, _quiet_stderr():  # libpng and friends print their own
-            colour, is_float, held = _read_student_image(path, opened, before_decoding)  # complaint; ours the line
+            colour, is_float, held = _read_student_image(path, opened, before_decoding, nonfinite)  # complaint; ours
             if held and notes is not None:
                 notes.append(
                     "the image is 16-bit, every value a multiple of 257: the 8-bit image it holds (level k stored "
@@ -570,7 +574,7 @@ def _remove_pinning_folder(pid: int) -> None:
 
 
 def _read_student_image(
-    path: Path, opened: str | None, before_decoding: Callable[[ImageHeader], None] | None
+    path: Path, opened: str | None, before_decoding: Callable[[ImageHeader], None] | None, nonfinite: bool = False
 ) -> tuple[np.ndarray, bool, bool]:
     """(colour, is_float, whether a 16-bit file's 8-bit levels were read: ``_held_levels``)."""
     _error(oiio)  # a stale error of an earlier read must not be taken for this file's
@@ -589,7 +593,7 @@ def _read_student_image(
     if err := _error(oiio):  # a reader that filled in what a truncated file lacked says so here
         raise MinirtError(f"{path}: cannot read image: {_one_line(err, opened, path)}")
     colour = a if a.shape[-1] == 3 else np.repeat(a, 3, axis=-1)
-    if header.is_float and not np.isfinite(colour).all():
+    if header.is_float and not nonfinite and not np.isfinite(colour).all():
         raise MinirtError(f"{path}: the image holds NaN or infinite values")
     levels = _held_levels(colour) if header.sixteen_bit else None
     return (colour, header.is_float, False) if levels is None else (levels, False, True)

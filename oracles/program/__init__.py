@@ -281,8 +281,9 @@ class ProgramOracle(Backend):
         size = max(64 << 20, 16 * (16 * w * h + 4096))
         return sandbox.Limits(wall=seconds, cpu=seconds, memory=MEMORY, file_size=size, processes=PROCESSES)
 
-    def run_scene(self, scene: Scene, timeout: float | None = None) -> Run:
-        """``scene`` rendered by the program (its failures in ``Run.error``; bad input raises)."""
+    def run_scene(self, scene: Scene, timeout: float | None = None, nonfinite: bool = False) -> Run:
+        """``scene`` rendered by the program (its failures in ``Run.error``; bad input raises). ``nonfinite``:
+        a float image's NaN and infinite values are kept (else such an image is an error)."""
         self.require_sandbox()
         b = self.build()
         if b is not None and b.binary is None:
@@ -315,7 +316,7 @@ class ProgramOracle(Backend):
                 )
             try:
                 w, h = scene.camera.width, scene.camera.height
-                pixels, is_float, name = protocol.read_output(folder / "image", w, h)
+                pixels, is_float, name = protocol.read_output(folder / "image", w, h, nonfinite)
             except MinirtError as e:
                 return Run(None, False, str(e), seconds, outcome.cpu_seconds, stderr=outcome.stderr)
         return Run(pixels, is_float, "", seconds, outcome.cpu_seconds, name, outcome.stderr)

@@ -88,14 +88,15 @@ def find_image(out: Path) -> Path:
     return found[0]
 
 
-def read_output(out: Path, width: int, height: int) -> tuple[np.ndarray, bool, str]:
+def read_output(out: Path, width: int, height: int, nonfinite: bool = False) -> tuple[np.ndarray, bool, str]:
     """(pixels (H, W, 3), is_float, the file's name) of the program's image, its size checked: uint8 levels
-    or float32 colours (unclamped). An empty, unreadable or wrong-sized file is a MinirtError."""
+    or float32 colours (unclamped). An empty, unreadable or wrong-sized file is a MinirtError; so is a float
+    image with NaN or infinite values, unless ``nonfinite`` (they are kept, to be counted)."""
     path = find_image(out)
     if path.stat().st_size == 0:
         raise MinirtError(f"the program's image {path.name} is empty")
     try:
-        pixels, is_float = read_student_image(path)
+        pixels, is_float = read_student_image(path, nonfinite=nonfinite)
     except MinirtError as e:  # named by the run's temporary folder: the file's name says it, the same every run
         raise MinirtError(str(e).replace(str(path), f"the program's image {path.name}")) from None
     if pixels.shape[:2] != (height, width):

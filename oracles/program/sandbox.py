@@ -39,10 +39,11 @@ TAIL_BYTES = 4000  # of a program's standard error (and output) kept for its mes
 @dataclass(frozen=True)
 class Limits:
     """What one run may use. ``wall``: seconds of wall clock before its process group is killed; ``cpu``:
-    CPU seconds (RLIMIT_CPU, whole seconds, at least 1; SIGXCPU, then SIGKILL a second later); ``memory``: bytes of address space (RLIMIT_AS: a
-    program that asks for more gets an allocation failure, not the machine's memory); ``file_size``: the
-    largest file it may write (RLIMIT_FSIZE; output and error are files too); ``processes``: processes and
-    threads of its user at once (RLIMIT_NPROC); ``open_files``: descriptors (RLIMIT_NOFILE)."""
+    CPU seconds (RLIMIT_CPU, whole seconds, at least 1; SIGXCPU, then SIGKILL a second later); ``memory``:
+    bytes of address space (RLIMIT_AS: a program that asks for more gets an allocation failure, not the
+    machine's memory); ``file_size``: the largest file it may write (RLIMIT_FSIZE; output and error are
+    files too); ``processes``: processes and threads of its user at once (RLIMIT_NPROC); ``open_files``:
+    descriptors (RLIMIT_NOFILE)."""
 
     wall: float = 60.0
     cpu: float = 60.0

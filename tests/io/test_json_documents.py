@@ -13,6 +13,7 @@ import copy
 import json
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -77,6 +78,14 @@ def docs(tmp_path_factory) -> SimpleNamespace:
     )
     assert p.returncode == 0, p.stderr
     fuzz = (tmp / "fz" / "fuzz.json").read_text()
+    programs = tmp / "programs"
+    (programs / "ann").mkdir(parents=True)
+    shutil.copy(ROOT / "tests/support/numpy_tracer.py", programs / "ann" / "tracer.py")
+    (programs / "bob").mkdir()  # hands in nothing: an error row
+    command = f"{sys.executable} {{file}} {{scene}} {{out}}"
+    p = run("grade", "--class", programs, "--program-file", "tracer.py", "--program-command", command, "--size", "16",
+            "-o", tmp / "program_grades", "--workers", "1", "-q")  # fmt: skip
+    assert p.returncode == 0, p.stderr
     p = run("probe", "exercise", "8", "6", *small, "--json")
     assert p.returncode == 0, p.stderr
     return SimpleNamespace(
@@ -88,6 +97,7 @@ def docs(tmp_path_factory) -> SimpleNamespace:
             "sweep": [(tmp / "sw" / "sweep.json").read_text()],
             "grade": [grade],
             "grades": [(tmp / "grades" / "grades.json").read_text()],
+            "program_grades": [(tmp / "program_grades" / "grades.json").read_text()],
             "probe": [p.stdout],
             "fuzz": [fuzz],
         },

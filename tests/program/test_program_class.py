@@ -1,0 +1,196 @@
+"""A class of programs (``grade --class DIR --program-file NAME``): C++ solutions of the 2014 edition -- the
+bundled sample, a corrected copy, one that does not compile, one that hangs -- and small Python programs, one
+row per student with the diagnosis or the reason it failed; the files the same bytes on a re-run and on the
+embedded Dask cluster."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from minirt.grading import classroom
+from minirt.grading import program_class as pc
+from minirt.model.bundled import find_scene
+from minirt.model.rules import resolve
+from minirt.model.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[2]
+TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
+SAMPLE_2014 = ROOT / "scenes" / "samples" / "raytracer2014.cpp"
+SIZE = 48  # the sample's two primary-ray bugs show on hundreds of pixels of each grading scene at 48^2
+HANG = 1.0  # seconds a scene of the hanging program may take: it is killed at this, three times
+
+
+def _defines(text: str, **values: str) -> str:
+    for name, value in values.items():
+        start = text.index(f"#define {name} ")
+        text = text[:start] + f"#define {name} {value}" + text[text.index("\n", start) :]
+    return text
+
+
+def suite(stems=("rules", "three_balls", "exercise")):
+    out = []
+    for stem in stems:
+        path = find_scene(stem)
+        scene = load_scene(path).with_overrides(width=SIZE, height=SIZE, samples=1)
+        out.append((str(path), scene, resolve(scene)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def cpp_class(tmp_path_factory):
+    """DIR/<student>/raytracer.cpp for five students, graded once for the module's tests."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("MINIRT_PROGRAM_CACHE", str(tmp_path_factory.mktemp("programs")))
+    root = tmp_path_factory.mktemp("cpp")
+    text = SAMPLE_2014.read_text()
+    sources = {
+        "ann": text,  # the sample: pixel corners, rays from the image plane
+        "ben": _defines(text, OFFSET="1e-3", PIXEL="0.5", FROM_PLANE="0"),  # the edition, exactly
+        "cat": text.replace("void add_shape(const Shape& s) {", "void add_shape(const Shape& s) { undeclared();"),
+        "dan": text.replace(
+            "void raytrace(Bitmap& bitmap, int depth) const {",
+            "void raytrace(Bitmap& bitmap, int depth) const { for (volatile int i = 0;;) (void)i;",
+        ),
+    }
+    for name, source in sources.items():
+        (root / "class" / name).mkdir(parents=True)
+        (root / "class" / name / "raytracer.cpp").write_text(source)
+    (root / "class" / "eve").mkdir()  # handed in nothing
+    (root / "class" / "ida n").mkdir()  # a space in the folder's name; ben's source (its build is reused)
+    (root / "class" / "ida n" / "raytracer.cpp").write_text(sources["ben"])
+    (root / "class" / "fay").symlink_to(root / "class" / "ann")  # another's folder, linked: not followed
+    (root / "class" / "gus").mkdir()
+    (root / "class" / "gus" / "raytracer.cpp").symlink_to(SAMPLE_2014)  # a link out of the class folder
+    (root / "class" / ".git").mkdir()
+    people = classroom.students(root / "class")
+    skipped = classroom.skipped_entries(root / "class")
+    out = root / "out"
+    out.mkdir()
+    source = pc.ProgramSource("raytracer.cpp", timeout=HANG)
+    graded = pc.grade_programs(people, source, suite(), out, workers=1, skipped=skipped)
+    yield graded, out
+    mp.undo()
+
+
+def rows_of(graded) -> dict[str, dict]:
+    return {r["student"]: r for r in graded.summary["grades"]}
+
+
+def test_each_student_is_one_row_with_the_diagnosis_or_the_reason(cpp_class):
+    graded, _out = cpp_class
+    rows = rows_of(graded)
+    assert list(rows) == ["ann", "ben", "cat", "dan", "eve", "fay", "gus", "ida n"]
+    assert rows["ann"]["verdict"] == "differs"
+    assert rows["ann"]["rules"] == {"pixel_sample": "corner", "ray_origin": "image-plane"}
+    assert rows["ann"]["undetermined"] == {} and rows["ann"]["mismatch_pixels"] == 0
+    assert rows["ben"]["verdict"] == "match" and rows["ben"]["rules"] == {}
+    assert [s["verdict"] for s in rows["ben"]["scenes"]] == ["match"] * 3
+    # the compiler's own first message, naming the line
+    assert rows["cat"]["verdict"] == "error" and "does not compile" in rows["cat"]["reason"]
+    assert "undeclared" in rows["cat"]["reason"] and "raytracer.cpp:" in rows["cat"]["reason"]
+    assert rows["cat"]["grade"]["program"]["compile"]["ok"] is False
+    # a program that hangs costs its scenes' limits and is that student's error; the class went on
+    assert rows["dan"]["verdict"] == "error" and rows["dan"]["reason"].startswith("every scene: ")
+    assert "did not finish in 1 s" in rows["dan"]["reason"]
+    assert rows["eve"] == {**rows["eve"], "verdict": "error", "reason": "no raytracer.cpp in the student's folder"}
+    assert rows["eve"]["grade"] is None and rows["eve"]["mismatch_pixels"] is None
+    assert rows["fay"]["verdict"] == "error" and "the student folder is a symbolic link" in rows["fay"]["reason"]
+    assert rows["gus"]["reason"].startswith("raytracer.cpp is a symbolic link; links are not followed")
+    assert rows["ida n"]["verdict"] == "match"
+    assert graded.summary["verdicts"] == {"match": 2, "differs": 1, "error": 5}
+    assert graded.summary["skipped"] == [{"folder": ".git", "reason": "hidden (its name starts with a dot)"}]
+    assert graded.summary["program"]["edition"] == "2014"
+
+
+def test_the_class_files_say_the_same(cpp_class):
+    graded, out = cpp_class
+    with open(out / "grades.csv", newline="") as f:
+        table = list(csv.DictReader(f))
+    assert [r["student"] for r in table] == ["ann", "ben", "cat", "dan", "eve", "fay", "gus", "ida n"]
+    assert table[0]["rules"] == "pixel_sample=corner ray_origin=image-plane" and table[0]["verdict"] == "differs"
+    assert table[3]["scenes_failed"] == "3" and table[1]["scenes_failed"] == "0"
+    assert json.loads((out / "grades.json").read_text())["grades"][0]["rules"] == rows_of(graded)["ann"]["rules"]
+    page = (out / "index.html").read_text()
+    assert "pixel_sample=corner" in page and "undeclared" in page and ".git" in page
+    mistakes = {(m["rule"], m["value"]): m["students"] for m in graded.summary["common_mistakes"]}
+    assert mistakes == {("pixel_sample", "corner"): 1, ("ray_origin", "image-plane"): 1}
+
+
+def _python_class(root: Path) -> Path:
+    cls = root / "class"
+    text = TRACER.read_text()
+    programs = {
+        "alice": text,
+        "bob": text.replace('"pixel_sample": "corner"', '"pixel_sample": "center"'),
+        "carol": "import sys\nsys.exit(3)\n",  # crashes on every scene
+        "dora": text.replace('"specular_exponent": 8', '"specular_exponent": 16'),
+    }
+    for name, body in programs.items():
+        (cls / name).mkdir(parents=True)
+        (cls / name / "tracer.py").write_text(body)
+    return cls
+
+
+def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {"MINIRT_PROGRAM_CACHE": str(cwd / "programs"), "PATH": "/usr/bin:/bin"}
+    return subprocess.run([sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=cwd, env=env,
+                          timeout=600)  # fmt: skip
+
+
+def test_a_class_of_python_programs_from_the_command_line_same_bytes_on_dask(tmp_path):
+    cls = _python_class(tmp_path)
+    command = f"{sys.executable} {{file}} {{scene}} {{out}}"
+    common = ["grade", "--class", str(cls), "--program-file", "tracer.py", "--program-command", command,
+              "--size", str(SIZE), "-q"]  # fmt: skip
+    files = {}
+    for workers in ("1", "2"):
+        out = tmp_path / f"out{workers}"
+        p = minirt(*common, "--workers", workers, "-o", str(out), "--json", str(out / "class.json"), cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        assert "graded 4 programs over 8 scenes: 1 match, 2 differ, 1 error" in p.stdout
+        files[workers] = {n: (out / n).read_bytes() for n in ("grades.csv", "grades.json", "index.html")}
+    assert files["1"] == files["2"]
+    doc = json.loads(files["1"]["grades.json"])
+    rows = {r["student"]: r for r in doc["grades"]}
+    assert rows["alice"]["verdict"] == "match"
+    assert rows["bob"]["rules"] == {"pixel_sample": "center"}
+    assert rows["dora"]["rules"] == {"specular_exponent": "16"}
+    assert rows["carol"]["reason"] == "every scene: the program failed with exit status 3"
+    assert doc["program"]["command"] == command
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["--class", "C", "--program-file", "a/tracer.cpp"], "a file's name in each student's folder"),
+        (["--class", "C", "--program-file", "tracer.py"], "say how to run it with --program-command"),
+        (["--class", "C", "--program-command", "python3 t.py {scene} {out}"], "needs {dir}"),
+        (["--class", "C", "--program-command", "python3 {file} {scene} {out}"], "give --program-file NAME too"),
+        (["--class", "C", "--program-file", "r.cpp", "--edition", "2013"], "give --adapter FILE"),
+        (["--program-file", "r.cpp"], "grade a class: --class DIR"),
+        (["--fuzz", "3", "rules", "x.png"], "--fuzz and --fuzz-dir go with --program"),
+        (["--class", "missing", "--program-file", "r.cpp"], "--class missing: no such folder"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(tmp_path, args, words):
+    (tmp_path / "C" / "someone").mkdir(parents=True)
+    p = minirt("grade", *args, cwd=tmp_path)
+    assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr, p.stderr
+    assert not (tmp_path / "grades").exists()  # nothing written before the input was found good
+
+
+def test_the_class_page_loads_clean_in_a_browser(cpp_class, tmp_path):
+    from support.browser import console, loaded_page
+
+    _, out = cpp_class
+    dom, attrs = loaded_page(tmp_path, (out / "index.html").resolve().as_uri(), "data-ready")
+    assert attrs["data-errors"] == "0" and attrs["data-csp-violations"] == "0", attrs
+    assert not console(dom), console(dom)
+    # the counts' header, cat, dan, eve, fay and gus, and each of cat's and dan's three scenes (the others drew none)
+    assert dom.stdout.count('class="badge v-fail"') == 1 + 5 + 2 * 3
