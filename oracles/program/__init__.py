@@ -19,7 +19,8 @@ SPEC, and the conventions bridged:
   through the course's ``adapter`` (README: "A program under test"). The 2014 interface has no specular
   colour: a scene's material reaches the program as (ambient, diffuse, reflection) only -- see
   ``edition_scene``. The colours come back as the program computed them, unclamped, in float32 (the
-  course's Color holds floats): no 8-bit step.
+  course's Color holds floats): no 8-bit step. It follows the 2014 edition's rules (``eth2014``), whatever
+  the scene's [model] table says: its interface carries none, so a check compares it under those.
 - Options, in the backend's name or from ``grade``'s flags: ``program(edition=2013,adapter=FILE,
   timeout=S,sandbox=off):SPEC``. ``timeout``: seconds a scene may take (wall clock; its CPU limit is the
   same), default ``DEFAULT_TIMEOUT``; ``minirt grade --program`` derives it from the reference's time
@@ -254,6 +255,16 @@ class ProgramOracle(Backend):
         """Started ahead in a check, except for the reference's own samples (``samples``), which it cannot
         shoot: a check compares its one image alone (minirt.harness.image_only)."""
         return "samples" not in options
+
+    def adapt(self, rules: Rules) -> Rules:
+        """The rules it follows: a C++ source of the 2014 edition the edition's (``eth2014``: its interface
+        passes no rule settings, so the scene's [model] table cannot reach it), as ``grade --program``
+        grades it; a command reads the scene file's rules, bug rules included."""
+        if self.spec.kind == "cpp" and self.spec.edition == "2014":
+            from minirt.model.rules import PROFILES
+
+            return PROFILES["eth2014"]
+        return rules
 
     def scene_as_rendered(self, scene: Scene) -> Scene:
         """The scene as the program receives it (``edition_scene``): what its image is graded against."""

@@ -53,8 +53,10 @@ def slow_render(tmp_path: Path, tmpdir: Path) -> subprocess.Popen:
 def test_a_timed_out_cycles_render_leaves_nothing_in_tmpdir(tmp_path):
     tmpdir = tmp_path / "tmp"
     tmpdir.mkdir()
-    args = ["render", "exercise", "-b", "cycles", "--timeout", "0.1", "--width", "32", "--height", "32",
-            "-o", tmp_path / "out"]  # fmt: skip
+    # 4,096 samples a pixel: the job goes to a Blender process already started (for its version), which
+    # rendered one sample of 32x32 within the 0.1 s at times, and nothing timed out
+    args = ["render", "exercise", "-b", "cycles", "--timeout", "0.1", "--samples", "4096", "--width", "32",
+            "--height", "32", "-o", tmp_path / "out"]  # fmt: skip
     p = subprocess.run([*MINIRT, *map(str, args)], env=env_with(tmpdir), capture_output=True, text=True, timeout=300)
     assert "timed out after 0.1 s" in p.stderr, p.stderr
     assert sorted(q.name for q in tmpdir.iterdir()) == []
