@@ -41,8 +41,8 @@ demo: setup
 	$(BIN)/minirt grade scenes/three_balls.toml scenes/samples/three_balls.student.png --out grades/sample-real || test $$? -eq 1
 	@echo "open grades/sample-real/index.html (bugs seen in real solutions, and pixels no rule explains)"
 	mkdir -p grades
-	$(BIN)/minirt grade --program scenes/samples/raytracer2014.cpp --json grades/program.json || test $$? -eq 1
-	@echo "grades/program.json: a sample 2014 solution graded as a program, scene by scene (in a sandbox)"
+	$(BIN)/minirt grade --program scenes/samples/raytracer2014.cpp --json grades/program.json --out grades/program.html || test $$? -eq 1
+	@echo "open grades/program.html (a sample 2014 solution graded as a program over the suite, in a sandbox)"
 
 # Refresh the committed sample report (bundled scenes at 64x64, every backend).
 sample: setup
