@@ -96,11 +96,14 @@ def diagnose(
     cache: VariantCache | None = None,
     alternatives: bool = True,
     outputs: bool = True,
+    swaps: bool = True,
 ) -> Diagnosis:
     """Search rule space for the setting that best reproduces ``target`` (see the module's docstring).
     ``alternatives=False`` skips the list of settings the scene cannot tell apart from the answer
     (about half the time of a diagnosis; ``check`` does not show it). ``outputs=False`` keeps ``given``'s
-    output rules: for an image whose encoding and layout are known (an oracle's ``color8()``)."""
+    output rules: for an image whose encoding and layout are known (an oracle's ``color8()``).
+    ``swaps=False`` skips only ``indistinguishable`` (the single changes this scene cannot tell apart): a
+    program's images ask it of the suite's answer, not of each scene's own (minirt.diagnose.joint)."""
     cache = cache or VariantCache()
     cache.requested = set()
     search = Search(scene, target, cache, outputs)
@@ -153,7 +156,7 @@ def diagnose(
         best_mask=mb,
         ill=ill_g | ill_b,
         explained=explained,
-        indistinguishable=indistinguishable(scene, best, cache, target) if alternatives else [],
+        indistinguishable=indistinguishable(scene, best, cache, target) if alternatives and swaps else [],
         given_color=cache.get(scene, given).color,
         best_color=cache.get(scene, best).color,
         steps=search.steps,

@@ -231,6 +231,8 @@ def _same_everywhere(images: list[Image], changes: dict[str, Any], cache: Varian
         best = _apply(im.given, changes)
         found = {(e["rule"], e["value"]): e for e in indistinguishable(im.scene, best, cache, im.target)}
         common = found if common is None else {k: v for k, v in common.items() if k in found}
+        if not common:  # a scene told every change apart: the rest cannot bring one back
+            break
     out = []
     for _key, e in sorted((common or {}).items()):
         item = dict(e, scene_that_tells=None)

@@ -170,7 +170,7 @@ def grade_scene(
     if run.error:
         return SceneGrade(scene, scene_file, "", ERROR, reason=run.error, **times)
     target = dg.Target(run.pixels, run.is_float, run.image_name)
-    d = dg.diagnose(scene, rules, target, cache)
+    d = dg.diagnose(scene, rules, target, cache, swaps=False)  # the suite's answer's: diagnose_suite
     verdict = MATCH if d.as_given_pixels == 0 else DIFFERS
     grid = suite_mod.course_grid(target.in_layout(rules), d.given_color) if course and target.is_float else None
     return SceneGrade(scene, scene_file, run.image_name, verdict, diagnosis=d, target=target, course_grid=grid, **times)
