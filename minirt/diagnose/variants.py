@@ -174,19 +174,31 @@ class VariantCache:
 
     def prefetch(self, scene: Scene, candidates: list[Rules], idx: np.ndarray, probe: bool = False) -> None:
         """Trace together the candidates that ``subset(scene, r, idx, probe=probe)`` would trace one by one
-        (not cached, not rendered in full): the next ``subset`` calls for them on these pixels read the
-        batch's colours. Kept until the next prefetch (a search step's, one_of's candidates)."""
+        (not cached): the next ``subset`` calls for them on these pixels read the batch's colours, kept until
+        the next prefetch (a search step's, one_of's candidates). Where ``subset`` renders whole images (a
+        small image), the batch is of whole images, kept in the cache as ``get`` keeps its renders: a small
+        image's candidates cost little but their graph, ~20-30 ms each when traced one by one."""
         self._batched = {}
         n = scene.camera.width * scene.camera.height
         whole = n <= full_render_pixels(scene) and (self.share or not probe)
         todo, seen = [], set()
         for r in candidates:
             key = self.key(scene, r)
-            if key in self._items or whole or key in seen:
+            if key in self._items or key in seen:
                 continue
             seen.add(key)
             todo.append(r.traced())
         if len(todo) < 2:
+            return
+        if whole:
+            h, w = scene.camera.height, scene.camera.width
+            for v in self._trace_batch(scene, todo, np.arange(n)):
+                key = self.key(scene, v.rules)
+                if key not in self._items:  # the same bits as ``get``'s render (tests/diagnose/test_batch.py)
+                    full = Variant(v.rules, v.color.reshape(h, w, 3), v.shadow_ill.reshape(h, w))
+                    self._items[key] = full
+                    self._bytes += full.nbytes
+            self._trim()
             return
         token = _digest(idx)
         for v in self._trace_batch(scene, todo, idx):

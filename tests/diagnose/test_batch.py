@@ -104,3 +104,24 @@ def test_error_bound_and_numeric_offsets_are_traced_apart():
     by_rules = {v.rules: v for v in got}
     for c in cands:
         assert np.array_equal(by_rules[c.traced()].color.view(np.uint64), _single(scene, c, idx).view(np.uint64))
+
+
+def test_a_small_images_batch_is_kept_whole_with_the_bits_of_a_render_alone():
+    scene, rules = load(find_scene("rules"), W, H, None, None, [])
+    cands = _moves(rules)[:8]
+    idx = np.arange(0, W * H, 5)
+    vc = VariantCache(share=False)
+    vc.prefetch(scene, cands, idx)  # a small image: its candidates rendered whole, together, and kept
+    assert all(vc.has(scene, c) for c in cands)
+    for c in cands:
+        alone = VariantCache(share=False).get(scene, c)  # traced by itself, every pixel
+        got = vc.get(scene, c)
+        assert np.array_equal(got.color.view(np.uint64), alone.color.view(np.uint64)), c.differs(rules)
+        assert np.array_equal(got.shadow_ill, alone.shadow_ill)
+    # a probe's values (one of many a one-number search tries) are traced on the pixels asked for, not kept
+    probes = [replace(rules, specular_exponent=e) for e in (20, 21, 22)]
+    vc.prefetch(scene, probes, idx, probe=True)
+    assert not any(vc.has(scene, p) for p in probes)
+    for p in probes:
+        got = vc.subset(scene, p, idx, probe=True)
+        assert np.array_equal(got.color.view(np.uint64), _single(scene, p, idx).view(np.uint64))
