@@ -53,7 +53,7 @@ BAND_SPLIT_RAYS = 1 << 16
 BATCH_RAYS = 1 << 21
 # Rules a batch's kernel compiles in (the others are read per ray): candidates that differ in them are traced
 # in separate batches. ``Divergent`` splits a batch on any other rule the kernel turns out to compile in.
-COMPILED_IN = ("shadow_range",)
+COMPILED_IN: tuple[str, ...] = ()  # none: shadow_range and the error-bound offset are read per ray too (SWITCHES)
 
 
 @dataclass
@@ -210,7 +210,7 @@ class VariantCache:
 
         groups: dict[tuple, list[Rules]] = {}
         for r in todo:
-            key = (*(getattr(r, n) for n in COMPILED_IN), r.offset == "error-bound")
+            key = tuple(getattr(r, n) for n in COMPILED_IN)
             groups.setdefault(key, []).append(r)
         out: list[Variant] = []
         per = max(1, BATCH_RAYS // max(1, idx.size))

@@ -445,8 +445,9 @@ def planes_closest(v: Any, tab: ShapeTable, o: Any, d: Any, t_best: Any, id_best
     return t_best, id_best
 
 
-def planes_block(v: Any, tab: ShapeTable, o: Any, s: Any, light_dist: Any, to_light: bool) -> Any:
-    """Does any plane block the shadow ray (within light_dist under shadow_range "to-light")?"""
+def planes_block(v: Any, tab: ShapeTable, o: Any, s: Any, light_dist: Any, to_light: Any) -> Any:
+    """Does any plane block the shadow ray (within light_dist under shadow_range "to-light")? ``to_light``:
+    a bool, or a batch's mask (each ray its candidate's)."""
     T = v.T
     n = dr.width(s)
     k = dr.zeros(T.UInt, n)
@@ -458,7 +459,9 @@ def planes_block(v: Any, tab: ShapeTable, o: Any, s: Any, light_dist: Any, to_li
 
     def body(k, blocked):
         tk = shapes.plane_t(v, dr.gather(T.Array3, tab.p_normal, k), dr.gather(T.Array3, tab.p_point, k), o, s)
-        return k + 1, blocked | ((tk < light_dist) if to_light else (tk < math.inf))
+        if isinstance(to_light, bool):
+            return k + 1, blocked | ((tk < light_dist) if to_light else (tk < math.inf))
+        return k + 1, blocked | dr.select(to_light, tk < light_dist, tk < math.inf)
 
     _, blocked = dr.while_loop((k, blocked), cond, body, label="plane shadows")
     return blocked

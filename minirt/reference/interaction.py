@@ -49,19 +49,24 @@ def hit_point_and_normal(tr: TraceSettings, shape_id, o, d, t) -> tuple[Any, Any
 def ball_normal(tr: TraceSettings, p, d, c, r, inv_r, is_ball, n) -> tuple[Any, Any]:
     """Where is_ball: the normal (p - C) / r of the ball (C, r) hit at p, and under error-bound p put
     back on it; elsewhere p and n as given."""
-    reproject = tr.values.agree(lambda r: r.offset == "error-bound")
+    reproject = tr.values.switch("offset_error_bound")  # a batch's: each ray its candidate's (a mask)
     # pbrt-style under error-bound: put the point back on the sphere, normal from it. Otherwise
     # (p - C) times the radius's reciprocal: one division instead of three (the normal moves by at
     # most an ulp more; it is not of unit length to within rounding either way), and that one made
     # on the host (inv_r, the same bits).
-    nb = dr.normalize(p - c) if reproject else (p - c) * inv_r
+    if reproject is True:
+        nb = dr.normalize(p - c)
+    elif reproject is False:
+        nb = (p - c) * inv_r
+    else:
+        nb = dr.select(reproject, dr.normalize(p - c), (p - c) * inv_r)
     # A ball smaller than an ulp of its centre: the hit point can round onto the centre,
     # and p - C = 0 has no direction. Then the normal faces the ray.
     degenerate = ~(dr.squared_norm(nb) > 0) | ~dr.isfinite(dr.squared_norm(nb))
     nb = dr.select(degenerate, -d, nb)
     n = dr.select(is_ball, nb, n)
-    if reproject:
-        p = dr.select(is_ball, c + r * nb, p)
+    if reproject is not False:
+        p = dr.select(is_ball if reproject is True else is_ball & reproject, c + r * nb, p)
     return p, n
 
 
@@ -84,15 +89,23 @@ def offset_origin(tr: TraceSettings, p, n, err, direction, outward=None) -> Any:
     """Start of a secondary ray leaving p in `direction` (n: the shading normal). ``outward`` (error-bound
     only): where true, offset to n's side whatever the direction (see ``outward``)."""
     T, rules = tr.T, tr.rules
-    numeric = not tr.values.agree(lambda r: r.offset == "error-bound")
-    if numeric and tr.runtime:  # read at run time (a batch's rays each their candidate's)
+    bound = tr.values.switch("offset_error_bound")  # a batch's: each ray its candidate's (a mask)
+    if bound is not True and tr.runtime:  # read at run time (a batch's rays each their candidate's)
         along = dr.select(tr.values.rule("offset_along_ray"), direction, n)
-        return p + tr.values.number("offset") * along
-    if numeric:
+        by_number = p + tr.values.number("offset") * along
+        if bound is False:
+            return by_number
+        return dr.select(bound, _by_bound(T, p, n, err, direction, outward), by_number)
+    if bound is False:
         off = rules.offset
         if rules.offset_along == "ray":
             return p + T.Float(off) * direction  # rule offset_along "ray": along the new ray
         return p + T.Float(off) * n  # the exercise's hint: "add a small fraction of normal"
+    return _by_bound(T, p, n, err, direction, outward)
+
+
+def _by_bound(T, p, n, err, direction, outward) -> Any:
+    """``offset_origin`` under "error-bound"."""
     # (offset_along applies to numeric offsets only; validation rejects "ray" with "error-bound".)
     # Offset along n by the error bound, on the side the new ray leaves to, then one more ulp
     # away from p in each component (pbrt-v4's OffsetRayOrigin).
@@ -115,10 +128,12 @@ def outward(tr: TraceSettings, shape_id) -> Any:
     None when the rule does not apply (the offset's side is then that of the new ray)."""
     nro = tr.values.rule("near_root_only")
     balls = any(isinstance(s, Ball) for s in tr.scene.shapes)
-    if not tr.values.agree(lambda r: r.offset == "error-bound") or nro is False or not balls:
+    bound = tr.values.switch("offset_error_bound")  # a batch's: each ray its candidate's (a mask)
+    if bound is False or nro is False or not balls:
         return None
     is_ball = tr.values.is_ball(shape_id)
-    return is_ball if nro is True else is_ball & nro
+    out = is_ball if nro is True else is_ball & nro
+    return out if bound is True else out & bound
 
 
 def _ulp_away(T, x, delta) -> Any:

@@ -87,12 +87,15 @@ def shadow_margin(tr: TraceSettings, o, s, light_dist, hit) -> Any:
     flip. Large (1e30) when no ball is in front; planes' decisions are the light's side, not this."""
     F = tr.T.Float
     out = dr.full(F, 1e30, dr.width(s))
+    to_light = tr.values.switch("shadow_to_light")  # a batch's: each ray its candidate's (a mask)
 
     def nearer(out, center, radius):
         r, _, b, gg = shapes.ball_ray(center, radius, o, s)
         front = -b > -r
-        if tr.rules.shadow_range != "any":
+        if to_light is True:
             front &= -b < light_dist + r
+        elif to_light is not False:
+            front &= (-b < light_dist + r) | ~to_light
         return dr.select(front, dr.minimum(out, dr.abs(dr.sqrt(gg) - r)), out)
 
     out = tr.values.each_ball(o, nearer, out)
@@ -167,8 +170,8 @@ def shade(
         terms["ambient"] = dr.select(hit, values.material(shape_id, "ambient"), zero)
         local = local + terms["ambient"]
     r, r_dir, nr, raw_shading = _reflected(tr, shape_id, d, ns)
-    bound = values.agree(lambda r: r.offset == "error-bound")
-    err = interaction.error_bound(tr, shape_id, p, o) if bound else None
+    bound = values.switch("offset_error_bound")  # a batch's: a mask (the bound computed for every ray)
+    err = interaction.error_bound(tr, shape_id, p, o) if bound is not False else None
     outward = interaction.outward(tr, shape_id)
     clamp_all = values.rule("clamp_all")
     if fx.diffuse or fx.specular:

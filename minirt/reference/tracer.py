@@ -59,7 +59,8 @@ class Tracer(TraceSettings):
         """``runtime``: the rules a search varies most are values the kernel reads, not constants
         compiled into it -- specular_exponent, the camera's pixel_sample, pixel_shift, ray_origin, and
         near_root_only, two_sided, clamp, a numeric offset and offset_along (the rules that change which
-        work is done stay compiled in: offset "error-bound", shadow_range, background, and the effects)
+        work is done stay compiled in: offset "error-bound", shadow_range, shadow_rays, background, and the
+        effects; a batch of rule sets reads shadow_range, shadow_rays and background per ray too)
         -- and primary rays come from an array of pixel indices (``primary_rays(pixels)``). Renders
         that differ only in those, and renders of a few pixels, share one kernel: a search over
         candidates compiles each kernel once. The same bits either way (tested), at the cost of a few

@@ -112,11 +112,18 @@ SWITCHES: dict[str, Callable[[Rules], bool]] = {
     "shadow_rays": lambda r: bool(r.shadow_rays),
     "background_none": lambda r: r.background == "none",
     "background_on_hit": lambda r: r.background == "on-hit",
+    # shadow_range "to-light": a batch computes each ball's t along the shadow ray (which "any" does without)
+    # and takes each ray's candidate's test
+    "shadow_to_light": lambda r: r.shadow_range == "to-light",
+    # offset "error-bound": a batch computes both starts of a secondary ray (the bound's and the number's) and
+    # the ball's point put back on it, and takes each ray's candidate's
+    "offset_error_bound": lambda r: r.offset == "error-bound",
 }
 
 _YES_NO = {n: fn for n, (fn, own) in PER_RAY.items() if own == "bool"} | SWITCHES
 _BIT = {name: k for k, name in enumerate(_YES_NO)}
-_EXPONENT_SHIFT = len(_BIT)  # the exponent's bits above the yes/no rules' (exponents < 2^11: 18 + 11 bits)
+_EXPONENT_SHIFT = len(_BIT)  # the exponent's bits above the yes/no rules' (exponents < 2^11: 21 + 11 bits)
+assert _EXPONENT_SHIFT + 11 <= 32, "the yes/no rules and the exponent must fit one UInt32"
 
 
 def _packed(r: Rules) -> int:
@@ -372,19 +379,19 @@ class Values(ABC):
         """``blocked`` shape by shape, and with ``record`` each shape's t along the shadow ray."""
         blocked = self.T.Bool(False)
         ts = []
+        to_light = self.switch("shadow_to_light")  # a batch's: each ray its candidate's (a mask)
         for shape in self.scene.shapes:
-            need_t = record or self.rules.shadow_range != "any" or not isinstance(shape, Ball)
+            need_t = record or to_light is not False or not isinstance(shape, Ball)
             tk = self.intersect(shape, o, s, gate=True) if need_t else None
             if record:
                 ts.append(tk)
-            if self.rules.shadow_range != "any":
+            if to_light is True:
                 blocked |= tk < light_dist
-            elif isinstance(shape, Ball):
-                blocked |= self.occludes(shape, o, s)
-            else:
-                # Planes keep t: a near-parallel ray's quotient can overflow to inf (a miss), which
-                # signs alone would not see; a division is cheap beside a ball's square roots.
-                blocked |= tk < math.inf
+                continue
+            # Planes keep t: a near-parallel ray's quotient can overflow to inf (a miss), which signs
+            # alone would not see; a division is cheap beside a ball's square roots.
+            anywhere = self.occludes(shape, o, s) if isinstance(shape, Ball) else tk < math.inf
+            blocked |= anywhere if to_light is False else dr.select(to_light, tk < light_dist, anywhere)
         return blocked, ts
 
 
@@ -506,17 +513,25 @@ class Tabled(Values):
         each shape's t, which a ray that stops early never computes."""
         if record:
             return self.blocked_each(o, s, light_dist, record)
-        T, tab, to_light = self.T, self.table, self.rules.shadow_range != "any"
+        T, tab = self.T, self.table
+        to_light = self.switch("shadow_to_light")  # a batch's: each ray its candidate's (a mask)
         blocked = dr.full(T.Bool, False, dr.width(s))
         if tab.n_planes:
             blocked = accel.planes_block(self, tab, o, s, light_dist, to_light)
         if tab.n_balls:
-            if to_light:
+            if to_light is True:
                 blocks = lambda c, r: shapes.ball_t(self, c, r, o, s) < light_dist  # noqa: E731
                 bound = light_dist
-            else:
+            elif to_light is False:
                 blocks = lambda c, r: shapes.ball_occludes(self, c, r, o, s)  # noqa: E731
                 bound = dr.full(T.Float, math.inf, dr.width(s))
+            else:  # each ray its candidate's test, and its own distance beyond which boxes are skipped
+
+                def blocks(c, r):
+                    near = shapes.ball_t(self, c, r, o, s) < light_dist
+                    return dr.select(to_light, near, shapes.ball_occludes(self, c, r, o, s))
+
+                bound = dr.select(to_light, light_dist, T.Float(math.inf))
             if tab.tree is not None:
                 by_balls, _ = accel.traverse(self, tab, o, s, bound, None, blocks=blocks)
             else:

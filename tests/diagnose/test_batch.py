@@ -54,6 +54,10 @@ def _moves(rules):
         replace(rules, shadow_rays=False),
         replace(rules, background="none"),
         replace(rules, background="on-hit", clamp=True),
+        replace(rules, shadow_range="to-light"),
+        replace(rules, shadow_range="to-light", two_sided=True, shadow_rays=False),
+        replace(rules, offset="error-bound", offset_along="normal"),
+        replace(rules, offset="error-bound", offset_along="normal", near_root_only=False, shadow_range="to-light"),
     ]
 
 
@@ -77,30 +81,40 @@ def test_every_per_ray_rule_is_moved_by_the_batch_test():
     assert moved == set(each)
 
 
-def test_a_compiled_in_rule_splits_the_batch():
+def test_a_rule_the_kernel_compiles_in_cannot_be_read_from_a_mixed_batch():
+    a = load(find_scene("rules"), W, H, None, None, [])[1]
+    with pytest.raises(Divergent):  # a batch's code reading a rule its candidates differ in, as one value
+        Candidates([a, replace(a, offset="error-bound")]).offset  # noqa: B018 (the read is the test)
+    assert Candidates([a, replace(a, two_sided=True)]).shadow_range == "any"
+
+
+def test_the_shadow_range_and_shadow_rays_are_read_per_ray_in_one_batch():
     scene, rules = load(find_scene("rules"), W, H, None, None, [])  # (it tells every pair of values apart)
     a, b = rules, replace(rules, shadow_range="to-light")
-    with pytest.raises(Divergent):
-        Candidates([a, b]).shadow_range  # noqa: B018 (the read is the test)
-    assert Candidates([a, replace(a, two_sided=True)]).shadow_range == "any"
-    idx = np.arange(W * H)
+    idx = np.arange(0, W * H, 2)
     vc = VariantCache(share=False)
     cands = [a, b, replace(b, specular_exponent=4), replace(a, shadow_rays=False)]
-    vc.prefetch(scene, cands, idx)
+    calls, many = [], vc._trace_many
+    vc._trace_many = lambda *a, **k: calls.append(len(a[1])) or many(*a, **k)
+    vc.prefetch(scene, cands, idx, probe=True)  # on the pixels: a probe's, not kept whole
+    assert calls == [4] and not any(vc.has(scene, r) for r in cands)  # one kernel for the four
     for r in cands:
-        got = vc.subset(scene, r, idx)
+        got = vc.subset(scene, r, idx, probe=True)
         assert np.array_equal(got.color.view(np.uint64), _single(scene, r, idx).view(np.uint64))
     # and the rule sets differ here: a batch that took one's shadows from another would be caught
     assert not np.array_equal(_single(scene, a, idx), _single(scene, b, idx))
     assert not np.array_equal(_single(scene, a, idx), _single(scene, cands[3], idx))
 
 
-def test_error_bound_and_numeric_offsets_are_traced_apart():
+def test_error_bound_and_numeric_offsets_share_a_batch():
     scene, rules = load(find_scene("three_balls"), W, H, None, None, [])
     cands = [replace(rules, offset="error-bound"), replace(rules, offset=1e-3), replace(rules, offset=1e-6)]
     idx = np.arange(0, W * H, 2)
     vc = VariantCache(share=False)
+    calls, many = [], vc._trace_many
+    vc._trace_many = lambda *a, **k: calls.append(len(a[1])) or many(*a, **k)
     got = vc._trace_batch(scene, [c.traced() for c in cands], idx)
+    assert calls == [3]  # one kernel: each ray its candidate's offset, the bound's or a number
     by_rules = {v.rules: v for v in got}
     for c in cands:
         assert np.array_equal(by_rules[c.traced()].color.view(np.uint64), _single(scene, c, idx).view(np.uint64))
@@ -125,3 +139,32 @@ def test_a_small_images_batch_is_kept_whole_with_the_bits_of_a_render_alone():
     for p in probes:
         got = vc.subset(scene, p, idx, probe=True)
         assert np.array_equal(got.color.view(np.uint64), _single(scene, p, idx).view(np.uint64))
+
+
+@pytest.mark.parametrize("accel", ["bvh", "loop"])
+def test_a_batch_through_the_shape_table_gives_each_candidate_its_own_bits(accel):
+    """The table's paths (planes in a loop, balls through the BVH or a loop) read the batch's shadow range
+    and offset per ray as well: each ray its own test, its own distance beyond which the BVH skips boxes,
+    its own start."""
+    scene, rules = load(find_scene("rules"), W, H, None, None, [])  # a ball beyond the light blocks it
+    cands = [
+        rules,
+        replace(rules, shadow_range="to-light"),
+        replace(rules, shadow_rays=False, two_sided=True),
+        replace(rules, offset="error-bound", offset_along="normal"),
+    ]
+    idx = np.arange(0, W * H, 2)
+
+    def trace(rs):
+        tr = Tracer(scene, rs, runtime=True, accel=accel)
+        o, d = tr.primary_rays(idx)
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+            color, _ = tr.trace(o, d, tree=True)
+        return tr.to_numpy3(color).copy()
+
+    batch = trace(cands)
+    for k, c in enumerate(cands):
+        alone = trace(c)
+        part = batch[k * idx.size : (k + 1) * idx.size]
+        assert np.array_equal(part.view(np.uint64), alone.view(np.uint64)), c.differs(rules)
+    assert not np.array_equal(trace(cands[0]), trace(cands[1]))  # the shadow range shows here
