@@ -91,10 +91,19 @@ def scene_view(s: SceneGrade, changes: dict[str, Any], unexplained: int, assets:
                 heat_map(before, None),
                 disp,
                 title="before the diagnosis",
-                what=f"the image − the exercise's model: at most {_levels(before)} levels",
+                what=f"the image − {model_name(s.rules)}: at most {_levels(before)} levels",
             )
         )
     return v
+
+
+def model_name(rules) -> str:
+    """What the page calls the model a program is graded against: the 2014 edition's for a 2014 source
+    (``grading.given_rules``), else the exercise's (the scene's rules). One of these two constants: the
+    page's template writes it unescaped, its apostrophe as the rest of the page's text."""
+    from minirt.model.rules import PROFILES
+
+    return "the 2014 edition's model" if rules == PROFILES["eth2014"] else "the exercise's model"
 
 
 def _levels(levels) -> str:
@@ -155,6 +164,7 @@ def program_view(g: ProgramGrade, assets: InlineAssets) -> dict[str, Any]:
         "colorbar": colorbar(assets),
         "clip": CLIP,
         "notes": list(g.notes),
+        "model": model_name(g.scenes[0].rules) if g.scenes else "the exercise's model",
     }
 
 

@@ -192,3 +192,21 @@ def test_every_part_of_the_diagnosis_is_on_the_page(tmp_path):
         "The program drew no image: the program timed out after 20 s",
     ):
         assert said in html, said
+
+
+def test_a_2014_source_is_compared_with_its_editions_model_and_the_page_says_so(tmp_path):
+    text = (ROOT / "scenes" / "samples" / "raytracer2014.cpp").read_text()
+    mended = text.replace("#define PIXEL 0.0", "#define PIXEL 0.5").replace(
+        "#define FROM_PLANE 1", "#define FROM_PLANE 0"
+    )
+    src = tmp_path / "raytracer.cpp"
+    src.write_text(mended)  # only its offset (1e-4) is not the edition's
+    spec = make_spec(str(src))
+    scenes = [(f, sc, gp.given_rules(r, spec, False)) for f, sc, r in suite(("three_balls",))]
+    g = gp.grade_program(spec, scenes)
+    html = write_program_page(g, tmp_path / "page.html").read_text()
+    assert g.verdict == "match" and "the 2014 edition's model" in html and "the exercise's model" not in html
+    # and a command line, graded against the scene's own rules, is said to be compared with the exercise's
+    g = gp.grade_program(make_spec(f"{sys.executable} {TRACER} {{scene}} {{out}}"), suite(("three_balls",)))
+    html = write_program_page(g, tmp_path / "page2.html").read_text()
+    assert "the exercise's model" in html and "2014 edition's model" not in html
