@@ -35,7 +35,7 @@ def grade_program_class_command(
     if json_out not in (None, "-"):
         output_file(Path(json_out), "--json")
     output_folder(out_dir)
-    suite = load_suite(scene_path, size, profile, rule, (source.edition or "2014") if source.is_cpp else None)
+    suite = load_suite(scene_path, size, profile, rule, source.cpp_edition)
     workers = pool(workers, scheduler, default=0)  # 0: one per core, sized to the class by grade_programs
     with progress_bar(not quiet) as bar:
         task = None

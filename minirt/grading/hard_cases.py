@@ -168,17 +168,9 @@ def grade_hard_case(
     oracle, name: str, family: str, scene: Scene, rules: Rules, cache: dg.VariantCache, timeout: float | None
 ) -> HardCase:
     """One hard scene through the program (``oracle``: minirt.oracles.program.ProgramOracle), classified."""
-    import time
+    from minirt.grading.program import run_program
 
-    from minirt.grading.program import timeout_for
-    from minirt.harness import backends
-
-    scene = oracle.scene_as_rendered(scene.with_overrides(samples=1))
-    if timeout is None:
-        t0 = time.perf_counter()
-        backends.render(backends.REFERENCE, scene, rules)
-        timeout = timeout_for(time.perf_counter() - t0)
-    run = oracle.run_scene(scene, timeout, nonfinite=True)
+    scene, run, _ = run_program(oracle, scene, rules, timeout, nonfinite=True)
     if run.error:
         return HardCase(name, family, ERROR, error=run.error)
     c = classify(scene, rules, dg.Target(run.pixels, run.is_float, run.image_name), cache)

@@ -24,7 +24,7 @@ from minirt.grading.grade import DIFFERS, ERROR, EXIT, MATCH, Grade, sentence
 from minirt.model import rules as rules_mod
 from minirt.model.rules import PROFILES, Rules
 from minirt.model.scene import Scene
-from minirt.oracles.program import ProgramOracle, ProgramSpec
+from minirt.oracles.program import ProgramOracle, ProgramSpec, Run
 
 # A scene's time limit: the reference's time (vectorised float64, ~10-50 ms at 96^2) times this, at least
 # the floor. A C++ or NumPy program is within 10x of the reference; a pure-Python one (one Python call per
@@ -153,10 +153,12 @@ class ProgramGrade:
         }
 
 
-def grade_scene(
-    oracle: ProgramOracle, scene: Scene, scene_file: str, rules: Rules, cache: dg.VariantCache, timeout: float | None
-) -> SceneGrade:
-    """One scene through the program, its image diagnosed (or its error)."""
+def run_program(
+    oracle: ProgramOracle, scene: Scene, rules: Rules, timeout: float | None, nonfinite: bool = False
+) -> tuple[Scene, Run, float]:
+    """``scene`` through the program, one sample a pixel, as the program receives it (``scene_as_rendered``),
+    within ``timeout`` seconds (None: ``timeout_for`` the reference's time on it under ``rules``):
+    (that scene, the run, the timeout). ``nonfinite``: see ``ProgramOracle.run_scene``."""
     from minirt.harness import backends
 
     scene = oracle.scene_as_rendered(scene.with_overrides(samples=1))
@@ -164,7 +166,14 @@ def grade_scene(
         t0 = time.perf_counter()
         backends.render(backends.REFERENCE, scene, rules)
         timeout = timeout_for(time.perf_counter() - t0)
-    run = oracle.run_scene(scene, timeout)
+    return scene, oracle.run_scene(scene, timeout, nonfinite=nonfinite), timeout
+
+
+def grade_scene(
+    oracle: ProgramOracle, scene: Scene, scene_file: str, rules: Rules, cache: dg.VariantCache, timeout: float | None
+) -> SceneGrade:
+    """One scene through the program, its image diagnosed (or its error)."""
+    scene, run, timeout = run_program(oracle, scene, rules, timeout)
     course = scene.name in suite_mod.COURSE_2014
     times = {"rules": rules, "seconds": run.seconds, "timeout": timeout, "course": course}
     if run.error:

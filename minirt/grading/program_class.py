@@ -49,6 +49,13 @@ class ProgramSource:
 
         return self.command is None and self.file is not None and Path(self.file).suffix.lower() in SOURCE_SUFFIXES
 
+    @property
+    def cpp_edition(self) -> str | None:
+        """The edition each student's C++ source is built for (``default_edition``); None for a command."""
+        from minirt.oracles.program import default_edition
+
+        return default_edition(self.edition, self.adapter) if self.is_cpp else None
+
     def check(self) -> None:
         """Bad input before any work, as one line naming the option."""
         from minirt.oracles.program import EDITIONS
@@ -77,14 +84,14 @@ class ProgramSource:
             raise MinirtError(f"--edition {self.edition}: one of {', '.join(EDITIONS)}")
         if self.adapter is not None and not self.adapter.is_file():
             raise MinirtError(f"--adapter {self.adapter}: no such file")
-        if self.is_cpp and (self.edition or ("2013" if self.adapter else "2014")) == "2013" and self.adapter is None:
+        if self.cpp_edition == "2013" and self.adapter is None:
             raise MinirtError("--edition 2013: its classes' constructors are the student's; give --adapter FILE")
 
     def describe(self) -> dict[str, Any]:
         return {
             "file": self.file,
             "command": self.command,
-            "edition": (self.edition or ("2013" if self.adapter else "2014")) if self.is_cpp else None,
+            "edition": self.cpp_edition,
             "adapter": str(self.adapter) if self.adapter else None,
             "sandbox": self.sandbox,
         }
@@ -119,8 +126,7 @@ def student_spec(source: ProgramSource, student: Path):
         if problem is not None:
             return problem
     if source.command is None:  # a source (make_spec would take a path with a space for a command line)
-        edition = source.edition or ("2013" if source.adapter else "2014")
-        return ProgramSpec(str(file), "cpp", source=file, edition=edition, adapter=source.adapter,
+        return ProgramSpec(str(file), "cpp", source=file, edition=source.cpp_edition, adapter=source.adapter,
                            timeout=source.timeout, sandbox=source.sandbox)  # fmt: skip
     try:
         text = source.command.replace("{dir}", shlex.quote(str(folder)))

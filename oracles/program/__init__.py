@@ -127,6 +127,12 @@ def _timeout(text: str) -> float:
     return v
 
 
+def default_edition(edition: str | None, adapter: Path | None) -> str:
+    """The edition a C++ source is built for: the one given, else 2013 with an adapter (its interface needs
+    one), else 2014."""
+    return edition or ("2013" if adapter else "2014")
+
+
 def make_spec(
     text: str,
     edition: str | None = None,
@@ -142,7 +148,7 @@ def make_spec(
         source = Path(text)
         if not source.is_file():
             raise MinirtError(f"--program {text}: no such file")
-        ed = edition or ("2013" if adapter else "2014")
+        ed = default_edition(edition, adapter)
         if ed == "2013" and adapter is None:
             raise MinirtError(
                 "--edition 2013: its classes' constructors are the student's; give the course's --adapter FILE"
@@ -372,4 +378,6 @@ def backend(name: str) -> ProgramOracle:
     return ProgramOracle(name)
 
 
-__all__ = ["ProgramOracle", "ProgramSpec", "Run", "backend", "is_program", "make_spec", "parse_name"]
+__all__ = [
+    "ProgramOracle", "ProgramSpec", "Run", "backend", "default_edition", "is_program", "make_spec", "parse_name",
+]  # fmt: skip

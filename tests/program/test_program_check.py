@@ -13,6 +13,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
+from support.programs import minirt
 
 from minirt.cli.check import program_backends
 from minirt.errors import MinirtError
@@ -28,11 +29,6 @@ TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
 MINIRT = [sys.executable, "-m", "minirt"]
 # the NumPy tracer draws rules and three_balls as the model at 48^2 (tests/program/test_program_page.py)
 SIZE = "48x48"
-
-
-def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {"MINIRT_PROGRAM_CACHE": str(cwd / "programs"), "PATH": "/usr/bin:/bin"}
-    return subprocess.run([*MINIRT, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=600)
 
 
 def program(*changes: str) -> str:

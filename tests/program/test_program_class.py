@@ -7,17 +7,14 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from support.programs import grading_suite, minirt
 
 from minirt.grading import classroom
 from minirt.grading import program_class as pc
-from minirt.model.bundled import find_scene
-from minirt.model.rules import resolve
-from minirt.model.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
@@ -34,12 +31,7 @@ def _defines(text: str, **values: str) -> str:
 
 
 def suite(stems=("rules", "three_balls", "exercise")):
-    out = []
-    for stem in stems:
-        path = find_scene(stem)
-        scene = load_scene(path).with_overrides(width=SIZE, height=SIZE, samples=1)
-        out.append((str(path), scene, resolve(scene)))
-    return out
+    return grading_suite(stems, SIZE)
 
 
 @pytest.fixture(scope="module")
@@ -137,12 +129,6 @@ def _python_class(root: Path) -> Path:
     return cls
 
 
-def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {"MINIRT_PROGRAM_CACHE": str(cwd / "programs"), "PATH": "/usr/bin:/bin"}
-    return subprocess.run([sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=cwd, env=env,
-                          timeout=600)  # fmt: skip
-
-
 def test_a_class_of_python_programs_from_the_command_line_same_bytes_on_dask(tmp_path):
     cls = _python_class(tmp_path)
     command = f"{sys.executable} {{file}} {{scene}} {{out}}"
@@ -194,3 +180,24 @@ def test_the_class_page_loads_clean_in_a_browser(cpp_class, tmp_path):
     assert not console(dom), console(dom)
     # the counts' header, cat, dan, eve, fay and gus, and each of cat's and dan's three scenes (the others drew none)
     assert dom.stdout.count('class="badge v-fail"') == 1 + 5 + 2 * 3
+
+
+def test_a_class_given_an_adapter_is_of_the_2013_edition_and_graded_without_the_2014_course_scenes(tmp_path):
+    from minirt.cli.program import load_suite
+
+    adapter = tmp_path / "adapter.cpp"
+    adapter.write_text("// the course's adapter\n")
+    given = pc.ProgramSource("raytracer.cpp", adapter=adapter)
+    given.check()
+    assert given.cpp_edition == "2013" and given.describe()["edition"] == "2013"
+    plain = pc.ProgramSource("raytracer.cpp")
+    assert (
+        plain.cpp_edition == "2014"
+        and pc.ProgramSource("t.py", command="python3 {file} {scene} {out}").cpp_edition is None
+    )
+
+    def course_scenes(source) -> int:
+        stems = [Path(f).stem for f, _, _ in load_suite(None, "24x24", None, [], source.cpp_edition)]
+        return sum(s.startswith("course2014_") for s in stems)
+
+    assert course_scenes(given) == 0 and course_scenes(plain) == 6

@@ -5,12 +5,12 @@ reported as acne with the scene file that shows it; NaN pixels are counted as su
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from support.programs import minirt
 
 from minirt.cli import program_fuzz
 from minirt.grading import hard_cases
@@ -22,12 +22,6 @@ from minirt.oracles.program import make_spec
 ROOT = Path(__file__).resolve().parents[2]
 TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
 SIZE = "48"  # the suite's rules show at 48^2; the hard scenes' hazards are drawn for whatever size is given
-
-
-def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {"MINIRT_PROGRAM_CACHE": str(cwd / "programs"), "PATH": "/usr/bin:/bin"}
-    return subprocess.run([sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=cwd, env=env,
-                          timeout=600)  # fmt: skip
 
 
 def program(*rules: str) -> str:

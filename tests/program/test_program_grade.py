@@ -9,11 +9,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from support.programs import grading_suite, program_cache  # noqa: F401 (program_cache: a fixture)
 
 from minirt.grading import program as gp
-from minirt.model.bundled import find_scene
-from minirt.model.rules import PROFILES, resolve
-from minirt.model.scene import load_scene
+from minirt.model.rules import PROFILES
 from minirt.oracles.program import make_spec
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -22,21 +21,8 @@ SAMPLE_2014 = ROOT / "scenes" / "samples" / "raytracer2014.cpp"
 SIZE = 64  # every rule below shows on hundreds of pixels of the grading set at 64^2
 
 
-@pytest.fixture(scope="module", autouse=True)
-def program_cache(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("MINIRT_PROGRAM_CACHE", str(tmp_path_factory.mktemp("programs")))
-    yield
-    mp.undo()
-
-
 def suite(stems=("rules", "three_balls", "exercise"), rules=None):
-    out = []
-    for stem in stems:
-        path = find_scene(stem)
-        scene = load_scene(path).with_overrides(width=SIZE, height=SIZE, samples=1)
-        out.append((str(path), scene, rules or resolve(scene)))
-    return out
+    return grading_suite(stems, SIZE, rules)
 
 
 def numpy_program(*changes: str, fmt: str = "pfm") -> str:

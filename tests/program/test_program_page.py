@@ -7,28 +7,23 @@ from __future__ import annotations
 
 import base64
 import re
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 from support.browser import assert_all_images_loaded, console, loaded_page
+from support.programs import grading_suite, minirt, program_cache  # noqa: F401 (program_cache: a fixture)
 
 from minirt.grading import program as gp
 from minirt.grading.page import as8
 from minirt.grading.program_page import write_program_page
 from minirt.io.images import read_image_u8
-from minirt.model.bundled import find_scene
-from minirt.model.rules import resolve
-from minirt.model.scene import load_scene
 from minirt.oracles.program import make_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
 # pixel_sample=center shows on hundreds of pixels of each scene at 48^2; the NumPy tracer draws both as the model
 SIZE = 48
-MINIRT = [sys.executable, "-m", "minirt"]
 DATA_PNG = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
 # A program that fails on one scene (three_balls) with a message holding markup, and runs the NumPy
 # tracer (given as its first argument, so the sandbox shows it) on the others.
@@ -42,21 +37,8 @@ runpy.run_path(tracer, run_name="__main__")
 """
 
 
-@pytest.fixture(scope="module", autouse=True)
-def program_cache(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("MINIRT_PROGRAM_CACHE", str(tmp_path_factory.mktemp("programs")))
-    yield
-    mp.undo()
-
-
 def suite(stems=("rules", "three_balls")):
-    out = []
-    for stem in stems:
-        path = find_scene(stem)
-        scene = load_scene(path).with_overrides(width=SIZE, height=SIZE, samples=1)
-        out.append((str(path), scene, resolve(scene)))
-    return out
+    return grading_suite(stems, SIZE)
 
 
 def pictures(html: str, tmp_path: Path) -> list[np.ndarray]:
@@ -67,11 +49,6 @@ def pictures(html: str, tmp_path: Path) -> list[np.ndarray]:
         f.write_bytes(base64.b64decode(b64))
         out.append(read_image_u8(f))
     return out
-
-
-def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {"MINIRT_PROGRAM_CACHE": str(cwd / "programs"), "PATH": "/usr/bin:/bin"}
-    return subprocess.run([*MINIRT, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=600)
 
 
 def test_the_page_shows_every_scene_and_the_one_diagnosis(tmp_path):

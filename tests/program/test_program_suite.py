@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from support.programs import program_cache  # noqa: F401 (a fixture: the module's C++ builds in a folder of its own)
 
 from minirt import diagnose as dg
 from minirt.grading import program as gp
@@ -61,14 +62,6 @@ def suite():
 @pytest.fixture(scope="module")
 def cache():
     return dg.VariantCache(share=False)
-
-
-@pytest.fixture(scope="module", autouse=True)
-def program_cache(tmp_path_factory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("MINIRT_PROGRAM_CACHE", str(tmp_path_factory.mktemp("built")))
-    yield
-    mp.undo()
 
 
 def grade(folder: Path, suite, cache, changes: dict[str, str]) -> gp.ProgramGrade:
