@@ -51,9 +51,8 @@ BAND_SPLIT_RAYS = 1 << 16
 # 150 ms one by one and 13 ms as one batch, bit for bit the same colours (tests/diagnose/test_batch.py). A
 # batch holds at most this many rays (its colours ~48 MB), more candidates go to another batch.
 BATCH_RAYS = 1 << 21
-# Rules a batch's kernel compiles in (the others are read per ray): candidates that differ in them are traced
-# in separate batches. ``Divergent`` splits a batch on any other rule the kernel turns out to compile in.
-COMPILED_IN: tuple[str, ...] = ()  # none: shadow_range and the error-bound offset are read per ray too (SWITCHES)
+# A batch's kernel reads every rule a search varies per ray (minirt.reference.values: PER_RAY, SWITCHES);
+# ``Divergent`` splits a batch on a rule the kernel turns out to compile in.
 
 
 @dataclass
@@ -192,12 +191,10 @@ class VariantCache:
             return
         if whole:
             h, w = scene.camera.height, scene.camera.width
-            for v in self._trace_batch(scene, todo, np.arange(n)):
-                key = self.key(scene, v.rules)
-                if key not in self._items:  # the same bits as ``get``'s render (tests/diagnose/test_batch.py)
-                    full = Variant(v.rules, v.color.reshape(h, w, 3), v.shadow_ill.reshape(h, w))
-                    self._items[key] = full
-                    self._bytes += full.nbytes
+            for v in self._trace_batch(scene, todo, np.arange(n)):  # none kept yet (todo): kept as ``get`` keeps
+                full = Variant(v.rules, v.color.reshape(h, w, 3), v.shadow_ill.reshape(h, w))  # the same bits
+                self._items[self.key(scene, v.rules)] = full
+                self._bytes += full.nbytes
             self._trim()
             return
         token = _digest(idx)
@@ -205,16 +202,13 @@ class VariantCache:
             self._batched[(self.key(scene, v.rules), token)] = v
 
     def _trace_batch(self, scene: Scene, todo: list[Rules], idx: np.ndarray) -> list[Variant]:
-        """``_trace`` of each candidate on ``idx``, as few batches as their compiled-in rules allow."""
+        """``_trace`` of each candidate on ``idx``, in batches of at most ``BATCH_RAYS`` rays (split where
+        their rules keep them apart: ``Divergent``)."""
         from minirt.reference.values import Divergent
 
-        groups: dict[tuple, list[Rules]] = {}
-        for r in todo:
-            key = tuple(getattr(r, n) for n in COMPILED_IN)
-            groups.setdefault(key, []).append(r)
         out: list[Variant] = []
         per = max(1, BATCH_RAYS // max(1, idx.size))
-        stack = [g[i : i + per] for g in groups.values() for i in range(0, len(g), per)]
+        stack = [todo[i : i + per] for i in range(0, len(todo), per)]
         while stack:
             group = stack.pop(0)
             if len(group) == 1:

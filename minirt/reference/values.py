@@ -212,11 +212,6 @@ class Values(ABC):
             F = self.T.Float
             self._per_ray = {(n, F): self._gather(n, F) for n, (_, own) in PER_RAY.items() if own == "float"}
 
-    def agree(self, fn: Callable[[Rules], Any]) -> Any:
-        """fn of the rules, where the kernel compiles the answer in: for a batch, the candidates' common
-        answer (``Candidates.agree``)."""
-        return self.rules.agree(fn) if self.batch is not None else fn(self.rules)
-
     @abstractmethod
     def vec(self, name: str) -> Any:
         """A scene 3-vector: "light", "light_color" or "background"."""
