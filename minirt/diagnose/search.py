@@ -540,7 +540,11 @@ class Search:
             d = self.target.difference(v.color, r, at)
             return self.target.beyond(d) & ~v.shadow_ill
 
+        def traced_together(xs: list[float], at: np.ndarray) -> None:  # one kernel for them, the same bits
+            self.cache.prefetch(self.scene, [replace(rules, offset=x) for x in xs], at, probe=True)
+
         grid = [0.0] + [10.0 ** (k / 4) for k in range(-32, -3)]  # 1e-8 .. 0.1: a student's offsets
+        traced_together(grid, idx)
         counts = [float((beyond(x, idx) * weight).sum()) for x in grid]
         best = min(counts)
         runs = [i for i, c in enumerate(counts) if c == best]
@@ -555,11 +559,13 @@ class Search:
         lo, hi = max(grid[a - 1], grid[1] / 2), grid[min(b + 1, len(grid) - 1)]
         mid = grid[(a + b) // 2]
         everywhere = np.arange(self.target.model_shape[0] * self.target.model_shape[1])
+        traced_together([lo, mid, hi], everywhere)
         ends = [beyond(x, everywhere) for x in (lo, mid, hi)]
         at = np.flatnonzero((ends[0] != ends[1]) | (ends[1] != ends[2]))
         if at.size:
             for _ in range(OFFSET_ROUNDS):
                 xs = [lo * (hi / lo) ** (k / (OFFSET_STEPS + 1)) for k in range(OFFSET_STEPS + 2)]
+                traced_together(xs[1:-1], at)
                 c = [int(beyond(x, at).sum()) for x in xs[1:-1]]
                 run = [k + 1 for k, v in enumerate(c) if v == min(c)]
                 lo, hi = xs[run[0] - 1], xs[run[-1] + 1]
