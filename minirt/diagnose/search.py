@@ -416,13 +416,13 @@ class Search:
         # the candidates traced on the subset, traced together (``VariantCache.prefetch``); not those one
         # step from the scene's rules that a shared cache renders in full (``_traced``)
         keep = self.cache.share
+        estimates = [self._estimate(start, current, vc, c, sub.idx) for c in cands]  # (each asked once)
         self.cache.prefetch(self.scene, [
-            c for c in cands
-            if c.traced() != current.traced() and not (keep and len(start.differs(c)) == 1)
-            and self._estimate(start, current, vc, c, sub.idx) is None
+            c for c, est in zip(cands, estimates, strict=True)
+            if est is None and c.traced() != current.traced() and not (keep and len(start.differs(c)) == 1)
         ], sub.idx)  # fmt: skip
         for k, c in enumerate(cands):
-            est = self._estimate(start, current, vc, c, sub.idx)
+            est = estimates[k]
             traced = est is None
             if traced:
                 est = self._traced(start, current, vc, c, sub.idx)
