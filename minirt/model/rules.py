@@ -137,7 +137,7 @@ class Rules:
         """These rules with every output rule at its default: what a render depends on (its cache key). Made
         once per rule set (``_traced``; itself where they are at their defaults already): a diagnosis asks it
         ~10,000 times, and ``replace`` costs ~50 us."""
-        if all(getattr(self, name) == _DEFAULTS[name] for name in OUTPUT_RULES):
+        if (self.encoding, self.gamma, self.rows, self.channels, self.transpose) == _OUTPUT_DEFAULTS:
             return self
         return _traced(self)
 
@@ -172,8 +172,9 @@ TRACE_RULES: tuple[str, ...] = (
 QUIET_AT_DEFAULT: tuple[str, ...] = BUG_RULES
 # Names a scene's [model] or --rule may use for several rules at once: raw_normals sets both kinds.
 ALIASES: dict[str, tuple[str, ...]] = {"raw_normals": ("raw_normals_ball", "raw_normals_plane")}
-OUTPUT_RULES: tuple[str, ...] = ("encoding", "gamma", "rows", "channels", "transpose")
+OUTPUT_RULES: tuple[str, ...] = ("encoding", "gamma", "rows", "channels", "transpose")  # Rules.traced: this order
 _DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(Rules)}
+_OUTPUT_DEFAULTS = tuple(_DEFAULTS[name] for name in OUTPUT_RULES)  # Rules.traced compares its attributes with them
 
 PROFILES: dict[str, Rules] = {
     "exercise": Rules(),
