@@ -26,7 +26,7 @@ from support.plain import Plain
 from support.students import levels_off, noisy, small_scene, student_image
 
 from minirt import diagnose as dg
-from minirt.diagnose.search import simplest
+from minirt.diagnose.search import OFFSET_ROUNDS, Search, simplest
 from minirt.grading import grade as grading
 from minirt.io.images import read_image_u8, write_image
 from minirt.model import bitmap, camera
@@ -119,6 +119,26 @@ def test_offset_found_as_the_number_written(tmp_path, cache):
     assert d.changed == {"offset": "0.00048828125"} and d.mismatch_pixels == 0
     (e,) = d.explained
     assert e.interval[0] < 0.5 / 1024 <= e.interval[1] <= e.interval[0] * 1.01  # narrow: named, with its interval
+
+
+def test_the_offset_search_traces_each_grid_in_one_kernel():
+    """The numeric offset is one number searched on a grid of 30 offsets, then narrowed round by round on
+    finer grids: each grid is traced together -- one kernel, the offset each ray's data -- not one offset at a
+    time (71 traces of one candidate each before)."""
+    scene = small_scene("three_balls", 64, 64)
+    given = R.resolve(scene)
+    img = student_image(scene, replace(given, offset=0.5 / 1024))
+    cache = dg.VariantCache(share=False)
+    search = Search(scene, dg.Target(img, False, "student"), cache, True)
+    groups, many = [], cache._trace_many
+    cache._trace_many = lambda s, group, *a, **k: groups.append(group) or many(s, group, *a, **k)
+    x = search.best_offset_everywhere(given)
+    probes = [g for g in groups if len(g) > 1]
+    assert all(r.offset != given.offset for g in probes for r in g)  # they are the search's offsets
+    # the grid (its 1e-6 is the given rules' own, rendered already), the bracket's ends, the rounds
+    assert len(probes[0]) == 29 and len(probes) <= 2 + OFFSET_ROUNDS, [len(g) for g in groups]
+    assert sum(len(g) == 1 for g in groups) <= 2  # the given rules' own render and its float32 twin
+    assert x is not None and abs(x - 0.5 / 1024) < 0.25 / 1024  # and it still finds the student's offset
 
 
 # ---------------------------------------------------------------------------------------------
