@@ -421,15 +421,20 @@ class Search:
             c for c, est in zip(cands, estimates, strict=True)
             if est is None and c.traced() != current.traced() and not (keep and len(start.differs(c)) == 1)
         ], sub.idx)  # fmt: skip
+        gains = []
         for k, c in enumerate(cands):
-            est = estimates[k]
-            traced = est is None
-            if traced:
-                est = self._traced(start, current, vc, c, sub.idx)
-            e = self._gain_on(sub, current, vc, c, *est, flips)
-            if e is not None and e[0] == 0 and c.traced() != current.traced():
-                # No effect in float64 here: a rule a float32 tracer shows only through rounding (an offset
-                # along the ray, the far root from inside a ball), seen in its self-shadowing acne.
+            est = estimates[k] if estimates[k] is not None else self._traced(start, current, vc, c, sub.idx)
+            gains.append((est, self._gain_on(sub, current, vc, c, *est, flips)))
+        # No effect in float64 here: a rule a float32 tracer shows only through rounding (an offset along the
+        # ray, the far root from inside a ball), seen in its self-shadowing acne -- their float32 images
+        # traced together (``VariantCache.prefetch32``), then each compared as before.
+        now = current.traced()
+        twin = [e is not None and e[0] == 0 and c.traced() != now for c, (_, e) in zip(cands, gains, strict=True)]
+        self.cache.prefetch32(self.scene, [c for c, t in zip(cands, twin, strict=True) if t], sub.idx)
+        for k, c in enumerate(cands):
+            est, e = gains[k]
+            traced = estimates[k] is None
+            if twin[k]:
                 v32 = self.cache.subset32(self.scene, c, sub.idx)
                 if v32 is not None:
                     e = self._gain_on(sub, current, vc, c, *est, flips, color2=v32.color)

@@ -107,6 +107,7 @@ class VariantCache:
         self._hits: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.alternatives: dict[tuple, tuple[list[dict[str, Any]], set]] = {}  # see explain.indistinguishable
         self._batched: dict[tuple, Variant] = {}  # ``prefetch``'s subsets, until the next prefetch
+        self._batched32: dict[tuple, Variant] = {}  # ``prefetch32``'s, until the next prefetch32
         self.requested: set[tuple] = set()
         self.renders = 0  # rays traced, in units of whole images
         self.hits = 0
@@ -201,7 +202,25 @@ class VariantCache:
         for v in self._trace_batch(scene, todo, idx):
             self._batched[(self.key(scene, v.rules), token)] = v
 
-    def _trace_batch(self, scene: Scene, todo: list[Rules], idx: np.ndarray) -> list[Variant]:
+    def prefetch32(self, scene: Scene, candidates: list[Rules], idx: np.ndarray) -> None:
+        """Trace together, in float32, the candidates that ``subset32(scene, r, idx)`` would trace one by one:
+        a search step's float32 twins (the candidates whose float64 image gains nothing). Kept until the next
+        prefetch32; none when the scene is beyond float32's range (``subset32`` says so for each)."""
+        from minirt.errors import MinirtError
+
+        self._batched32 = {}
+        todo = list({r.traced(): None for r in candidates})
+        if len(todo) < 2:
+            return
+        try:
+            got = self._trace_batch(scene, todo, idx, "f32")
+        except MinirtError:
+            return
+        token = _digest(idx)
+        for v in got:
+            self._batched32[(self.key(scene, v.rules), token)] = v
+
+    def _trace_batch(self, scene: Scene, todo: list[Rules], idx: np.ndarray, precision: str = "f64") -> list[Variant]:
         """``_trace`` of each candidate on ``idx``, in batches of at most ``BATCH_RAYS`` rays (split where
         their rules keep them apart: ``Divergent``)."""
         from minirt.reference.values import Divergent
@@ -212,10 +231,10 @@ class VariantCache:
         while stack:
             group = stack.pop(0)
             if len(group) == 1:
-                out.append(self._trace(scene, group[0], idx))
+                out.append(self._trace(scene, group[0], idx, precision))
                 continue
             try:
-                out += self._trace_many(scene, group, idx)
+                out += self._trace_many(scene, group, idx, precision)
             except Divergent as e:  # a rule the kernel compiles in: split on it
                 parts: dict[Any, list[Rules]] = {}
                 for r in group:
@@ -356,7 +375,12 @@ class VariantCache:
         """The candidate traced in float32 on the pixels ``idx`` (None beyond float32's range)."""
         from minirt.errors import MinirtError
 
-        self.requested.add((self.key(scene, rules), "f32"))
+        key = self.key(scene, rules)
+        self.requested.add((key, "f32"))
+        if self._batched32:
+            v = self._batched32.get((key, _digest(idx)))
+            if v is not None:
+                return v
         try:
             return self._trace(scene, rules.traced(), idx, "f32")
         except MinirtError:

@@ -19,9 +19,9 @@ from minirt.reference.values import PER_RAY, SWITCHES, Candidates, Divergent
 W, H = 40, 30
 
 
-def _single(scene, rules, idx) -> np.ndarray:
+def _single(scene, rules, idx, precision: str = "f64") -> np.ndarray:
     """The candidate alone, one rule set in the tracer (opaque run-time values, not a batch's tables)."""
-    tr = Tracer(scene, rules, runtime=True)
+    tr = Tracer(scene, rules, precision=precision, runtime=True)
     o, d = tr.primary_rays(idx)
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         color, _ = tr.trace(o, d, tree=True)
@@ -71,6 +71,23 @@ def test_a_batch_gives_each_candidate_its_own_bits(name):
     for c, v in zip(cands, batch, strict=True):
         alone = _single(scene, c, idx)
         assert np.array_equal(v.color.view(np.uint64), alone.view(np.uint64)), c.differs(rules)
+
+
+@pytest.mark.parametrize("name", ["rules", "three_balls"])
+def test_a_float32_batch_gives_each_candidate_its_own_bits(name):
+    """A search step's float32 twins are traced together (``prefetch32``): each as alone in float32."""
+    scene, rules = load(find_scene(name), W, H, None, None, [])
+    idx = np.arange(0, W * H, 3)
+    cands = list(dict.fromkeys(c.traced() for c in _moves(rules)))
+    vc = VariantCache(share=False)
+    calls, many = [], vc._trace_many
+    vc._trace_many = lambda *a, **k: calls.append(len(a[1])) or many(*a, **k)
+    vc.prefetch32(scene, cands, idx)
+    assert calls == [len(cands)]  # one kernel for them all
+    for c in cands:
+        got = vc.subset32(scene, c, idx).color
+        assert np.array_equal(got.view(np.uint64), _single(scene, c, idx, "f32").view(np.uint64)), c.differs(rules)
+    assert calls == [len(cands)]  # and each read from the batch, none traced again
 
 
 def test_every_per_ray_rule_is_moved_by_the_batch_test():
