@@ -81,6 +81,14 @@ def _score(images: list[Image], changes: dict[str, Any]) -> tuple[int, int] | No
     return beyond, off
 
 
+def _render_together(images: list[Image], candidates: list[dict[str, Any]]) -> None:
+    """The renders ``_score`` of these candidates asks of each image (float64 and float32, whole), traced in
+    batches before it asks for them one by one (``VariantCache.prefetch_whole``): the same bits."""
+    for im in images:
+        rules = [r for c in candidates if (r := _apply(im.given, c)) is not None]
+        im.search.cache.prefetch_whole(im.scene, rules, f32=True)
+
+
 def _proposals(images: list[Image], answers: list[Rules]) -> list[dict[str, Any]]:
     """The changes the images' own answers propose: each changed rule alone, the coupled offset pair
     together."""
@@ -101,9 +109,9 @@ def _descend(images: list[Image], proposals: list[dict[str, Any]]) -> dict[str, 
     score = _score(images, current)
     while True:
         found = None
-        for p in proposals:
-            if all(current.get(k) == v for k, v in p.items()):
-                continue
+        moves = [p for p in proposals if not all(current.get(k) == v for k, v in p.items())]
+        _render_together(images, [{**current, **p} for p in moves])
+        for p in moves:
             cand = {**current, **p}
             s = _score(images, cand)
             if s is None:
@@ -156,6 +164,8 @@ def _undecided(images: list[Image], changes: dict[str, Any]) -> dict[str, list[s
     base = _score(images, changes)
     n = sum(im.target.model_shape[0] * im.target.model_shape[1] for im in images)
     out: dict[str, list[str]] = {}
+    others = [{**changes, name: v} for name, value in changes.items() for v in rules_mod.values(name) if v != value]
+    _render_together(images, others)
     for name, value in changes.items():
         for v in rules_mod.values(name):
             if v == value:

@@ -202,6 +202,40 @@ class VariantCache:
         for v in self._trace_batch(scene, todo, idx):
             self._batched[(self.key(scene, v.rules), token)] = v
 
+    def prefetch_whole(self, scene: Scene, candidates: list[Rules], f32: bool = False) -> None:
+        """The full renders ``get(scene, r, f32=f32)`` would make one by one, traced together (whole images, in
+        batches of at most ``BATCH_RAYS`` rays) and kept as ``get`` keeps them, each with the bits of its
+        render alone: a joint diagnosis scores every candidate on every image of a suite, ~400 renders of a
+        96² scene, where a render's graph (~10-20 ms) cost more than its rays. ``requested`` is not touched:
+        what a diagnosis looked at is what it ``get``s."""
+        h, w = scene.camera.height, scene.camera.width
+        every = np.arange(w * h)
+        todo = list({r.traced(): None for r in candidates if not self.has(scene, r)})
+        if len(todo) > 1:
+            for v in self._trace_batch(scene, todo, every):
+                full = Variant(v.rules, v.color.reshape(h, w, 3), v.shadow_ill.reshape(h, w))
+                self._items[self.key(scene, v.rules)] = full
+                self._bytes += full.nbytes
+            self._trim()
+        if not f32:
+            return
+        kept = [self._items.get(self.key(scene, r)) for r in candidates]
+        twins = list({v.rules: v for v in kept if v is not None and v.f32_flips is None}.values())
+        if len(twins) < 2:
+            return
+        from minirt.errors import MinirtError
+
+        try:
+            got = self._trace_batch(scene, [v.rules for v in twins], every, "f32")
+        except MinirtError:  # beyond float32's range: ``get`` says so for each
+            return
+        for v, t in zip(twins, got, strict=True):
+            before = v.nbytes
+            v.f32_stored, v.f32_flips = self._f32_twin(v, t.color.reshape(h, w, 3))
+            if self._items.get(self.key(scene, v.rules)) is v:
+                self._bytes += v.nbytes - before
+        self._trim()
+
     def prefetch32(self, scene: Scene, candidates: list[Rules], idx: np.ndarray) -> None:
         """Trace together, in float32, the candidates that ``subset32(scene, r, idx)`` would trace one by one:
         a search step's float32 twins (the candidates whose float64 image gains nothing). Kept until the next
@@ -368,6 +402,11 @@ class VariantCache:
             c32 = self._trace(scene, v.rules, None, "f32").color
         except MinirtError:  # beyond float32's range: no float32 tracer could draw it; nothing to add
             return None, np.zeros(v.color.shape[:2], dtype=bool)
+        return self._f32_twin(v, c32)
+
+    @staticmethod
+    def _f32_twin(v: Variant, c32: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The float32 image as kept, and the pixels where it differs from ``v``'s by more than a level."""
         a, b = bitmap.encode(v.color), bitmap.encode(c32)
         return c32.astype(np.float32), bitmap.channel_any(np.abs(a.astype(np.int16) - b) > LEVEL_TOL)
 

@@ -90,6 +90,27 @@ def test_a_float32_batch_gives_each_candidate_its_own_bits(name):
     assert calls == [len(cands)]  # and each read from the batch, none traced again
 
 
+def test_whole_renders_made_together_are_what_get_makes_alone():
+    """A joint diagnosis' renders traced together (``prefetch_whole``, float32 twins too) and kept: each the
+    bits ``get(f32=True)`` gives it alone -- colour, shadow flags, float32 image and its flips."""
+    scene, rules = load(find_scene("three_balls"), W, H, None, None, [])
+    cands = list(dict.fromkeys(c.traced() for c in _moves(rules)))[:10]
+    vc = VariantCache(share=False)
+    calls, many = [], vc._trace_many
+    vc._trace_many = lambda *a, **k: calls.append((len(a[1]), a[3] if len(a) > 3 else "f64")) or many(*a, **k)
+    vc.prefetch_whole(scene, cands, f32=True)
+    assert calls == [(len(cands), "f64"), (len(cands), "f32")]  # two kernels for them all
+    before = set(vc.requested)
+    for c in cands:
+        got, alone = vc.get(scene, c, f32=True), VariantCache(share=False).get(scene, c, f32=True)
+        for a, b in ((got.color, alone.color), (got.f32_stored, alone.f32_stored)):
+            assert a.dtype == b.dtype and np.array_equal(a.view(f"u{a.itemsize}"), b.view(f"u{b.itemsize}")), c.differs(
+                rules
+            )
+        assert np.array_equal(got.shadow_ill, alone.shadow_ill) and np.array_equal(got.f32_flips, alone.f32_flips)
+    assert len(calls) == 2 and not before  # read from the cache; the prefetch itself asked for nothing
+
+
 def test_every_per_ray_rule_is_moved_by_the_batch_test():
     """The test above changes every rule a batch reads per ray (a new one must join it)."""
     _, rules = load(find_scene("rules"), W, H, None, None, [])
