@@ -9,6 +9,7 @@ scene cannot tell apart from it, each with a bundled grading scene that does (``
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -295,14 +296,32 @@ def _grading_pair(stem: str, name: str, a: Any, b: Any, profile: str | None = No
     """(bundled scene ``stem`` at one ray a pixel, its rules -- or ``profile``'s -- with ``name`` = a, and
     with ``name`` = b), each a valid rule set; None when the scene is not installed."""
     from minirt.errors import SceneError
-    from minirt.model.bundled import bundled_scene
+    from minirt.model.bundled import find_scene
 
     try:
-        sc = bundled_scene(stem).with_overrides(samples=1)
-    except SceneError:  # a bundled scene missing from this install: ask the others
+        path = find_scene(stem)
+        stat = path.stat()
+    except (SceneError, OSError):  # a bundled scene missing from this install: ask the others
         return None
-    base = rules_mod.resolve(sc, profile)
+    read = _grading_scene(str(path), stat.st_mtime_ns, stat.st_size, profile)
+    if read is None:
+        return None
+    sc, base = read
     return sc, _make_valid(replace(base, **{name: a})), _make_valid(replace(base, **{name: b}))
+
+
+@functools.lru_cache(maxsize=32)
+def _grading_scene(path: str, mtime_ns: int, size: int, profile: str | None) -> tuple[Scene, Rules] | None:
+    """A grading scene read once (at one ray a pixel) with its rules, while its file stays as it was: a program's
+    grade asks ``_grading_pair`` ~300 times, and each read parsed the TOML again (~3 ms)."""
+    from minirt.errors import SceneError
+    from minirt.model.scene import load_scene
+
+    try:
+        sc = load_scene(path).with_overrides(samples=1)
+    except SceneError:
+        return None
+    return sc, rules_mod.resolve(sc, profile)
 
 
 def _moot_in(name: str, sc: Scene, ra: Rules, rb: Rules) -> bool:

@@ -657,6 +657,7 @@ class Search:
         color, sill = v.color.reshape(-1, 3)[at], v.shadow_ill.reshape(-1)[at]
         encs = rules_mod.values("encoding") if not self.target.is_float else (rules.encoding,)
         best, best_key = rules, None
+        sampled: dict[tuple, np.ndarray | None] = {}  # each layout's image on the stride, taken once
         for enc in encs:
             for gam in rules_mod.values("gamma"):
                 coded = coded_levels(color, replace(rules, encoding=enc, gamma=gam), self.target.is_float)
@@ -664,10 +665,14 @@ class Search:
                     for rows in rules_mod.values("rows"):
                         for ch in rules_mod.values("channels"):
                             cand = replace(rules, encoding=enc, gamma=gam, transpose=tr, rows=rows, channels=ch)
-                            img = self.target.in_layout(cand)
-                            if img.shape[:2] != self.target.model_shape:
+                            if (tr, rows, ch) not in sampled:
+                                img = self.target.in_layout(cand)
+                                fits = img.shape[:2] == self.target.model_shape
+                                sampled[tr, rows, ch] = img.reshape(-1, 3)[at] if fits else None
+                            img_at = sampled[tr, rows, ch]
+                            if img_at is None:
                                 continue
-                            d = bitmap.channel_max(np.abs(coded - img.reshape(-1, 3)[at]))
+                            d = bitmap.channel_max(np.abs(coded - img_at))
                             key = (*self.target.score(d, ~sill), len(rules.differs(cand)))
                             if best_key is None or key < best_key:
                                 best, best_key = cand, key
