@@ -8,13 +8,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+from support.programs import bare_env
+
 ROOT = Path(__file__).resolve().parents[2]
 TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
 MINIRT = [sys.executable, "-m", "minirt"]
 
 
 def minirt(*args: str, tmp_path: Path) -> subprocess.CompletedProcess:
-    env = {"MINIRT_PROGRAM_CACHE": str(tmp_path / "programs"), "PATH": "/usr/bin:/bin"}
+    env = bare_env(tmp_path)
     return subprocess.run([*MINIRT, *args], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=600)
 
 
