@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.inproc import minirt as here
 from support.programs import minirt
 
 from minirt.cli.check import program_backends
@@ -139,7 +140,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         # the cache knows a backend by its name: a script changed under the same SPEC would be answered from it
         (["check", "rules", "-b", spec, "--cache", "cache"], "checked afresh every time"),
     ):
-        p = minirt(*args, cwd=tmp_path)
+        p = here(*args, cwd=tmp_path)  # in this process: an exit status and a line, no process needed
         assert p.returncode == 2 and words in p.stderr, (args, p.stderr)
         assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert not (tmp_path / "cache").exists()

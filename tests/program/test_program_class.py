@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from support.inproc import minirt as here
 from support.programs import grading_suite, minirt
 
 from minirt.grading import classroom
@@ -193,7 +194,7 @@ def test_a_class_is_graded_over_the_whole_program_suite_by_default(tmp_path):
 )
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, words):
     (tmp_path / "C" / "someone").mkdir(parents=True)
-    p = minirt("grade", *args, cwd=tmp_path)
+    p = here("grade", *args, cwd=tmp_path)  # in this process: an exit status and a line, no process needed
     assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr, p.stderr
     assert not (tmp_path / "grades").exists()  # nothing written before the input was found good
 
