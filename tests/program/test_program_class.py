@@ -133,10 +133,10 @@ def _python_class(root: Path) -> Path:
 def test_a_class_of_python_programs_from_the_command_line_same_bytes_on_dask(tmp_path):
     cls = _python_class(tmp_path)
     command = f"{sys.executable} {{file}} {{scene}} {{out}}"
-    # The rules scene alone, not the whole suite: a student's job (one a worker) is the whole suite, however
-    # long, so the workers and the files carry the same things for an eighth of the program runs and
-    # diagnoses. At 48^2 the rules scene alone tells pixel_sample=center and specular_exponent=16 from
-    # every other change (bob's and dora's diagnoses name exactly them, below). The suite by default:
+    # The rules scene alone, not the whole suite: a worker's job is a student's whole suite, however long,
+    # so the workers and the files carry the same things for an eighth of the program runs and diagnoses.
+    # At 48^2 the rules scene alone tells pixel_sample=center and specular_exponent=16 from every other
+    # change (bob's and dora's diagnoses name exactly them, below). The suite by default:
     # test_a_class_is_graded_over_the_whole_program_suite_by_default.
     common = ["grade", "--class", str(cls), "--program-file", "tracer.py", "--program-command", command,
               "rules", "--size", str(SIZE), "-q"]  # fmt: skip
