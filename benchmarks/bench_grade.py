@@ -10,9 +10,9 @@ Sections (JSON keys; Markdown on stdout in the same order):
 - ``single``: ``minirt grade scenes/rules.toml IMAGE --size 800x800`` as a whole command in a child
   process, IMAGE a float32 render with three wrong rules (pixel centres, (r·s)^16, min(255, floor(256c)))
   -- every candidate render included. **cold**: each run gets a fresh, empty Dr.Jit kernel cache
-  (``DRJIT_CACHE_DIR``), so every kernel is compiled; **warm kernels**: runs share a primed directory
-  (what a user sees from the second grade on). Median of 3 each. ``--versus TREE``: another checkout's
-  grade of the same image, its runs interleaved with this tree's (before/after in one run).
+  (``DRJIT_CACHE_DIR``), so every kernel is compiled; **warm kernels**: runs share the directory the
+  first cold run primed (what a user sees from the second grade on). Median of 3 each. ``--versus TREE``:
+  another checkout's grade of the same image, its runs interleaved with this tree's (before/after in one run).
 - ``class_cache``: in one process, a first student's 800x800 image is graded, then a second student's
   (other wrong rules) with the same ``VariantCache``: the second's time is "with the class's cache warm".
 - ``class``: N students x 6 bundled scenes at 256x256, each student with 0-3 random wrong rules (seeded:
@@ -91,11 +91,9 @@ def single(tmp: Path, size: int, repeats: int, versus: Path | None = None) -> di
             env = {**os.environ, **extra, "DRJIT_CACHE_DIR": str(tmp / f"cold-{name}{k}")}
             cold[name].append(run(c, env)[0])
     warm: dict[str, list[float]] = {name: [] for name in trees}
-    for name, (extra, c) in trees.items():
-        run(c, {**os.environ, **extra, "DRJIT_CACHE_DIR": str(tmp / f"warm-{name}")})  # primes the kernel cache
-    for _ in range(repeats):
+    for _ in range(repeats):  # each tree's first cold run primed its kernel cache: the same command, every kernel
         for name, (extra, c) in trees.items():
-            warm[name].append(run(c, {**os.environ, **extra, "DRJIT_CACHE_DIR": str(tmp / f"warm-{name}")})[0])
+            warm[name].append(run(c, {**os.environ, **extra, "DRJIT_CACHE_DIR": str(tmp / f"cold-{name}0")})[0])
     found = json.loads((tmp / "single.json").read_text())
     out = {}
     if versus:

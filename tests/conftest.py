@@ -28,6 +28,7 @@ SHARED_FIXTURE_MODULES = frozenset(
         "harness/test_geometry", "harness/test_shading", "io/test_json_documents", "jobs/test_memory",
         "oracles/test_oracle_mitsuba", "oracles/test_oracle_povray", "oracles/test_oracle_cycles",
         "reference/test_probe_image", "pages/test_report", "reference/test_start_band", "sweep/test_sweep",
+        "program/test_program_check", "program/test_program_class", "program/test_program_suite",
     )
 )  # fmt: skip
 

@@ -13,6 +13,8 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
+import pytest
+from support.inproc import minirt as here
 from support.programs import minirt
 
 from minirt.cli.check import program_backends
@@ -59,9 +61,19 @@ def test_the_exercise_passes_shading_and_skips_geometry(tmp_path):
     assert len(geometry) == 3 and all(c.find("skipped") is not None for c in geometry)
 
 
-def test_a_program_with_a_rule_changed_fails_shading_and_the_rule_is_named(tmp_path):
-    p = minirt("check", "rules", "-b", program("pixel_sample=center"), "--size", SIZE, "-q", "--json", "-",
-               cwd=tmp_path)  # fmt: skip
+# check of a program with a rule changed, in this process's loop (no --workers): what
+# test_a_program_with_a_rule_changed_fails_shading_and_the_rule_is_named asserts, and what
+# test_on_worker_processes_the_verdicts_are_the_same compares the worker processes' run with
+CHANGED = ["check", "rules", "-b", program("pixel_sample=center"), "--size", SIZE, "-q", "--json", "-"]
+
+
+@pytest.fixture(scope="module")
+def changed_here(tmp_path_factory) -> subprocess.CompletedProcess:
+    return minirt(*CHANGED, cwd=tmp_path_factory.mktemp("changed"))
+
+
+def test_a_program_with_a_rule_changed_fails_shading_and_the_rule_is_named(changed_here):
+    p = changed_here
     assert p.returncode == 1, p.stderr
     b = backends_of(json.loads(p.stdout))["rules"]
     assert b["verdict"] == "fail" and b["shading"]["verdict"] == "fail" and b["shading"]["color8_over_1"] > 100
@@ -128,15 +140,14 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         # the cache knows a backend by its name: a script changed under the same SPEC would be answered from it
         (["check", "rules", "-b", spec, "--cache", "cache"], "checked afresh every time"),
     ):
-        p = minirt(*args, cwd=tmp_path)
+        p = here(*args, cwd=tmp_path)  # in this process: an exit status and a line, no process needed
         assert p.returncode == 2 and words in p.stderr, (args, p.stderr)
         assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert not (tmp_path / "cache").exists()
 
 
-def test_on_worker_processes_the_verdicts_are_the_same(tmp_path):
-    args = ["check", "rules", "-b", program("pixel_sample=center"), "--size", SIZE, "-q", "--json", "-"]
-    here, there = (minirt(*args, *more, cwd=tmp_path) for more in ((), ("--workers", "2")))
+def test_on_worker_processes_the_verdicts_are_the_same(tmp_path, changed_here):
+    here, there = changed_here, minirt(*CHANGED, "--workers", "2", cwd=tmp_path)
     assert here.returncode == there.returncode == 1, there.stderr
     a, b = (backends_of(json.loads(p.stdout))["rules"] for p in (here, there))
     for key in ("verdict", "reason", "geometry", "shading"):

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from support.inproc import minirt as here
 from support.programs import grading_suite, minirt
 
 from minirt.grading import classroom
@@ -132,14 +133,19 @@ def _python_class(root: Path) -> Path:
 def test_a_class_of_python_programs_from_the_command_line_same_bytes_on_dask(tmp_path):
     cls = _python_class(tmp_path)
     command = f"{sys.executable} {{file}} {{scene}} {{out}}"
+    # The rules scene alone, not the whole suite: a worker's job is a student's whole suite, however long,
+    # so the workers and the files carry the same things for an eighth of the program runs and diagnoses.
+    # At 48^2 the rules scene alone tells pixel_sample=center and specular_exponent=16 from every other
+    # change (bob's and dora's diagnoses name exactly them, below). The suite by default:
+    # test_a_class_is_graded_over_the_whole_program_suite_by_default.
     common = ["grade", "--class", str(cls), "--program-file", "tracer.py", "--program-command", command,
-              "--size", str(SIZE), "-q"]  # fmt: skip
+              "rules", "--size", str(SIZE), "-q"]  # fmt: skip
     files = {}
     for workers in ("1", "2"):
         out = tmp_path / f"out{workers}"
         p = minirt(*common, "--workers", workers, "-o", str(out), "--json", str(out / "class.json"), cwd=tmp_path)
         assert p.returncode == 0, p.stderr
-        assert "graded 4 programs over 8 scenes: 1 match, 2 differ, 1 error" in p.stdout
+        assert "graded 4 programs over 1 scene: 1 match, 2 differ, 1 error" in p.stdout
         files[workers] = {n: (out / n).read_bytes() for n in ("grades.csv", "grades.json", "index.html")}
     assert files["1"] == files["2"]
     doc = json.loads(files["1"]["grades.json"])
@@ -147,8 +153,30 @@ def test_a_class_of_python_programs_from_the_command_line_same_bytes_on_dask(tmp
     assert rows["alice"]["verdict"] == "match"
     assert rows["bob"]["rules"] == {"pixel_sample": "center"}
     assert rows["dora"]["rules"] == {"specular_exponent": "16"}
-    assert rows["carol"]["reason"] == "every scene: the program failed with exit status 3"
+    assert rows["carol"]["reason"] == "rules: the program failed with exit status 3"
     assert doc["program"]["command"] == command
+    assert doc["scenes"] == ["rules"]
+
+
+def test_a_class_is_graded_over_the_whole_program_suite_by_default(tmp_path):
+    """No SCENE: every student's program over the program suite at its size. A program that exits at
+    once shows it at the cost of starting Python once a scene."""
+    from minirt.grading.suite import program_suite
+
+    cls = tmp_path / "class"
+    (cls / "carol").mkdir(parents=True)
+    (cls / "carol" / "tracer.py").write_text("import sys\nsys.exit(3)\n")
+    command = f"{sys.executable} {{file}} {{scene}} {{out}}"
+    p = minirt("grade", "--class", str(cls), "--program-file", "tracer.py", "--program-command", command,
+               "-o", "out", "--json", "class.json", "-q", cwd=tmp_path)  # fmt: skip
+    names = [s.name for s in program_suite()]
+    assert p.returncode == 0, p.stderr
+    assert f"graded 1 program over {len(names)} scenes: 0 match, 0 differ, 1 error" in p.stdout
+    doc = json.loads((tmp_path / "class.json").read_text())
+    assert doc["scenes"] == names
+    (row,) = doc["grades"]
+    assert row["reason"] == "every scene: the program failed with exit status 3"
+    assert [s["scene"] for s in row["scenes"]] == names
 
 
 @pytest.mark.parametrize(
@@ -166,7 +194,7 @@ def test_a_class_of_python_programs_from_the_command_line_same_bytes_on_dask(tmp
 )
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, words):
     (tmp_path / "C" / "someone").mkdir(parents=True)
-    p = minirt("grade", *args, cwd=tmp_path)
+    p = here("grade", *args, cwd=tmp_path)  # in this process: an exit status and a line, no process needed
     assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr, p.stderr
     assert not (tmp_path / "grades").exists()  # nothing written before the input was found good
 

@@ -8,13 +8,16 @@ import subprocess
 import sys
 from pathlib import Path
 
+from support.inproc import minirt as here
+from support.programs import bare_env
+
 ROOT = Path(__file__).resolve().parents[2]
 TRACER = ROOT / "tests" / "support" / "numpy_tracer.py"
 MINIRT = [sys.executable, "-m", "minirt"]
 
 
 def minirt(*args: str, tmp_path: Path) -> subprocess.CompletedProcess:
-    env = {"MINIRT_PROGRAM_CACHE": str(tmp_path / "programs"), "PATH": "/usr/bin:/bin"}
+    env = bare_env(tmp_path)
     return subprocess.run([*MINIRT, *args], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=600)
 
 
@@ -50,7 +53,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
         (["grade", "--edition", "2014", "rules", "x.png"], "--edition goes with --program"),
         (["fuzz", "-b", "program:python3 t.py {scene} {out}"], "a program gives a colour image"),
     ):
-        p = minirt(*args, tmp_path=tmp_path)
+        p = here(*args, cwd=tmp_path)  # in this process: an exit status and a line, no process needed
         assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr, (args, p.stderr)
 
 

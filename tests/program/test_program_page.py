@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 from support.browser import assert_all_images_loaded, console, loaded_page
+from support.inproc import minirt as here
 from support.programs import grading_suite, minirt, program_cache  # noqa: F401 (program_cache: a fixture)
 
 from minirt.grading import program as gp
@@ -125,7 +126,7 @@ def test_a_refused_run_leaves_no_page_and_an_old_one_untouched(tmp_path):
         (["grade", "--program", spec, "no_such_scene", "--out", "old.html"], "no_such_scene"),
         (["grade", "--program", spec, "rules", "--out", "."], "is a folder"),
     ):
-        p = minirt(*args, cwd=tmp_path)
+        p = here(*args, cwd=tmp_path)  # in this process: an exit status and a line, no process needed
         assert p.returncode == 2 and words in p.stderr, (args, p.stderr)
         assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert not (tmp_path / "new.html").exists() and old.read_text() == "the page of an earlier run"

@@ -56,3 +56,12 @@ def screenshot(tmp: Path, url: str, width: int, height: int) -> np.ndarray:
     r = run_browser(tmp, f"--screenshot={shot}", f"--window-size={width},{height}", url)
     assert r.returncode == 0 and shot.is_file(), r.stderr[-2000:]
     return read_image_u8(shot)[..., :3]
+
+
+def distinct_colours(px: np.ndarray) -> int:
+    """How many RGB colours an 8-bit picture holds: each pixel's 24 bits as an index into a table of 2^24
+    flags -- np.unique(axis=0) sorts the rows instead, seconds of CPU for a screenshot's millions."""
+    rgb = px[..., :3].reshape(-1, 3).astype(np.uint32)
+    seen = np.zeros(1 << 24, bool)
+    seen[(rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]] = True
+    return int(np.count_nonzero(seen))

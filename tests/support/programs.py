@@ -3,6 +3,7 @@ for the C++ sources it compiles, and the grading scenes at a test's size."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,11 +15,22 @@ from minirt.model.rules import Rules, resolve
 from minirt.model.scene import load_scene
 
 
-def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """``python -m minirt ARGS`` in ``cwd``, with a bare environment and the build cache in ``cwd/programs``."""
+def bare_env(cwd: Path) -> dict[str, str]:
+    """A bare environment for minirt run as a user runs it: PATH, the build cache in ``cwd/programs``, and
+    Dr.Jit's kernel cache -- this process's. Without HOME, Dr.Jit would keep no kernel cache and compile
+    every kernel again in every command (a grade over one scene at 48^2: 7.7 CPU-s instead of 2.9)."""
     env = {"MINIRT_PROGRAM_CACHE": str(cwd / "programs"), "PATH": "/usr/bin:/bin"}
-    return subprocess.run([sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=cwd, env=env,
-                          timeout=600)  # fmt: skip
+    home = os.environ.get("HOME")
+    kernels = os.environ.get("DRJIT_CACHE_DIR") or (home and os.path.join(home, ".drjit"))  # Dr.Jit's default
+    if kernels:
+        env["DRJIT_CACHE_DIR"] = kernels
+    return env
+
+
+def minirt(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """``python -m minirt ARGS`` in ``cwd``, with a bare environment (``bare_env``)."""
+    return subprocess.run([sys.executable, "-m", "minirt", *args], capture_output=True, text=True, cwd=cwd,
+                          env=bare_env(cwd), timeout=600)  # fmt: skip
 
 
 @pytest.fixture(scope="module", autouse=True)
