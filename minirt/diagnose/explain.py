@@ -196,25 +196,47 @@ def _indistinguishable(scene: Scene, best: Rules, cache: VariantCache, target: T
     moot = moot_rules(scene, best)
     moves = single_moves(best, rules_mod.TRACE_RULES)
     cache.prefetch(scene, [c for c in moves if best.differs(c)[0] not in moot], stride)  # one trace for all
-    for cand in moves:
+    same = [
+        c for c in moves
+        if best.differs(c)[0] in moot or _distinct(scene, best, c, coded, stride, cache, target.is_float) == 0
+    ]  # fmt: skip
+    told = [c for c in same if not (best.differs(c)[0] in moot and best.differs(c)[0] in rules_mod.BUG_RULES)]
+    _render_first_grading_pairs(best, told, cache)  # what tells_apart asks first, traced together
+    for cand in same:
         (name,) = best.differs(cand)
-        if name in moot or _distinct(scene, best, cand, coded, stride, cache, target.is_float) == 0:
-            value = getattr(cand, name)
-            out.append(
-                {
-                    "rule": name,
-                    "value": rules_mod.format_rule_value(name, value),
-                    "as": rules_mod.format_rule_value(name, getattr(best, name)),
-                    "scene_that_tells": (
-                        shows(name, getattr(best, name), value)
-                        if name in moot and name in rules_mod.BUG_RULES
-                        else tells_apart(name, getattr(best, name), value, cache)
-                    ),
-                }
-            )
-            if out[-1]["scene_that_tells"] is None:
-                out[-1]["why"] = why_same(name, getattr(best, name), value)
+        value = getattr(cand, name)
+        out.append(
+            {
+                "rule": name,
+                "value": rules_mod.format_rule_value(name, value),
+                "as": rules_mod.format_rule_value(name, getattr(best, name)),
+                "scene_that_tells": (
+                    shows(name, getattr(best, name), value)
+                    if name in moot and name in rules_mod.BUG_RULES
+                    else tells_apart(name, getattr(best, name), value, cache)
+                ),
+            }
+        )
+        if out[-1]["scene_that_tells"] is None:
+            out[-1]["why"] = why_same(name, getattr(best, name), value)
     return out
+
+
+def _render_first_grading_pairs(best: Rules, cands: list[Rules], cache: VariantCache) -> None:
+    """The renders ``tells_apart`` asks of the first grading scene for these pairs (best's value, the
+    candidate's), traced together (``VariantCache.prefetch_whole``): the first scene tells most pairs apart."""
+    rules: list[Rules] = []
+    sc = None
+    for c in cands:
+        (name,) = best.differs(c)
+        if (name, frozenset({getattr(best, name), getattr(c, name)})) in SAME_UNDER_EXERCISE:
+            continue
+        pair = _grading_pair(GRADING_SET[0], name, getattr(best, name), getattr(c, name))
+        if pair is not None and not _moot_in(name, *pair):
+            sc = pair[0]
+            rules += pair[1:]
+    if sc is not None:
+        cache.prefetch_whole(sc, rules)
 
 
 def _distinct(
