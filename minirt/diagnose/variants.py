@@ -204,37 +204,37 @@ class VariantCache:
 
     def prefetch_whole(self, scene: Scene, candidates: list[Rules], f32: bool = False) -> None:
         """The full renders ``get(scene, r, f32=f32)`` would make one by one, traced together (whole images, in
-        batches of at most ``BATCH_RAYS`` rays) and kept as ``get`` keeps them, each with the bits of its
-        render alone: a joint diagnosis scores every candidate on every image of a suite, ~400 renders of a
-        96² scene, where a render's graph (~10-20 ms) cost more than its rays. ``requested`` is not touched:
-        what a diagnosis looked at is what it ``get``s."""
+        batches of at most ``BATCH_RAYS`` rays, the cache trimmed after each) and kept as ``get`` keeps them,
+        each with the bits of its render alone: a joint diagnosis scores every candidate on every image of a
+        suite, ~400 renders of a 96² scene, where a render's graph (~10-20 ms) cost more than its rays. Only
+        for images rendered whole anyway (``full_render_pixels``); ``requested`` is not touched: what a
+        diagnosis looked at is what it ``get``s."""
+        from minirt.errors import MinirtError
+
         h, w = scene.camera.height, scene.camera.width
-        every = np.arange(w * h)
+        if w * h > full_render_pixels(scene):  # a large image's renders cost their rays: ``get`` makes them
+            return
+        every, per = np.arange(w * h), max(2, BATCH_RAYS // (w * h))  # a kernel's worth at a time, then trimmed
         todo = list({r.traced(): None for r in candidates if not self.has(scene, r)})
-        if len(todo) > 1:
-            for v in self._trace_batch(scene, todo, every):
+        for part in (todo[i : i + per] for i in range(0, len(todo) if len(todo) > 1 else 0, per)):
+            for v in self._trace_batch(scene, part, every):
                 full = Variant(v.rules, v.color.reshape(h, w, 3), v.shadow_ill.reshape(h, w))
                 self._items[self.key(scene, v.rules)] = full
                 self._bytes += full.nbytes
             self._trim()
-        if not f32:
-            return
-        kept = [self._items.get(self.key(scene, r)) for r in candidates]
+        kept = [self._items.get(self.key(scene, r)) for r in candidates] if f32 else []
         twins = list({v.rules: v for v in kept if v is not None and v.f32_flips is None}.values())
-        if len(twins) < 2:
-            return
-        from minirt.errors import MinirtError
-
-        try:
-            got = self._trace_batch(scene, [v.rules for v in twins], every, "f32")
-        except MinirtError:  # beyond float32's range: ``get`` says so for each
-            return
-        for v, t in zip(twins, got, strict=True):
-            before = v.nbytes
-            v.f32_stored, v.f32_flips = self._f32_twin(v, t.color.reshape(h, w, 3))
-            if self._items.get(self.key(scene, v.rules)) is v:
-                self._bytes += v.nbytes - before
-        self._trim()
+        for part in (twins[i : i + per] for i in range(0, len(twins) if len(twins) > 1 else 0, per)):
+            try:
+                got = self._trace_batch(scene, [v.rules for v in part], every, "f32")
+            except MinirtError:  # beyond float32's range: ``get`` says so for each
+                return
+            for v, t in zip(part, got, strict=True):
+                before = v.nbytes
+                v.f32_stored, v.f32_flips = self._f32_twin(v, t.color.reshape(h, w, 3))
+                if self._items.get(self.key(scene, v.rules)) is v:
+                    self._bytes += v.nbytes - before
+            self._trim()
 
     def prefetch32(self, scene: Scene, candidates: list[Rules], idx: np.ndarray) -> None:
         """Trace together, in float32, the candidates that ``subset32(scene, r, idx)`` would trace one by one:
