@@ -21,7 +21,8 @@ Commands (``COMMANDS``): ``help``; ``render`` (200 random balls over a mirror fl
 benchmarks/balls_scene.py, the reference); ``grade_cold`` / ``grade_warm`` (an 800^2 float32 render of
 scenes/rules.toml with three wrong rules, bench_grade.py's ``single``, from an empty / a primed kernel
 cache); ``check_exact`` (the bundled scenes against the certified oracle); ``check_all`` (the bundled scenes,
-every oracle).
+every oracle); ``grade_program`` (the 2014 sample C++ source graded over the program suite: minirt's own CPU,
+its build and its compares -- the program's runs in bubblewrap's PID namespace do not reach ``RUSAGE_CHILDREN``).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
+SAMPLE_PROGRAM = ROOT / "scenes" / "samples" / "raytracer2014.cpp"
 if str(ROOT / "benchmarks") not in sys.path:
     sys.path.insert(0, str(ROOT / "benchmarks"))
 
@@ -69,6 +71,8 @@ def commands(tmp: Path) -> dict[str, tuple[list[str], dict[str, str]]]:
         "grade_warm": ([*grade, str(tmp / "g.json")], {"DRJIT_CACHE_DIR": str(tmp / "kernels")}),
         "check_exact": (["check", "-b", "exact", "--quiet", "--json", str(tmp / "ce.json")], {}),
         "check_all": (["check", "--quiet", "--json", str(tmp / "ca.json")], {}),
+        # this tree's 2014 sample as the program in both trees (a TREE before `grade --program` cannot run it)
+        "grade_program": (["grade", "--program", str(SAMPLE_PROGRAM), "-q", "--json", str(tmp / "gp.json")], {}),
     }
 
 
