@@ -68,6 +68,25 @@ def progress_bar(enabled: bool = True):
         yield p
 
 
+def class_progress(bar, local: bool, busy: str, row_text):
+    """The (on_start, on_done) callbacks of a class run on ``bar`` (None: no bar): the task made when the run
+    knows its size, named "``busy`` (N processes)" when it runs on N > 1 local processes (``local``), and each
+    finished row said by ``row_text(row)`` (untrusted parts made safe for the terminal)."""
+    task = None
+
+    def start(total: int, processes: int) -> None:
+        nonlocal task
+        label = f"{busy} ({processes} processes)" if local and processes > 1 else "grading"
+        task = bar.add_task(label, total=total) if bar else None
+
+    def done(job, row) -> None:
+        if bar:
+            bar.update(task, description=terminal_text(row_text(row)))
+            bar.advance(task)
+
+    return start, done
+
+
 def warn(scene_name: str, line: str) -> None:
     """A warning: one line on stderr, ``minirt: warning: SCENE: ...`` (as errors are ``minirt: error: ...``)."""
     err.print(terminal_text(f"minirt: warning: {scene_name}: {line}", MAX_MESSAGE))

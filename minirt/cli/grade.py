@@ -12,7 +12,7 @@ from typing import Annotated, Any
 
 import typer
 
-from minirt.cli.console import MAX_MESSAGE, emit_json, err, out, progress_bar
+from minirt.cli.console import MAX_MESSAGE, class_progress, emit_json, err, out, progress_bar
 from minirt.cli.options import (
     CLUSTER_TRUST,
     GradeCacheOpt,
@@ -300,18 +300,9 @@ def _grade_class(
     loaded = [(str(f), *load(f, *(wh or (None, None)), None, profile, rule)) for f in files]
     workers = pool(workers, scheduler, default=0)  # 0: one per core, sized to the images by grade_folder
     with progress_bar(not quiet) as bar:
-        task = None
-
-        def start(total: int, processes: int) -> None:
-            nonlocal task
-            label = f"grading ({processes} processes)" if scheduler is None and processes > 1 else "grading"
-            task = bar.add_task(label, total=total) if bar else None
-
-        def done(job, row) -> None:
-            if bar:
-                bar.update(task, description=terminal_text(f"{row.student[:16]:<16} {row.scene[:12]:<12}"))
-                bar.advance(task)
-
+        start, done = class_progress(
+            bar, scheduler is None, "grading", lambda row: f"{row.student[:16]:<16} {row.scene[:12]:<12}"
+        )
         graded = classroom.grade_folder(
             people, loaded, out_dir, workers=workers, scheduler=scheduler, cache=cache, quiet=quiet,
             on_start=start, on_done=done, skipped=skipped,

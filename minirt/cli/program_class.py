@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from minirt.cli.console import err, out, progress_bar
+from minirt.cli.console import class_progress, err, out, progress_bar
 from minirt.cli.options import output_file, output_folder, pool
 from minirt.errors import MinirtError
 from minirt.io.untrusted import terminal_text
@@ -38,18 +38,9 @@ def grade_program_class_command(
     suite = load_suite(scene_path, size, profile, rule, source.cpp_edition)
     workers = pool(workers, scheduler, default=0)  # 0: one per core, sized to the class by grade_programs
     with progress_bar(not quiet) as bar:
-        task = None
-
-        def start(total: int, processes: int) -> None:
-            nonlocal task
-            label = f"grading programs ({processes} processes)" if scheduler is None and processes > 1 else "grading"
-            task = bar.add_task(label, total=total) if bar else None
-
-        def done(job, row) -> None:
-            if bar:
-                bar.update(task, description=terminal_text(f"{row.student[:16]:<16} {row.verdict}"))
-                bar.advance(task)
-
+        start, done = class_progress(
+            bar, scheduler is None, "grading programs", lambda row: f"{row.student[:16]:<16} {row.verdict}"
+        )
         graded = program_class.grade_programs(
             people, source, suite, out_dir, profile_given=profile is not None, workers=workers, scheduler=scheduler,
             on_start=start, on_done=done, skipped=skipped,
