@@ -229,10 +229,9 @@ def _render_first_grading_pairs(best: Rules, cands: list[Rules], cache: VariantC
     sc = None
     for c in cands:
         (name,) = best.differs(c)
-        if (name, frozenset({getattr(best, name), getattr(c, name)})) in SAME_UNDER_EXERCISE:
-            continue
-        pair = _grading_pair(GRADING_SET[0], name, getattr(best, name), getattr(c, name))
-        if pair is not None and not _moot_in(name, *pair):
+        a, b = getattr(best, name), getattr(c, name)
+        pair = None if _same_under_exercise(name, a, b) else _renders_could_tell(GRADING_SET[0], name, a, b)
+        if pair is not None:
             sc = pair[0]
             rules += pair[1:]
     if sc is not None:
@@ -287,12 +286,16 @@ SAME_UNDER_EXERCISE = {
 }
 
 
+def _same_under_exercise(name: str, a: Any, b: Any) -> bool:
+    return (name, frozenset({a, b})) in SAME_UNDER_EXERCISE
+
+
 def tells_apart(name: str, a: Any, b: Any, cache: VariantCache | None = None, min_pixels: int = 50) -> str | None:
     """The first bundled grading scene in which rule ``name`` = a and = b differ on >= min_pixels pixels
     (8-bit, as stored, ill-conditioned pixels left out), under the scene's own rules. A pair the exercise's
     rules make the same (``SAME_UNDER_EXERCISE``: every grading scene is under them) is told by none,
     without a render."""
-    if (name, frozenset({a, b})) in SAME_UNDER_EXERCISE:
+    if _same_under_exercise(name, a, b):
         return None
     for stem in GRADING_SET:
         if distinct_pixels(stem, name, a, b, cache) >= min_pixels:
@@ -305,11 +308,10 @@ def shows(name: str, a: Any, b: Any) -> str | None:
     its planes are written of unit length, ...): the first bundled grading scene where it is not so, found
     without a render. The answer is the rendered one (``tells_apart``) for every pair of every such rule:
     tests/diagnose/test_diagnose.py checks it."""
-    if (name, frozenset({a, b})) in SAME_UNDER_EXERCISE:
+    if _same_under_exercise(name, a, b):
         return None
     for stem in GRADING_SET:
-        pair = _grading_pair(stem, name, a, b)
-        if pair is not None and not _moot_in(name, *pair):
+        if _renders_could_tell(stem, name, a, b) is not None:
             return stem
     return None
 
@@ -346,16 +348,21 @@ def _grading_scene(path: str, mtime_ns: int, size: int, profile: str | None) -> 
     return sc, rules_mod.resolve(sc, profile)
 
 
-def _moot_in(name: str, sc: Scene, ra: Rules, rb: Rules) -> bool:
-    """Is rule ``name`` provably unable to change the scene under either rule set (``moot_rules``)?"""
-    return name in moot_rules(sc, ra) and name in moot_rules(sc, rb)
+def _renders_could_tell(stem: str, name: str, a: Any, b: Any, profile: str | None = None):
+    """``_grading_pair``'s (scene, rules with a, rules with b) where their renders could differ; None when the
+    scene is not installed or rule ``name`` provably cannot change it under either (``moot_rules``: no ball,
+    every normal of unit length ...)."""
+    pair = _grading_pair(stem, name, a, b, profile)
+    if pair is None or (name in moot_rules(pair[0], pair[1]) and name in moot_rules(pair[0], pair[2])):
+        return None
+    return pair
 
 
 def why_same(name: str, a: Any, b: Any) -> str:
     """Why no bundled scene tells two values apart (for the indistinguishable list)."""
     if name == "specular_s":
         return "the same image under an even exponent, unclamped: (r·(-s))^e = (r·s)^e"
-    if (name, frozenset({a, b})) in SAME_UNDER_EXERCISE:
+    if _same_under_exercise(name, a, b):
         return (
             "the same image whenever secondary rays are offset along the normal and anything on the shadow ray "
             "blocks: a point facing away from the light always shadows itself"
@@ -369,9 +376,9 @@ def distinct_pixels(
     """Pixels of bundled scene ``stem`` (its own rules, or ``profile``'s; one ray per pixel) whose 8-bit
     image differs between rule ``name`` = a and = b (0 when the scene is not installed)."""
     cache = cache or VariantCache()
-    pair = _grading_pair(stem, name, a, b, profile)
-    if pair is None or _moot_in(name, *pair):
-        return 0  # not installed, or provably the same picture (no ball, every normal of unit length ...)
+    pair = _renders_could_tell(stem, name, a, b, profile)
+    if pair is None:
+        return 0  # not installed, or provably the same picture
     sc, ra, rb = pair
     va, vb = cache.get(sc, ra), cache.get(sc, rb)
     ia, ib = bitmap.bitmap(va.color, ra), bitmap.bitmap(vb.color, rb)

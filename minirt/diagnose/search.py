@@ -433,7 +433,6 @@ class Search:
         self.cache.prefetch32(self.scene, [c for c, t in zip(cands, twin, strict=True) if t], sub.idx)
         for k, c in enumerate(cands):
             est, e = gains[k]
-            traced = estimates[k] is None
             if twin[k]:
                 v32 = self.cache.subset32(self.scene, c, sub.idx)
                 if v32 is not None:
@@ -442,9 +441,9 @@ class Search:
                 est = self.estimates.setdefault(current.traced(), {})
                 est[c.traced()] = (e[0], 3 * max(sub.w_weight, sub.r_weight))
             if e is not None and e > (0, 0):
-                scored.append([(-e[0], -e[1]), len(start.differs(c)), k, c, traced])
+                scored.append([(-e[0], -e[1]), len(start.differs(c)), k, c])
         scored.sort(key=lambda s: s[:3])
-        for _, _, _, c, _ in scored[:VERIFY]:
+        for _, _, _, c in scored[:VERIFY]:
             g = self.compare(current, c)
             if g is not None and g > (0, 0):
                 self.steps.append({"rules": current.differs(c), "gain": g[0], "gain_one_level": g[1]})

@@ -130,8 +130,7 @@ class VariantCache:
         v = self._items.get(key)
         if v is None:
             v = self._trace(scene, rules.traced(), None)
-            self._items[key] = v
-            self._bytes += v.nbytes
+            self._keep(key, v)
             self._trim()
         else:
             self.hits += 1
@@ -139,12 +138,28 @@ class VariantCache:
         if f32:
             self.requested.add((key, "f32"))
             if v.f32_flips is None:
-                before = v.nbytes
-                v.f32_stored, v.f32_flips = self._f32_render(scene, v)
-                if self._items.get(key) is v:  # still kept (not trimmed when it came in)
-                    self._bytes += v.nbytes - before
+                self._set_twin(key, v, self._f32_render(scene, v))
                 self._trim()
         return v
+
+    def _keep(self, key: tuple, v: Variant) -> None:
+        """Keep a full render, its bytes counted (the caller trims)."""
+        self._items[key] = v
+        self._bytes += v.nbytes
+
+    def _keep_whole(self, scene: Scene, batch: list[Variant]) -> None:
+        """A batch's renders of every pixel kept as ``get`` keeps its own: (H, W) images, the same bits."""
+        h, w = scene.camera.height, scene.camera.width
+        for v in batch:
+            self._keep(self.key(scene, v.rules), Variant(v.rules, v.color.reshape(h, w, 3), v.shadow_ill.reshape(h, w)))
+        self._trim()
+
+    def _set_twin(self, key: tuple, v: Variant, twin: tuple[np.ndarray | None, np.ndarray]) -> None:
+        """A full render's float32 image and flips (``_f32_twin``), its bytes counted if it is still kept."""
+        before = v.nbytes
+        v.f32_stored, v.f32_flips = twin
+        if self._items.get(key) is v:  # still kept (not trimmed when it came in)
+            self._bytes += v.nbytes - before
 
     def subset(self, scene: Scene, rules: Rules, idx: np.ndarray, keep: bool = False, probe: bool = False) -> Variant:
         """The candidate's colour on the pixels ``idx``: from a full render when one is cached, or when
@@ -191,12 +206,7 @@ class VariantCache:
         if len(todo) < 2:
             return
         if whole:
-            h, w = scene.camera.height, scene.camera.width
-            for v in self._trace_batch(scene, todo, np.arange(n)):  # none kept yet (todo): kept as ``get`` keeps
-                full = Variant(v.rules, v.color.reshape(h, w, 3), v.shadow_ill.reshape(h, w))  # the same bits
-                self._items[self.key(scene, v.rules)] = full
-                self._bytes += full.nbytes
-            self._trim()
+            self._keep_whole(scene, self._trace_batch(scene, todo, np.arange(n)))  # none kept yet (todo)
             return
         token = _digest(idx)
         for v in self._trace_batch(scene, todo, idx):
@@ -217,11 +227,7 @@ class VariantCache:
         every, per = np.arange(w * h), max(2, BATCH_RAYS // (w * h))  # a kernel's worth at a time, then trimmed
         todo = list({r.traced(): None for r in candidates if not self.has(scene, r)})
         for part in (todo[i : i + per] for i in range(0, len(todo) if len(todo) > 1 else 0, per)):
-            for v in self._trace_batch(scene, part, every):
-                full = Variant(v.rules, v.color.reshape(h, w, 3), v.shadow_ill.reshape(h, w))
-                self._items[self.key(scene, v.rules)] = full
-                self._bytes += full.nbytes
-            self._trim()
+            self._keep_whole(scene, self._trace_batch(scene, part, every))
         kept = [self._items.get(self.key(scene, r)) for r in candidates] if f32 else []
         twins = list({v.rules: v for v in kept if v is not None and v.f32_flips is None}.values())
         for part in (twins[i : i + per] for i in range(0, len(twins) if len(twins) > 1 else 0, per)):
@@ -230,10 +236,7 @@ class VariantCache:
             except MinirtError:  # beyond float32's range: ``get`` says so for each
                 return
             for v, t in zip(part, got, strict=True):
-                before = v.nbytes
-                v.f32_stored, v.f32_flips = self._f32_twin(v, t.color.reshape(h, w, 3))
-                if self._items.get(self.key(scene, v.rules)) is v:
-                    self._bytes += v.nbytes - before
+                self._set_twin(self.key(scene, v.rules), v, self._f32_twin(v, t.color.reshape(h, w, 3)))
             self._trim()
 
     def prefetch32(self, scene: Scene, candidates: list[Rules], idx: np.ndarray) -> None:

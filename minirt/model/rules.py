@@ -76,6 +76,7 @@ from __future__ import annotations
 
 import functools
 import math
+import operator
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Protocol
@@ -138,7 +139,7 @@ class Rules:
         """These rules with every output rule at its default: what a render depends on (its cache key). Made
         once per rule set (``_traced``; itself where they are at their defaults already): a diagnosis asks it
         ~10,000 times, and ``replace`` costs ~50 us."""
-        if (self.encoding, self.gamma, self.rows, self.channels, self.transpose) == _OUTPUT_DEFAULTS:
+        if _output_rules_of(self) == _OUTPUT_DEFAULTS:
             return self
         return _traced(self)
 
@@ -173,10 +174,11 @@ TRACE_RULES: tuple[str, ...] = (
 QUIET_AT_DEFAULT: tuple[str, ...] = BUG_RULES
 # Names a scene's [model] or --rule may use for several rules at once: raw_normals sets both kinds.
 ALIASES: dict[str, tuple[str, ...]] = {"raw_normals": ("raw_normals_ball", "raw_normals_plane")}
-OUTPUT_RULES: tuple[str, ...] = ("encoding", "gamma", "rows", "channels", "transpose")  # Rules.traced: this order
+OUTPUT_RULES: tuple[str, ...] = ("encoding", "gamma", "rows", "channels", "transpose")
 _DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(Rules)}
 _NAMES: tuple[str, ...] = tuple(_DEFAULTS)  # the fields' names, in their order
-_OUTPUT_DEFAULTS = tuple(_DEFAULTS[name] for name in OUTPUT_RULES)  # Rules.traced compares its attributes with them
+_OUTPUT_DEFAULTS = tuple(_DEFAULTS[name] for name in OUTPUT_RULES)
+_output_rules_of = operator.attrgetter(*OUTPUT_RULES)  # a rule set's output rules as a tuple, in one C call
 
 PROFILES: dict[str, Rules] = {
     "exercise": Rules(),
