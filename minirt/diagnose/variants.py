@@ -44,6 +44,9 @@ def full_render_pixels(scene: Scene) -> float:
 # part's fixed cost (rays, the scene's shapes set up again, a thread) is not repaid -- the search's own
 # asks are a few thousand rays, the final masks' hundreds of thousands.
 BAND_SPLIT_RAYS = 1 << 16
+# Pixels of a band request from which the camera's filter kernel (minirt.reference.band_filter) is run, and
+# then read for every request: ~0.03 CPU-s for an 800² image's rays, what NumPy's margins cost for ~40,000.
+BAND_FILTER_RAYS = 1 << 14
 
 # Candidates traced together (``VariantCache.prefetch``): one kernel launch for many rule sets, each ray its
 # candidate's rules (minirt.reference.values.Candidates). A trace's fixed cost is Python building Dr.Jit's
@@ -104,6 +107,7 @@ class VariantCache:
         self._bytes = 0  # the kept variants' nbytes summed, kept up to date as they come, grow and go
         self._pinned: set[tuple] = set()
         self._bands: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self._near: dict[tuple, np.ndarray | None] = {}  # ``_near_band``'s, per camera
         self._hits: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
         self.alternatives: dict[tuple, tuple[list[dict[str, Any]], set]] = {}  # see explain.indistinguishable
         self._batched: dict[tuple, Variant] = {}  # ``prefetch``'s subsets, until the next prefetch
@@ -324,6 +328,12 @@ class VariantCache:
         n = scene.camera.width * scene.camera.height
         known, flag = self._bands.setdefault(key, (np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)))
         todo = idx[~known[idx]]
+        if todo.size >= BAND_FILTER_RAYS or key in self._near:  # exact margins only where the kernel's may be low
+            near = self._near_band(scene, rules, key)
+            if near is not None:
+                flag[todo] = False
+                known[todo] = True
+                todo = todo[near[todo]]
         if todo.size:
             from minirt.model import camera
 
@@ -348,6 +358,22 @@ class VariantCache:
             flag[todo] = m < EPS_REL
             known[todo] = True
         return flag[idx]
+
+    def _near_band(self, scene: Scene, rules: Rules, key: tuple) -> np.ndarray | None:
+        """(H·W,) the pixels whose primary ray may lie in the band under these camera rules
+        (minirt.reference.band_filter: a superset, from one kernel over the whole image), kept per camera;
+        None where the filter does not answer for the scene (many shapes, far balls)."""
+        if key not in self._near:
+            from minirt.reference import band_filter
+            from minirt.reference.tracer import Tracer
+
+            near = None
+            if band_filter.usable(scene, band_filter.reach(scene, rules), EPS_REL):
+                # the rays in Dr.Jit, the same bits as camera.primary_rays (tested), read by the filter's kernel
+                o, d = Tracer(scene, rules.traced(), runtime=True).primary_rays()
+                near = band_filter.near_band(scene, o, d, EPS_REL)
+            self._near[key] = near
+        return self._near[key]
 
     def first_hits(self, scene: Scene, rules: Rules) -> tuple[np.ndarray, np.ndarray]:
         """(H·W,) shape id (-1: a miss) and t (inf: a miss) of every pixel's primary ray under the rules'
