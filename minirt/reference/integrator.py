@@ -33,6 +33,16 @@ from minirt.reference.shading import Level
 # and the kernel is compiled once for many -- the trace keeps it.
 LOOP_FIRST_LEVEL_BELOW = 1 << 18
 
+
+def first_level_looped(tr: TraceSettings, rays: int) -> bool:
+    """Whether a trace of this many rays runs its first level as the loop's first iteration (and its
+    primary rays read the image's width at run time): below ``LOOP_FIRST_LEVEL_BELOW`` rays, or always
+    where the tracer says so (``Tracer(looped=True)``: a rule diagnosis, whose whole images then share the
+    kernel its subsets compile -- an 800² grade compiled ~0.4 CPU-s less -- at a run time within a few
+    per cent)."""
+    return tr.looped or rays < LOOP_FIRST_LEVEL_BELOW
+
+
 # From this many balls (through the shape table) Tracer.trace runs as a wavefront: the one-kernel trace's
 # packets carry rays that stopped reflecting through every later level's tree traversal, which costs more
 # than compacting them away once traversal dominates. Measured, 512^2, max_depth 3, warm trace, fused /
@@ -199,7 +209,7 @@ def trace_fused(
     depth = fx.reflection_depth if fx.reflection else 0
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         rays = max(dr.width(a[k]) for a in (o, d) for k in range(3))
-        if depth > 0 and rays < LOOP_FIRST_LEVEL_BELOW:
+        if depth > 0 and first_level_looped(tr, rays):
             return _trace_looped(tr, o, d, rays, depth, out, terms, tree)
         lvl, spawn = shading.shade_level(tr, o, d, None, depth, False, margins=tree, gate=True)
         refl, below = None, tr.T.UInt(0)

@@ -63,7 +63,7 @@ def rays(tr: TraceSettings, F, A3, u, v, pixels: np.ndarray | None = None) -> tu
     # of three_balls at 1024^2 0.4 ms of 5.5 (interleaved A/B), float64 nothing. dr.opaque also keeps Dr.Jit
     # from turning the float division by a literal below into a multiplication by its reciprocal (one more
     # rounding), FastMath off or not.
-    if n < integrator.LOOP_FIRST_LEVEL_BELOW:
+    if integrator.first_level_looped(tr, n):
         wi = dr.opaque(U32, w)
         yi = U32(dr.floor(dr.llvm.Float64(idx) / dr.llvm.Float64(wi)))
     else:

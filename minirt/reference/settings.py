@@ -26,8 +26,10 @@ class TraceSettings:
     scene (constants unrolled, or the shape table's arrays: ``values.Values``); ``effects``: the terms
     simulated (after pruning); ``runtime``: the rules a search varies are values read at run time rather
     than constants compiled in (``Tracer``'s docstring); ``prune``: per-ray pruning of work that cannot
-    change a pixel is on. Mutable as the tracer's attributes always were: a test or the campaign may
-    replace ``effects`` (a tracer that forgets a term) before tracing.
+    change a pixel is on; ``looped``: the first level is the loop's first iteration and the image's width
+    a value the kernel reads, however many rays (else only below ``integrator.LOOP_FIRST_LEVEL_BELOW``).
+    Mutable as the tracer's attributes always were: a test or the campaign may replace ``effects`` (a
+    tracer that forgets a term) before tracing.
     """
 
     scene: Scene
@@ -37,3 +39,4 @@ class TraceSettings:
     effects: Effects
     runtime: bool
     prune: bool
+    looped: bool

@@ -55,6 +55,7 @@ class Tracer(TraceSettings):
         prune: bool = True,
         runtime: bool | None = None,
         accel: str = "auto",
+        looped: bool = False,
     ):
         """``runtime``: the rules a search varies most are values the kernel reads, not constants
         compiled into it -- specular_exponent, the camera's pixel_sample, pixel_shift, ray_origin, and
@@ -80,7 +81,11 @@ class Tracer(TraceSettings):
         from the shape table and walks a BVH over the balls (``minirt.reference.accel``: kernels independent
         of the layout, time ~log N); "loop" gathers from the table and tests every ball in a loop (the
         brute force, with kernels independent of the layout: what the tree is tested against); "auto"
-        picks "bvh" from ``ACCEL_MIN_SHAPES`` shapes on. The same bits every way (tested)."""
+        picks "bvh" from ``ACCEL_MIN_SHAPES`` shapes on. The same bits every way (tested).
+
+        ``looped``: every trace runs its first level as the loop's first iteration, whatever its number of
+        rays (``integrator.first_level_looped``): a caller that traces whole images and subsets of them
+        (the rule diagnosis) compiles one kernel for both. The same bits (tested)."""
         require_llvm()
         batch = None if isinstance(rules, Rules) else list(rules)
         if batch is not None:
@@ -94,6 +99,7 @@ class Tracer(TraceSettings):
         if runtime is None:
             runtime = scene.camera.width * scene.camera.height < integrator.LOOP_FIRST_LEVEL_BELOW
         self.runtime = runtime
+        self.looped = looped
         self.T = Types.of(precision)
         if accel == "auto":
             accel = "bvh" if len(scene.shapes) >= ACCEL_MIN_SHAPES else "unrolled"

@@ -158,3 +158,28 @@ def test_the_looped_form_holds_the_shading_once(monkeypatch):
             kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]  # the forms alone differ
         ops[form] = max(k["operation_count"] for k in kernels)
     assert ops["looped"] < 0.75 * ops["straight"], ops
+
+
+def test_a_looped_tracer_traces_whole_images_in_its_subsets_kernel():
+    """``Tracer(looped=True)`` (the rule diagnosis' traces): an image of at least LOOP_FIRST_LEVEL_BELOW rays
+    runs the looped form, so it launches the very kernel a subset of its pixels compiled -- and its colours
+    are the straight-line form's bits (what the tracer runs by default at that size)."""
+    from minirt.diagnose.variants import VariantCache
+
+    w, h = 520, 512
+    assert w * h >= integrator.LOOP_FIRST_LEVEL_BELOW
+    scene = load_scene(THREE_BALLS).with_overrides(width=w, height=h)
+    rules = resolve(scene)
+    cache = VariantCache()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        part = cache._trace(scene, rules, np.arange(0, w * h, 7))
+        sub = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+        whole = cache._trace(scene, rules, None)
+        launched = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+    assert launched <= sub, "the whole image compiled a kernel of its own"
+    tr = Tracer(scene, rules, runtime=True)  # not looped: the straight-line first level at this size
+    o, d = tr.primary_rays()
+    straight = tr.to_numpy3(tr.trace(o, d, tree=True, path="fused")[0])
+    assert whole.color.reshape(-1, 3).tobytes() == straight.tobytes()
+    assert part.color.tobytes() == straight[::7].tobytes()
