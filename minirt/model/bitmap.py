@@ -89,9 +89,10 @@ def encode(color: np.ndarray, encoding: str = "round", gamma: str = "linear") ->
         buf *= 255.0
     else:
         raise ValueError(f"unknown encoding {encoding!r}")
-    np.floor(buf, out=buf)
     if encoding == "floor256":
-        np.minimum(buf, 255.0, out=buf)
+        np.minimum(buf, 255.0, out=buf)  # min(floor(x), 255) = floor(min(x, 255)): 255 is a level
+    # The floor is the cast's: every value is in [0, 255.5] here, and a float's conversion to an integer
+    # truncates towards zero, which is the floor of a value >= 0 (one pass fewer over the image).
     return buf.astype(np.uint8)
 
 

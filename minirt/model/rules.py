@@ -78,7 +78,7 @@ import functools
 import math
 import operator
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any, Protocol
 
 from minirt.errors import MinirtError
@@ -127,7 +127,7 @@ class Rules:
         """Every rule by name -- except the rules from real solutions' bugs (``QUIET_AT_DEFAULT``) at their
         defaults: documents written before those rules existed stay what they were, byte for byte (and
         t_max's default, inf, is no JSON number). A new dict each call, made from one kept per rule set: the
-        rule diagnosis validates thousands of candidate rule sets (asdict ~70 us each)."""
+        rule diagnosis validates thousands of candidate rule sets (dataclasses.asdict cost ~70 us each)."""
         return dict(_as_dict(self))
 
     def differs(self, other: Rules) -> list[str]:
@@ -339,7 +339,8 @@ def _traced(rules: Rules) -> Rules:
 
 @functools.lru_cache(maxsize=4096)
 def _as_dict(rules: Rules) -> dict[str, Any]:
-    d = asdict(rules)
+    # asdict's dict, without its deep copies: every rule is a str, number, bool or a tuple of floats
+    d = {name: getattr(rules, name) for name in _NAMES}
     for name in QUIET_AT_DEFAULT:
         if d[name] == _DEFAULTS[name]:
             del d[name]
