@@ -44,6 +44,9 @@ def full_render_pixels(scene: Scene) -> float:
 # part's fixed cost (rays, the scene's shapes set up again, a thread) is not repaid -- the search's own
 # asks are a few thousand rays, the final masks' hundreds of thousands.
 BAND_SPLIT_RAYS = 1 << 16
+# How far apart a float64 and a float32 colour channel must be before their levels can differ by more than
+# LEVEL_TOL (``VariantCache._f32_twin``): LEVEL_TOL / 255, less 1 % for the encodings' roundings.
+TWIN_GAP = 0.99 * LEVEL_TOL / 255
 # Pixels of a band request from which the camera's filter kernel (minirt.reference.band_filter) is run, and
 # then read for every request: ~0.03 CPU-s for an 800² image's rays, what NumPy's margins cost for ~40,000.
 BAND_FILTER_RAYS = 1 << 14
@@ -437,9 +440,20 @@ class VariantCache:
 
     @staticmethod
     def _f32_twin(v: Variant, c32: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The float32 image as kept, and the pixels where it differs from ``v``'s by more than a level."""
-        a, b = bitmap.encode(v.color), bitmap.encode(c32)
-        return c32.astype(np.float32), bitmap.channel_any(np.abs(a.astype(np.int16) - b) > LEVEL_TOL)
+        """The float32 image as kept, and the pixels where it differs from ``v``'s by more than a level.
+
+        Encoded only where the two colours are at least ~LEVEL_TOL / 255 apart (or not numbers): levels
+        more than LEVEL_TOL apart, floor(255 a + 0.5) - floor(255 b + 0.5) > LEVEL_TOL, need 255 (a - b)
+        > LEVEL_TOL up to three roundings (relative 2^-50), and the clamp only narrows a gap -- so the
+        same flags as encoding every pixel (tested), for the few pixels a float32 trace moves that far."""
+        flips = np.zeros(v.color.shape[:2], dtype=bool)
+        with np.errstate(invalid="ignore"):
+            far = bitmap.channel_any(~(np.abs(v.color - c32) <= TWIN_GAP))  # NaN and inf - inf: looked at
+        at = np.flatnonzero(far)
+        if at.size:
+            a, b = bitmap.encode(v.color.reshape(-1, 3)[at]), bitmap.encode(c32.reshape(-1, 3)[at])
+            flips.reshape(-1)[at] = bitmap.channel_any(np.abs(a.astype(np.int16) - b) > LEVEL_TOL)
+        return c32.astype(np.float32), flips
 
     def subset32(self, scene: Scene, rules: Rules, idx: np.ndarray) -> Variant | None:
         """The candidate traced in float32 on the pixels ``idx`` (None beyond float32's range)."""

@@ -206,3 +206,28 @@ def test_a_batch_through_the_shape_table_gives_each_candidate_its_own_bits(accel
         part = batch[k * idx.size : (k + 1) * idx.size]
         assert np.array_equal(part.view(np.uint64), alone.view(np.uint64)), c.differs(rules)
     assert not np.array_equal(trace(cands[0]), trace(cands[1]))  # the shadow range shows here
+
+
+def test_float32_flips_encoded_only_where_colours_are_a_level_apart_are_every_pixels():
+    """``VariantCache._f32_twin`` encodes only pixels whose float64 and float32 colours are ~a level apart:
+    the same flags as encoding every pixel, on values on and beside every rounding step, out of range,
+    NaN and infinities, moved by less, about and more than a level (both ways round)."""
+    from minirt.diagnose.target import LEVEL_TOL
+    from minirt.diagnose.variants import Variant
+    from minirt.model import bitmap
+    from minirt.model.rules import Rules
+
+    rng = np.random.default_rng(3)
+    steps = np.concatenate([np.arange(257.0) / 255.0, (np.arange(257.0) + 0.5) / 255.0])
+    values = np.concatenate([steps, np.nextafter(steps, 2), np.nextafter(steps, -2), rng.uniform(-0.2, 1.2, 3000),
+                             [np.nan, np.inf, -np.inf, 0.0, -0.0]])  # fmt: skip
+    a = rng.choice(values, (300, 200, 3))
+    moves = [0.0, 1e-7, 0.5 / 255, 0.99 / 255, 1 / 255, 1.01 / 255, 2 / 255, 2.001 / 255, 3 / 255, np.nan, np.inf]
+    with np.errstate(invalid="ignore"):
+        b = (a + rng.choice(moves, a.shape) * rng.choice([-1.0, 1.0], a.shape)).astype(np.float32).astype(np.float64)
+    for x, y in ((a, b), (b, a)):
+        _, got = VariantCache._f32_twin(Variant(Rules(), x, np.zeros(x.shape[:2], dtype=bool)), y)
+        with np.errstate(invalid="ignore"):
+            want = bitmap.channel_any(np.abs(bitmap.encode(x).astype(np.int16) - bitmap.encode(y)) > LEVEL_TOL)
+        assert want.any() and not want.all()
+        assert np.array_equal(got, want)
