@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import functools
 import math
+import operator
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -42,6 +43,8 @@ from minirt.model import rules as rules_mod
 from minirt.model.effects import effects
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
+
+_output_of = operator.attrgetter("encoding", "gamma", "transpose", "rows", "channels")  # ``best_output``'s order
 
 
 @functools.lru_cache(maxsize=4096)
@@ -658,7 +661,8 @@ class Search:
         at = np.arange(0, n, max(1, n // (4 * SAMPLE)))
         color, sill = v.color.reshape(-1, 3)[at], v.shadow_ill.reshape(-1)[at]
         encs = rules_mod.values("encoding") if not self.target.is_float else (rules.encoding,)
-        best, best_key = rules, None
+        best, best_key = None, None
+        keep = ~sill
         sampled: dict[tuple, np.ndarray | None] = {}  # each layout's image on the stride, taken once
         for enc in encs:
             for gam in rules_mod.values("gamma"):
@@ -666,19 +670,24 @@ class Search:
                 for tr in (False, True):
                     for rows in rules_mod.values("rows"):
                         for ch in rules_mod.values("channels"):
-                            cand = replace(rules, encoding=enc, gamma=gam, transpose=tr, rows=rows, channels=ch)
                             if (tr, rows, ch) not in sampled:
-                                img = self.target.in_layout(cand)
+                                img = self.target.in_layout(replace(rules, transpose=tr, rows=rows, channels=ch))
                                 fits = img.shape[:2] == self.target.model_shape
                                 sampled[tr, rows, ch] = img.reshape(-1, 3)[at] if fits else None
                             img_at = sampled[tr, rows, ch]
                             if img_at is None:
                                 continue
                             d = bitmap.channel_max(np.abs(coded - img_at))
-                            key = (*self.target.score(d, ~sill), len(rules.differs(cand)))
+                            # the candidate differs from ``rules`` in these five rules only: the count of
+                            # them that changed is len(rules.differs(candidate)), without making it
+                            out = (enc, gam, tr, rows, ch)
+                            moved = sum(a != b for a, b in zip(out, _output_of(rules), strict=True))
+                            key = (*self.target.score(d, keep), moved)
                             if best_key is None or key < best_key:
-                                best, best_key = cand, key
-        return best
+                                best, best_key = out, key
+        if best is None:
+            return rules
+        return replace(rules, encoding=best[0], gamma=best[1], transpose=best[2], rows=best[3], channels=best[4])
 
     def _best_exponent(self, rules: Rules) -> int:
         """The integer exponent that fits the image best with the other rules as they are: the listed
