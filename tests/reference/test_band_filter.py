@@ -131,3 +131,18 @@ def test_a_diagnosis_band_is_the_exact_one():
         assert np.array_equal(cache.band(sc, rules, part), want[part])
         assert cache._near and all(v is not None for v in cache._near.values())
         assert np.array_equal(cache.band(sc, rules, np.arange(n)), want)
+
+
+@pytest.mark.parametrize("family", ["random", "start", "grazing", "contact", "far", "scaled", "f32"])
+def test_the_campaigns_hard_families(family):
+    """The fuzz campaign's families (minirt.campaign.families: rays starting on surfaces, grazing planes,
+    balls resting on planes, far and scaled scenes, float32's limits), four scenes each: where the filter
+    answers, it lets every ray in the band through, at every eps."""
+    from minirt.campaign.families import scene_text as family_scene
+
+    for index in range(4):
+        sc = parse_scene(family_scene(family, 11, index, 48, 40))
+        for rules in CAMERAS:
+            if band_filter.usable(sc, band_filter.reach(sc, rules), EPS_REL):
+                for eps in EPSILONS:
+                    _check(sc, rules, eps)
