@@ -19,14 +19,17 @@ and ~2^-50 (|o| + |P|) for a plane. So:
 - a grazing margin |n·d| errs by ~2^-50;
 - a candidate hit counts where t > 0: its sign is uncertain only where |t| is within its error of 0, so
   rays with a candidate at |t| < 2^-20 (|f| + r) (a ball) or whose origin is within 2^-20 (|o| + |P|)
-  of a plane (``ZERO``) are let through outright; elsewhere every candidate's t errs by at most 2^-30
-  |t| relative;
-- the depth tie is the relative gap between the two nearest candidates times the smaller cosine. The
-  kernel takes its own nearest and the least gap to every other candidate (times the smaller cosine):
-  where its nearest is NumPy's, that least gap is at most NumPy's tie (the second nearest is among the
-  others); where it is not, the two nearest are within rounding of each other, a gap of ~0, let through.
-  A ball hit or missed otherwise (h within rounding of r) has a silhouette margin of ~0; a plane hit or
-  missed otherwise (n·d within rounding of 0) a grazing margin of ~0.
+  of a plane (``ZERO``) are let through outright;
+- the depth tie is the relative gap between the two nearest candidates times the smaller cosine. A
+  ball's root errs by ~2^-52 (|f| + r + r^2 / sqrt(disc)) -- most near the silhouette -- and a plane's t
+  by ~2^-52 |t| ((|o| + |P|) / |(P - o)·n| + 1 / |n·d|); times the candidate's own cosine (sqrt(disc) / r,
+  |n·d|), which the tie is at most, and over the farther t (at least 2^-20 of the values it is made of,
+  else let through), each adds ~2^-30 to the tie: the cosine cancels the growth near silhouettes and
+  grazing angles. The kernel takes its own nearest and the least gap to every other candidate (times the
+  smaller cosine): where its nearest is NumPy's, that least gap is at most NumPy's tie (the second
+  nearest is among the others); where it is not, the two nearest are within rounding of each other, a
+  gap of ~0, let through. A ball hit or missed otherwise (h within rounding of r) has a silhouette
+  margin of ~0; a plane hit or missed otherwise (n·d within rounding of 0) a grazing margin of ~0.
 
 Every margin below ``eps`` is thus below ``eps`` + 2^-29 in the kernel; rays are let through below
 ``SLACK`` ``eps`` (and where the kernel's value is not a number). Tested against the exact margins of
