@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import functools
 import math
-import operator
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -43,8 +42,6 @@ from minirt.model import rules as rules_mod
 from minirt.model.effects import effects
 from minirt.model.rules import Rules
 from minirt.model.scene import Ball, Scene
-
-_output_of = operator.attrgetter("encoding", "gamma", "transpose", "rows", "channels")  # ``best_output``'s order
 
 
 @functools.lru_cache(maxsize=4096)
@@ -662,7 +659,7 @@ class Search:
         color, sill = v.color.reshape(-1, 3)[at], v.shadow_ill.reshape(-1)[at]
         encs = rules_mod.values("encoding") if not self.target.is_float else (rules.encoding,)
         best, best_key = None, None
-        keep = ~sill
+        keep, given = ~sill, rules_mod.output_rules_of(rules)
         sampled: dict[tuple, np.ndarray | None] = {}  # each layout's image on the stride, taken once
         for enc in encs:
             for gam in rules_mod.values("gamma"):
@@ -678,16 +675,16 @@ class Search:
                             if img_at is None:
                                 continue
                             d = bitmap.channel_max(np.abs(coded - img_at))
-                            # the candidate differs from ``rules`` in these five rules only: the count of
+                            # the candidate differs from ``rules`` in its output rules only: the count of
                             # them that changed is len(rules.differs(candidate)), without making it
-                            out = (enc, gam, tr, rows, ch)
-                            moved = sum(a != b for a, b in zip(out, _output_of(rules), strict=True))
+                            out = (enc, gam, rows, ch, tr)  # rules_mod.OUTPUT_RULES' order
+                            moved = sum(a != b for a, b in zip(out, given, strict=True))
                             key = (*self.target.score(d, keep), moved)
                             if best_key is None or key < best_key:
                                 best, best_key = out, key
         if best is None:
             return rules
-        return replace(rules, encoding=best[0], gamma=best[1], transpose=best[2], rows=best[3], channels=best[4])
+        return replace(rules, **dict(zip(rules_mod.OUTPUT_RULES, best, strict=True)))
 
     def _best_exponent(self, rules: Rules) -> int:
         """The integer exponent that fits the image best with the other rules as they are: the listed

@@ -335,8 +335,7 @@ class VariantCache:
         todo = idx[~known[idx]]
         if todo.size >= BAND_FILTER_RAYS or key in self._near:  # exact margins only where the kernel's may be low
             near = self._near_band(scene, rules, key)
-            if near is not None:
-                flag[todo] = False
+            if near is not None:  # the rest's flags stay False, as they were made
                 known[todo] = True
                 todo = todo[near[todo]]
         if todo.size:

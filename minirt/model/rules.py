@@ -139,7 +139,7 @@ class Rules:
         """These rules with every output rule at its default: what a render depends on (its cache key). Made
         once per rule set (``_traced``; itself where they are at their defaults already): a diagnosis asks it
         ~10,000 times, and ``replace`` costs ~50 us."""
-        if _output_rules_of(self) == _OUTPUT_DEFAULTS:
+        if output_rules_of(self) == _OUTPUT_DEFAULTS:
             return self
         return _traced(self)
 
@@ -178,7 +178,7 @@ OUTPUT_RULES: tuple[str, ...] = ("encoding", "gamma", "rows", "channels", "trans
 _DEFAULTS: dict[str, Any] = {f.name: f.default for f in fields(Rules)}
 _NAMES: tuple[str, ...] = tuple(_DEFAULTS)  # the fields' names, in their order
 _OUTPUT_DEFAULTS = tuple(_DEFAULTS[name] for name in OUTPUT_RULES)
-_output_rules_of = operator.attrgetter(*OUTPUT_RULES)  # a rule set's output rules as a tuple, in one C call
+output_rules_of = operator.attrgetter(*OUTPUT_RULES)  # a rule set's output rules as a tuple, in one C call
 
 PROFILES: dict[str, Rules] = {
     "exercise": Rules(),
